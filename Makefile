@@ -1,0 +1,20 @@
+# The two commands a new user runs (see README): `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+.PHONY: setup demo test
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet -c constraints.txt -e '.[test]'
+	touch $@
+
+demo: setup
+	$(BIN)/stella validate scenarios/table3 scenarios/examples scenarios/profiles
+	$(BIN)/stella space scenarios/examples/fig4.json
+	$(BIN)/stella sample scenarios/examples/fig4.json --seed 1
+
+test: setup
+	$(BIN)/pytest

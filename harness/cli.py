@@ -1,0 +1,188 @@
+"""The `stella` command line. Results go to stdout (one JSON object with --json); logs to stderr.
+
+Exit codes: 0 success, 1 a violation where the user asked to fail on one, 2 bad input or
+usage, 3 infrastructure failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from harness.errors import InputError, Problem, StellaError
+from harness.scenario.documents import load_json
+from harness.scenario.logical import load_logical, logical_problems
+from harness.scenario.profile import is_profile_document, load_profile, profile_problems
+
+log = logging.getLogger("stella")
+
+Command = Callable[[argparse.Namespace], int]
+COMMANDS: dict[str, Command] = {}
+
+
+def command(name: str) -> Callable[[Command], Command]:
+    def register(function: Command) -> Command:
+        COMMANDS[name] = function
+        return function
+
+    return register
+
+
+def emit(args: argparse.Namespace, result: Any, text: str) -> None:
+    if getattr(args, "json", False):
+        print(json.dumps(result, indent=2))
+    else:
+        print(text)
+
+
+def _expand(paths: Sequence[str]) -> list[Path]:
+    files: list[Path] = []
+    for raw in paths:
+        path = Path(raw)
+        files.extend(sorted(path.glob("*.json")) if path.is_dir() else [path])
+    return files
+
+
+@command("validate")
+def cmd_validate(args: argparse.Namespace) -> int:
+    profile = load_profile(args.profile)
+    problems: list[Problem] = []
+    report = []
+    for path in _expand(args.paths):
+        try:
+            document = load_json(path)
+        except InputError as error:
+            problems.extend(error.problems)
+            report.append({"file": str(path), "ok": False})
+            continue
+        if is_profile_document(document):
+            found = profile_problems(document, str(path))
+            kind = "profile"
+            notes: list[str] = []
+            if not found:
+                notes = [f"{name} not simulated" for name, p in document["parameters"].items() if not p["simulated"]]
+        else:
+            found = logical_problems(document, profile, str(path))
+            kind = "logical scenario"
+            notes = []
+            if not found:
+                logical = load_logical(path, profile)
+                notes = [f"{w.parameter} = {w.category} ({w.source}) is not simulated" for w in logical.not_simulated]
+        problems.extend(found)
+        report.append({"file": str(path), "kind": kind, "ok": not found, "notes": notes})
+    if args.json:
+        print(json.dumps({"files": report, "problems": [p.__dict__ for p in problems]}, indent=2))
+    else:
+        for problem in problems:
+            print(problem)
+        for entry in report:
+            if entry["ok"]:
+                notes = "; ".join(entry["notes"])
+                print(f"ok: {entry['file']} ({entry['kind']})" + (f"; note: {notes}" if notes else ""))
+    return 2 if problems else 0
+
+
+def _space(args: argparse.Namespace):
+    from harness.scenario.space import SearchSpace
+
+    profile = load_profile(args.profile)
+    return SearchSpace(load_logical(Path(args.scenario), profile), profile)
+
+
+@command("space")
+def cmd_space(args: argparse.Namespace) -> int:
+    space = _space(args)
+    description = space.describe()
+    lines = [f"{space.logical.name} ({space.n_dimensions} dimensions, profile {space.profile.name})"]
+    lines += [f"  {d['name']:<28} {d['lower']:>10.3f} {d['upper']:>10.3f}  {d['unit']}" for d in description["dimensions"]]
+    lines += [f"  fixed: {f['name']} = {f['value']} {f['unit']}" for f in description["fixed"]]
+    lines += [
+        f"  not simulated: {n['parameter']} = {n['category']} ({n['min']}-{n['max']} {n['unit']})"
+        for n in description["not_simulated"]
+    ]
+    lines += [f"  constraint: {c}" for c in description["constraints"]]
+    emit(args, description, "\n".join(lines))
+    return 0
+
+
+@command("sample")
+def cmd_sample(args: argparse.Namespace) -> int:
+    from harness.scenario.world import world_spec
+
+    space = _space(args)
+    x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
+    result = {"vector": x.tolist(), "concrete": space.to_concrete(x), "world": world_spec(space, x, args.seed)}
+    if args.out:
+        Path(args.out).write_text(json.dumps(result["concrete"], indent=2) + "\n")
+    text = json.dumps({k: v for k, v in result["concrete"].items() if k not in ("logical_scenario", "profile_document")}, indent=2)
+    emit(args, result, text)
+    return 0
+
+
+@command("generate")
+def cmd_generate(args: argparse.Namespace) -> int:
+    from harness.scenario.generate import generate
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for stem, document in generate(args.strength):
+        path = out / f"{stem}.json"
+        path.write_text(json.dumps(document, indent=2) + "\n")
+        written.append(str(path))
+    emit(args, {"strength": args.strength, "count": len(written), "files": written}, f"wrote {len(written)} logical scenarios covering every {args.strength}-wise combination to {out}")
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
+    root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = root.add_subparsers(dest="command", required=True)
+
+    def add(name: str, help_text: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+        return p
+
+    p = add("validate", "check logical scenarios and profiles; each error as `file: /json/pointer: message`")
+    p.add_argument("paths", nargs="+", help="JSON files or folders of them")
+    p.add_argument("--profile", default="default", help="profile name or path used to check units (default: default)")
+
+    for name, help_text in (("space", "print the derived search space"), ("sample", "sample one feasible concrete scenario and its world spec")):
+        p = add(name, help_text)
+        p.add_argument("scenario", help="logical scenario JSON")
+        p.add_argument("--profile", default="default")
+        if name == "sample":
+            p.add_argument("--seed", type=int, default=0)
+            p.add_argument("--out", help="also write the concrete scenario to this file")
+
+    p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
+    p.add_argument("--strength", type=int, default=2)
+    p.add_argument("--out", required=True)
+    return root
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return COMMANDS[args.command](args)
+    except InputError as error:
+        print(str(error), file=sys.stderr)
+        return error.exit_code
+    except StellaError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return error.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

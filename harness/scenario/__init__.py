@@ -1,0 +1,1 @@
+"""Logical scenarios, system profiles, search spaces, concrete scenarios and world specs."""

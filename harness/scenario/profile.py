@@ -1,0 +1,211 @@
+"""System profiles: the system-specific table that turns categories into numbers."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Mapping
+
+from harness.errors import InputError, Problem
+from harness.paths import profile_path
+from harness.scenario.documents import load_json, schema, schema_problems
+
+WEATHER_PARAMETERS = (
+    "wind force",
+    "reduced visibility",
+    "temperature",
+    "lighting",
+    "precipitation",
+    "lightning",
+    "cloud cover",
+)
+
+
+@dataclass(frozen=True)
+class Interval:
+    min: float
+    max: float
+
+    @classmethod
+    def from_json(cls, document: Mapping[str, Any]) -> "Interval":
+        return cls(float(document["min"]), float(document["max"]))
+
+    @property
+    def degenerate(self) -> bool:
+        return self.min == self.max
+
+
+@dataclass(frozen=True)
+class Parameter:
+    name: str
+    unit: str
+    simulated: bool
+    categories: Mapping[str, Interval]
+
+
+@dataclass(frozen=True)
+class Landform:
+    name: str
+    terrain: Mapping[str, Any]
+    goal_north_m: float
+    goal_east_m: float
+    area: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A validated profile. `document` keeps the JSON for embedding in concrete scenarios."""
+
+    name: str
+    document: Mapping[str, Any]
+    parameters: Mapping[str, Parameter]
+    weather_defaults: Mapping[str, str]
+    obstacle_sizes: Mapping[str, Interval]
+    obstacle_speed_m_s: Interval
+    obstacle_travel_m: Interval
+    obstacle_altitude_m: Interval
+    keep_out_radius_m: float
+    min_separation_m: float
+    landforms: Mapping[str, Landform]
+    safety_distance_m: float
+
+    @property
+    def uav(self) -> Mapping[str, Any]:
+        return self.document["uav"]
+
+    @property
+    def sensor(self) -> Mapping[str, Any]:
+        return self.document["sensor"]
+
+    @property
+    def surfaces(self) -> Mapping[str, Any]:
+        return self.document["surfaces"]
+
+    @property
+    def time_limit_s(self) -> float:
+        return float(self.document["time_limit_s"])
+
+
+def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
+    problems = []
+
+    def check_interval(path: str, interval: Mapping[str, float], what: str) -> None:
+        if interval["min"] > interval["max"]:
+            problems.append(
+                Problem(
+                    file,
+                    path,
+                    f"lower {interval['min']} > upper {interval['max']} for {what}: swapped bounds?",
+                )
+            )
+
+    enums = schema("logical_scenario")["properties"]["environment"]["properties"]["weather"]["properties"]
+    for name, parameter in document["parameters"].items():
+        for category, interval in parameter["categories"].items():
+            check_interval(f"/parameters/{name}/categories/{category}", interval, f"{name!r} {category!r}")
+        missing = [c for c in enums[name]["enum"] if c not in parameter["categories"]]
+        for category in missing:
+            problems.append(
+                Problem(
+                    file,
+                    f"/parameters/{name}/categories",
+                    f"no range for category {json.dumps(category)}; every value a logical scenario may use needs one",
+                )
+            )
+    for name, category in document["weather_defaults"].items():
+        if name == "description":
+            continue
+        allowed = list(document["parameters"][name]["categories"])
+        if category not in allowed:
+            problems.append(
+                Problem(
+                    file,
+                    f"/weather_defaults/{name}",
+                    f"{json.dumps(category)} is not a category of {name!r}; allowed values: "
+                    + ", ".join(json.dumps(a) for a in allowed),
+                )
+            )
+    for size, interval in document["obstacles"]["size"]["categories"].items():
+        check_interval(f"/obstacles/size/categories/{size}", interval, f"obstacle size {size!r}")
+        if interval["min"] <= 0:
+            problems.append(Problem(file, f"/obstacles/size/categories/{size}/min", "obstacle sizes must be positive"))
+    for key in ("speed", "travel", "altitude"):
+        check_interval(f"/obstacles/{key}", document["obstacles"][key], f"obstacle {key}")
+    for name, landform in document["landforms"].items():
+        area = landform["area"]
+        check_interval(
+            f"/landforms/{name}/area",
+            {"min": area["north_min_m"], "max": area["north_max_m"]},
+            "the area's north extent",
+        )
+        check_interval(
+            f"/landforms/{name}/area",
+            {"min": area["east_min_m"], "max": area["east_max_m"]},
+            "the area's east extent",
+        )
+        for label, north, east in (("start (0, 0)", 0.0, 0.0), ("goal", landform["goal"]["north_m"], landform["goal"]["east_m"])):
+            if not (area["north_min_m"] <= north <= area["north_max_m"] and area["east_min_m"] <= east <= area["east_max_m"]):
+                problems.append(Problem(file, f"/landforms/{name}/area", f"the {label} lies outside the flight area"))
+    sensor = document["sensor"]
+    if sensor["min_range_m"] >= sensor["max_range_m"]:
+        problems.append(Problem(file, "/sensor/min_range_m", "must be below max_range_m"))
+    return problems
+
+
+def profile_problems(document: Any, file: str) -> list[Problem]:
+    problems = schema_problems(document, "profile", file)
+    if problems:
+        return problems
+    return _semantic_problems(document, file)
+
+
+def profile_from_document(document: Mapping[str, Any]) -> Profile:
+    parameters = {
+        name: Parameter(
+            name=name,
+            unit=p["unit"],
+            simulated=p["simulated"],
+            categories=MappingProxyType({c: Interval.from_json(i) for c, i in p["categories"].items()}),
+        )
+        for name, p in document["parameters"].items()
+    }
+    obstacles = document["obstacles"]
+    landforms = {
+        name: Landform(
+            name=name,
+            terrain=MappingProxyType(dict(lf["terrain"])),
+            goal_north_m=float(lf["goal"]["north_m"]),
+            goal_east_m=float(lf["goal"]["east_m"]),
+            area=MappingProxyType({k: float(v) for k, v in lf["area"].items()}),
+        )
+        for name, lf in document["landforms"].items()
+    }
+    return Profile(
+        name=document["name"],
+        document=document,
+        parameters=MappingProxyType(parameters),
+        weather_defaults=MappingProxyType({k: v for k, v in document["weather_defaults"].items() if k != "description"}),
+        obstacle_sizes=MappingProxyType({k: Interval.from_json(v) for k, v in obstacles["size"]["categories"].items()}),
+        obstacle_speed_m_s=Interval.from_json(obstacles["speed"]),
+        obstacle_travel_m=Interval.from_json(obstacles["travel"]),
+        obstacle_altitude_m=Interval.from_json(obstacles["altitude"]),
+        keep_out_radius_m=float(obstacles["keep_out_radius_m"]),
+        min_separation_m=float(obstacles["min_separation_m"]),
+        landforms=MappingProxyType(landforms),
+        safety_distance_m=float(document["uav"]["safety_distance_m"]),
+    )
+
+
+def load_profile(name_or_path: str = "default") -> Profile:
+    """Load and validate a profile by name (scenarios/profiles/NAME.json) or by path."""
+    path = profile_path(name_or_path)
+    document = load_json(path)
+    problems = profile_problems(document, str(path))
+    if problems:
+        raise InputError(problems)
+    return profile_from_document(document)
+
+
+def is_profile_document(document: Any) -> bool:
+    return isinstance(document, dict) and "parameters" in document and "landforms" in document

@@ -1,0 +1,120 @@
+"""From a concrete scenario to the world spec the simulator loads, and loading concrete files."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from harness.errors import InputError, Problem
+from harness.scenario.documents import load_json
+from harness.scenario.logical import logical_from_document, logical_problems
+from harness.scenario.profile import profile_from_document, profile_problems
+from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
+from sim_bridge.terrain import terrain_height_m
+
+WORLD_FORMAT = "stella.world/1"
+# PX4 SITL's default home (Zurich), so that logs of either SUT line up on the same map.
+ORIGIN = {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0}
+
+
+def sensor_range_m(sensor: Mapping[str, Any], visibility_m: float) -> float:
+    """The profile's sensor model: reach shrinks linearly below full-range visibility."""
+    reach = sensor["max_range_m"] * min(1.0, visibility_m / sensor["full_range_visibility_m"])
+    return max(sensor["floor_range_m"], reach)
+
+
+def _obstacle(space: SearchSpace, concrete: Mapping[str, Any], index: int) -> dict[str, Any]:
+    entry = concrete["obstacles"][index]
+    terrain = space.profile.landforms[space.logical.landform].terrain
+    size = dict(entry["size"])
+    height_m = size.get("height_m", size.get("diameter_m"))
+    north, east = entry["position"]["north_m"], entry["position"]["east_m"]
+    ground = terrain_height_m(terrain, north, east)
+    obstacle: dict[str, Any] = {
+        "id": f"obstacle_{index + 1}",
+        "kind": entry["kind"],
+        "form": entry["form"],
+        "size": size,
+        "yaw_rad": math.radians(entry["position"].get("yaw_deg", 0.0)),
+    }
+    if entry["kind"] == "static":
+        obstacle["a"] = {"north_m": north, "east_m": east, "up_m": ground + height_m / 2.0}
+        obstacle["b"] = None
+        obstacle["speed_m_s"] = 0.0
+        return obstacle
+    motion = entry["motion"]
+    up = ground + motion["altitude_m"] + height_m / 2.0
+    heading = math.radians(motion["heading_deg"])
+    obstacle["a"] = {"north_m": north, "east_m": east, "up_m": up}
+    obstacle["b"] = {
+        "north_m": north + motion["travel_m"] * math.cos(heading),
+        "east_m": east + motion["travel_m"] * math.sin(heading),
+        "up_m": up,
+    }
+    obstacle["speed_m_s"] = motion["speed_m_s"]
+    return obstacle
+
+
+def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
+    """Everything the simulator needs for one run, in SI units and the local north/east/up frame."""
+    concrete = space.to_concrete(x)
+    environment = concrete["environment"]
+    profile = space.profile
+    landform = profile.landforms[space.logical.landform]
+    wind_toward = math.radians(environment["wind_from_deg"] + 180.0)
+    mission = space.mission
+    return {
+        "format": WORLD_FORMAT,
+        "scenario": space.logical.name,
+        "seed": int(seed),
+        "origin": dict(ORIGIN),
+        "terrain": dict(landform.terrain),
+        "surface": {"kind": space.logical.surface, "water": list(profile.surfaces[space.logical.surface]["water"])},
+        "atmosphere": {
+            "wind_north_m_s": environment["wind_speed_m_s"] * math.cos(wind_toward),
+            "wind_east_m_s": environment["wind_speed_m_s"] * math.sin(wind_toward),
+            "temperature_c": environment["temperature_c"],
+        },
+        "visibility_m": environment["visibility_m"],
+        "sensor": {**dict(profile.sensor), "range_m": sensor_range_m(profile.sensor, environment["visibility_m"])},
+        "obstacles": [_obstacle(space, concrete, i) for i in range(len(concrete["obstacles"]))],
+        "uav": {
+            "start": {"north_m": 0.0, "east_m": 0.0, "up_m": terrain_height_m(landform.terrain, 0.0, 0.0)},
+            "body": {k: v for k, v in profile.uav["body"].items() if k != "description"},
+        },
+        "mission": {
+            "takeoff_altitude_m": mission.waypoints[0][2],
+            "waypoints": [{"north_m": n, "east_m": e, "altitude_m": a} for n, e, a in mission.waypoints],
+            "cruise_speed_m_s": mission.cruise_speed_m_s,
+            "land": mission.land,
+        },
+        "safety_distance_m": profile.safety_distance_m,
+        "time_limit_s": profile.time_limit_s,
+        "not_simulated": concrete["not_simulated"],
+    }
+
+
+def space_from_concrete(document: Any, file: str) -> SearchSpace:
+    """Rebuild the search space from the logical scenario and profile a concrete file embeds."""
+    if not isinstance(document, dict) or document.get("format") != CONCRETE_FORMAT:
+        raise InputError([Problem(file, "/format", f'not a concrete scenario: expected "format": "{CONCRETE_FORMAT}"')])
+    for key in ("logical_scenario", "profile_document"):
+        if key not in document:
+            raise InputError([Problem(file, f"/{key}", "missing: a concrete scenario embeds its logical scenario and profile")])
+    problems = profile_problems(document["profile_document"], file)
+    if problems:
+        raise InputError([Problem(p.file, "/profile_document" + p.pointer, p.message) for p in problems])
+    profile = profile_from_document(document["profile_document"])
+    problems = logical_problems(document["logical_scenario"], profile, file)
+    if problems:
+        raise InputError([Problem(p.file, "/logical_scenario" + p.pointer, p.message) for p in problems])
+    return SearchSpace(logical_from_document(document["logical_scenario"], profile, file), profile)
+
+
+def load_concrete(path: Path) -> tuple[SearchSpace, np.ndarray]:
+    document = load_json(path)
+    space = space_from_concrete(document, str(path))
+    return space, space.from_concrete(document, str(path))

@@ -1,0 +1,161 @@
+"""Search spaces derived from all 32 Table III scenarios: dimensions, bounds, constraints, round trips."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, TABLE3
+from harness.cli import main
+from harness.errors import InputError
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import load_concrete, sensor_range_m, world_spec
+from sim_bridge.terrain import terrain_height_m
+
+SIZE_DIMS = {"cuboid": 3, "sphere": 1, "cylinder": 2}
+
+
+def space_for(path, profile) -> SearchSpace:
+    return SearchSpace(load_logical(path, profile), profile)
+
+
+def expected_dimension_count(space: SearchSpace) -> int:
+    weather = space.logical.weather
+    count = 1  # temperature: every category is a true range
+    count += 0 if weather["wind force"].interval.degenerate else 2  # speed and direction
+    count += 0 if weather["reduced visibility"].interval.degenerate else 1
+    for obstacle in space.logical.obstacles:
+        count += SIZE_DIMS[obstacle.form] + 2  # sizes, north, east
+        count += 1 if obstacle.form == "cuboid" else 0  # yaw
+        count += 4 if obstacle.kind == "dynamic" else 0  # altitude, heading, speed, travel
+    return count
+
+
+@pytest.fixture(scope="module", params=TABLE3, ids=[p.stem for p in TABLE3])
+def space(request, profile):
+    return space_for(request.param, profile)
+
+
+def test_dimension_count_follows_the_obstacles(space):
+    assert space.n_dimensions == expected_dimension_count(space)
+    assert len({d.name for d in space.dimensions}) == space.n_dimensions
+
+
+def test_bounds_lie_inside_the_profiles_ranges(space, profile):
+    weather = space.logical.weather
+    for d in space.dimensions:
+        assert d.lower < d.upper
+        if d.name == "wind_speed_m_s":
+            category = profile.parameters["wind force"].categories[weather["wind force"].category]
+            assert (d.lower, d.upper) == pytest.approx((category.min / 3.6, category.max / 3.6))
+        elif d.name == "visibility_m":
+            category = profile.parameters["reduced visibility"].categories[weather["reduced visibility"].category]
+            assert (d.lower, d.upper) == (category.min, category.max)
+        elif d.name.endswith(("length_m", "width_m", "height_m", "diameter_m")):
+            index = int(d.name.split(".")[0].split("_")[1]) - 1
+            size = profile.obstacle_sizes[space.logical.obstacles[index].size]
+            assert size.min <= d.lower and d.upper <= size.max
+        elif d.name.endswith("speed_m_s"):
+            assert profile.obstacle_speed_m_s.min <= d.lower and d.upper <= profile.obstacle_speed_m_s.max
+
+
+def test_ten_thousand_sampled_points_keep_every_constraint(space, profile):
+    X = space.sample_feasible(np.random.default_rng(7), 10_000)
+    assert X.shape == (10_000, space.n_dimensions)
+    assert np.all((X >= space.lower) & (X <= space.upper))
+    assert space.feasible(X).all()
+    # Independently of the space's own constraint code: distances in the world spec.
+    keep_out = profile.keep_out_radius_m
+    landing = space.mission.landing_point
+    for x in X[:100]:
+        world = world_spec(space, x, seed=0)
+        statics = []
+        for obstacle in world["obstacles"]:
+            size = obstacle["size"]
+            radius = 0.5 * (math.hypot(size["length_m"], size["width_m"]) if obstacle["form"] == "cuboid" else size["diameter_m"])
+            for point in filter(None, (obstacle["a"], obstacle["b"])):
+                assert math.hypot(point["north_m"], point["east_m"]) - radius >= keep_out - 1e-9
+                assert math.hypot(point["north_m"] - landing[0], point["east_m"] - landing[1]) - radius >= keep_out - 1e-9
+            if obstacle["kind"] == "static":
+                statics.append((obstacle["a"], radius))
+                assert obstacle["speed_m_s"] == 0.0
+            else:
+                assert profile.obstacle_speed_m_s.min <= obstacle["speed_m_s"] <= profile.obstacle_speed_m_s.max
+        for i, (a, ra) in enumerate(statics):
+            for b, rb in statics[i + 1 :]:
+                gap = math.hypot(a["north_m"] - b["north_m"], a["east_m"] - b["east_m"]) - ra - rb
+                assert gap >= profile.min_separation_m - 1e-9
+
+
+def test_vector_to_concrete_json_and_back_is_exact(space):
+    X = space.sample(np.random.default_rng(3), 200)
+    for x in X:
+        document = json.loads(json.dumps(space.to_concrete(x)))
+        assert np.array_equal(space.from_concrete(document), x)
+
+
+def test_infeasible_points_name_the_broken_constraint(profile):
+    space = space_for(ROOT / "scenarios" / "table3" / "scenario_05.json", profile)  # two static obstacles
+    x = space.sample_feasible(np.random.default_rng(0), 1)[0]
+    x[space._index["obstacle_1.north_m"]] = 0.0
+    x[space._index["obstacle_1.east_m"]] = 0.0
+    assert "obstacle_1 keeps out of the start area" in space.violations(x)
+    assert not space.feasible(x[None, :])[0]
+
+
+def test_static_obstacles_stand_on_the_terrain(profile):
+    space = space_for(ROOT / "scenarios" / "table3" / "scenario_22.json", profile)  # steep transition
+    terrain = profile.landforms["steep transition"].terrain
+    for x in space.sample_feasible(np.random.default_rng(1), 20):
+        for obstacle in world_spec(space, x, 0)["obstacles"]:
+            height = obstacle["size"].get("height_m", obstacle["size"].get("diameter_m"))
+            ground = terrain_height_m(terrain, obstacle["a"]["north_m"], obstacle["a"]["east_m"])
+            assert obstacle["a"]["up_m"] == pytest.approx(ground + height / 2)
+
+
+def test_mission_clears_the_highest_terrain_and_lands_at_the_goal(profile):
+    space = space_for(ROOT / "scenarios" / "table3" / "scenario_04.json", profile)  # steep transition, 8 m step
+    (north, east, altitude), = space.mission.waypoints
+    assert (north, east) == (60.0, 0.0)
+    assert altitude == pytest.approx(8.0 + profile.uav["cruise_altitude_agl_m"], abs=0.01)
+
+
+def test_fog_shortens_the_sensor_range(profile):
+    sensor = profile.sensor
+    assert sensor_range_m(sensor, 10_000.0) == sensor["max_range_m"]
+    assert sensor_range_m(sensor, 500.0) == pytest.approx(sensor["max_range_m"] / 2)
+    assert sensor_range_m(sensor, 50.0) == sensor["floor_range_m"]
+
+
+def test_sample_is_deterministic_and_writes_a_loadable_concrete_file(tmp_path, capsys):
+    scenario = str(ROOT / "scenarios" / "examples" / "fig4.json")
+    out = tmp_path / "c.json"
+    assert main(["sample", scenario, "--seed", "5", "--json", "--out", str(out)]) == 0
+    first = capsys.readouterr().out
+    assert main(["sample", scenario, "--seed", "5", "--json"]) == 0
+    assert capsys.readouterr().out == first
+    space, x = load_concrete(out)
+    assert x.tolist() == json.loads(first)["vector"]
+    assert space.n_dimensions == 17
+
+
+def test_concrete_file_out_of_bounds_is_a_located_error(tmp_path, profile):
+    space = space_for(ROOT / "scenarios" / "examples" / "fig4.json", profile)
+    document = space.to_concrete(space.sample_feasible(np.random.default_rng(0), 1)[0])
+    document["obstacles"][0]["motion"]["speed_m_s"] = 50.0
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(document))
+    with pytest.raises(InputError) as error:
+        load_concrete(path)
+    assert f"{path}: /obstacles/0/motion/speed_m_s: 50.0 lies outside [0.5, 5.0] m/s" in str(error.value)
+
+
+def test_space_command_lists_dimensions_and_not_simulated_parameters(capsys):
+    assert main(["space", str(ROOT / "scenarios" / "table3" / "scenario_31.json"), "--json"]) == 0
+    description = json.loads(capsys.readouterr().out)
+    assert [n["parameter"] for n in description["not_simulated"]] == ["lighting", "precipitation", "lightning", "cloud cover"]
+    assert description["constraint_policy"] == "infeasible"
