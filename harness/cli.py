@@ -140,6 +140,35 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _result_text(result: dict[str, Any]) -> str:
+    lines = [f"status: {result['status']}" + (f" ({result['why']})" if result.get("why") else "")]
+    lines.append(f"fitness: {result['fitness']:.3f}")
+    if result.get("min_clearance_m") is not None:
+        lines.append(f"min clearance: {result['min_clearance_m']:.3f} m at t={result['min_clearance_at_s']} s to {result['min_clearance_obstacle']}")
+    lines.append(f"simulated {result['sim_time_s']:.1f} s in {result['wall_time_s']:.1f} s wall" + (f" (flight at {result['real_time_factor']:.1f}x real time)" if result.get("real_time_factor") else ""))
+    if result.get("log_path"):
+        lines.append(f"log: {result['log_path']}")
+    return "\n".join(lines)
+
+
+@command("run")
+def cmd_run(args: argparse.Namespace) -> int:
+    from harness.evaluation import RunOptions, evaluate
+    from harness.scenario.world import load_concrete
+
+    if args.concrete:
+        space, x = load_concrete(Path(args.concrete))
+    else:
+        space = _space(args)
+        x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
+    options = RunOptions(sut=args.sut, rate_hz=args.rate_hz)
+    result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
+    emit(args, result, _result_text(result))
+    if result["status"] in ("sim_crashed", "sut_crashed", "timeout"):
+        return 3
+    return 1 if args.fail_on_violation and result["status"] == "violation" else 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -161,6 +190,16 @@ def parser() -> argparse.ArgumentParser:
         if name == "sample":
             p.add_argument("--seed", type=int, default=0)
             p.add_argument("--out", help="also write the concrete scenario to this file")
+
+    p = add("run", "fly one concrete scenario against the SUT and score it")
+    p.add_argument("scenario", nargs="?", help="logical scenario JSON (a concrete one is sampled with --seed)")
+    p.add_argument("--concrete", help="concrete scenario JSON (from `stella sample --out`) instead of sampling")
+    p.add_argument("--seed", type=int, default=0, help="sampling and sensor-noise seed")
+    p.add_argument("--profile", default="default")
+    p.add_argument("--sut", default="bundled")
+    p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
+    p.add_argument("--rate-hz", type=float, default=250.0, help="lockstep rate")
+    p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

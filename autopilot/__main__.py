@@ -1,0 +1,47 @@
+"""`python -m autopilot --sim tcp:127.0.0.1:4560 --api udp:127.0.0.1:14540 [--params FILE]`"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+
+from autopilot.app import Autopilot
+from autopilot.params import ParamError, Params
+
+
+def _address(text: str, scheme: str) -> tuple[str, int]:
+    prefix = f"{scheme}:"
+    if not text.startswith(prefix):
+        raise argparse.ArgumentTypeError(f"expected {scheme}:HOST:PORT, got {text!r}")
+    host, _, port = text[len(prefix):].rpartition(":")
+    return host.lstrip("/") or "127.0.0.1", int(port)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m autopilot", description="The bundled PX4-like autopilot.")
+    parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol)")
+    parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
+    parser.add_argument("--params", help="JSON file of PX4-named parameter overrides")
+    parser.add_argument("--connect-timeout-s", type=float, default=60.0)
+    parser.add_argument("-v", "--verbose", action="store_true")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="autopilot %(levelname)s: %(message)s")
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    try:
+        params = Params.from_file(args.params) if args.params else Params()
+    except (ParamError, OSError, ValueError) as error:
+        print(f"{args.params}: {error}", file=sys.stderr)
+        return 2
+    try:
+        return Autopilot(params).serve(_address(args.sim, "tcp"), _address(args.api, "udp"), args.connect_timeout_s)
+    except OSError as error:
+        print(f"autopilot: simulator at {args.sim} unreachable: {error}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

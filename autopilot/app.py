@@ -1,0 +1,242 @@
+"""The autopilot process: the simulator link in lockstep, the flight stack per sensor step, the API link."""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import socket
+import time
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from autopilot.api import ApiLink
+from autopilot.collision import ObstacleMap, constrain_velocity
+from autopilot.commander import (
+    NAV_LAND,
+    NAV_RETURN_TO_LAUNCH,
+    NAV_TAKEOFF,
+    NAV_WAYPOINT,
+    DO_CHANGE_SPEED,
+    Commander,
+    MissionItem,
+    VehicleEstimate,
+)
+from autopilot.control import (
+    PositionControl,
+    RateControl,
+    attitude_from_thrust,
+    attitude_rate_setpoint,
+    euler_from_quat,
+    mix,
+)
+from autopilot.estimator import Estimator, GpsFix
+from autopilot.params import Params
+from simlink import codec
+
+log = logging.getLogger(__name__)
+
+IDLE_THROTTLE = 0.05
+LOCKSTEP_FLAG = 1
+_CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
+SIM_LOSS_EXIT_S = 10.0
+TELEMETRY_CHECK_S = 0.005
+FRAMES_WITH_POSITION = {
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL,
+    mavlink.MAV_FRAME_GLOBAL_INT,
+}
+
+
+class SimLinkLost(Exception):
+    pass
+
+
+class Autopilot:
+    def __init__(self, params: Params):
+        self.params = params
+        self.estimator = Estimator(math.radians(params["EKF2_MAG_DECL"]))
+        self.commander = Commander(params)
+        self.position_control = PositionControl(params)
+        self.rate_control = RateControl(params)
+        self.obstacles = ObstacleMap()
+        self.now_s = 0.0
+        self.collective = 0.0
+        self.sensors_seen = False
+        self._last_time_us: int | None = None
+        self._ground_truth = None
+        self._controlling = False
+        self.api: ApiLink | None = None
+        self._seq = 0
+
+    # -- state helpers used by the API --------------------------------------------------------
+
+    def euler(self) -> tuple[float, float, float]:
+        return euler_from_quat(self.estimator.q)
+
+    def yaw_rad(self) -> float:
+        return self.euler()[2]
+
+    def vehicle_estimate(self) -> VehicleEstimate:
+        pos, vel = self.estimator.pos, self.estimator.vel
+        return VehicleEstimate(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], self.yaw_rad())
+
+    def ready_to_arm(self) -> tuple[bool, str]:
+        if not self.sensors_seen:
+            return False, "no sensor data"
+        if not self.estimator.healthy(self.now_s):
+            return False, "position estimate not ready"
+        if self.commander.home is None:
+            return False, "no home position"
+        return True, ""
+
+    def home_geodetic(self) -> tuple[float, float, float] | None:
+        home = self.commander.home
+        if home is None or self.estimator.origin is None:
+            return None
+        lat, lon = self.estimator.geodetic_from_local(home[0], home[1])
+        return lat, lon, self.estimator.origin[2] - home[2]
+
+    def on_armed(self) -> None:
+        pos = self.estimator.pos
+        self.commander.home = (pos[0], pos[1], pos[2])
+
+    def mission_item_from_global(self, seq: int, command: int, frame: int, lat: float, lon: float, z: float, params) -> MissionItem | None:
+        if self.estimator.origin is None:
+            return None
+        has_position = frame in FRAMES_WITH_POSITION and command in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF) and (lat != 0.0 or lon != 0.0)
+        if has_position:
+            north, east = self.estimator.local_from_geodetic(lat, lon)
+        else:
+            north = east = 0.0
+        if frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
+            home = self.home_geodetic()
+            z = z - (home[2] if home else self.estimator.origin[2])
+        if command not in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED):
+            log.info("mission item %d: command %d will be skipped", seq, command)
+        return MissionItem(seq, command, north, east, z, *params, has_position=has_position)
+
+    # -- the flight stack, once per HIL_SENSOR --------------------------------------------------
+
+    def _handle_sim_message(self, msgid: int, payload: bytes, frame: bytes, decoder: mavlink.MAVLink) -> None:
+        message = decoder.decode(bytearray(frame))
+        kind = message.get_type()
+        if kind == "HIL_GPS":
+            fix = GpsFix(message.lat * 1e-7, message.lon * 1e-7, message.alt / 1000.0, message.vn / 100.0, message.ve / 100.0, message.vd / 100.0, message.fix_type, message.satellites_visible)
+            if not self.params["EKF2_GT_MODE"]:
+                self.estimator.update_gps(self.now_s, 0.1, fix)
+            else:
+                self.estimator.last_gps = fix
+                self.estimator.last_gps_s = self.now_s
+        elif kind == "HIL_STATE_QUATERNION":
+            self._ground_truth = message
+        elif kind == "OBSTACLE_DISTANCE":
+            increment = message.increment_f if message.increment_f > 0 else float(message.increment)
+            self.obstacles.update(self.now_s, self.yaw_rad(), list(message.distances), increment, message.angle_offset, message.min_distance, message.max_distance)
+
+    def step(self, time_us: int, values: tuple) -> tuple[float, float, float, float]:
+        dt = 0.004 if self._last_time_us is None else max(1e-4, (time_us - self._last_time_us) / 1e6)
+        self._last_time_us = time_us
+        self.now_s = time_us / 1e6
+        self.sensors_seen = True
+        est = self.estimator
+        if self.params["EKF2_GT_MODE"] and self._ground_truth is not None:
+            gt = self._ground_truth
+            est.set_ground_truth(tuple(gt.attitude_quaternion), (gt.rollspeed, gt.pitchspeed, gt.yawspeed), gt.lat * 1e-7, gt.lon * 1e-7, gt.alt / 1000.0,
+                                 (gt.vx / 100.0, gt.vy / 100.0, gt.vz / 100.0), (values[0], values[1], values[2]))
+            est.last_imu_s = self.now_s
+        else:
+            est.update_imu(self.now_s, dt, (values[3], values[4], values[5]), (values[0], values[1], values[2]), (values[6], values[7], values[8]))
+            est.update_baro(dt, values[11])
+        commander = self.commander
+        if commander.home is None and est.position_ready and not commander.armed:
+            commander.home = (est.pos[0], est.pos[1], est.pos[2])
+        if not est.position_ready:
+            return (0.0, 0.0, 0.0, 0.0)
+        estimate = self.vehicle_estimate()
+        sp = commander.update(self.now_s, estimate, self.collective)
+        if sp.idle:
+            self._controlling = False
+            self.collective = 0.0
+            return (IDLE_THROTTLE,) * 4 if commander.armed else (0.0, 0.0, 0.0, 0.0)
+        if not self._controlling:
+            self.position_control.reset()
+            self.rate_control.reset()
+            self._controlling = True
+        params = self.params
+        vel_sp = self.position_control.velocity_setpoint(sp, est.pos, params["MPC_XY_VEL_MAX"])
+        if not commander.landed:
+            vn, ve = constrain_velocity(params, self.obstacles, self.now_s, (vel_sp[0], vel_sp[1]), (est.vel[0], est.vel[1]))
+            vel_sp = (vn, ve, vel_sp[2])
+        thrust = self.position_control.thrust(dt, vel_sp, est.vel, est.acc_ned)
+        yaw_sp = sp.yaw_rad if sp.yaw_rad is not None else estimate.yaw_rad
+        q_sp, collective = attitude_from_thrust(thrust, yaw_sp)
+        self.collective = collective
+        rates_sp = attitude_rate_setpoint(params, est.q, q_sp)
+        torque = self.rate_control.update(dt, est.rates, rates_sp, commander.landed)
+        return mix(collective, torque, IDLE_THROTTLE)
+
+    # -- the process loop -----------------------------------------------------------------------
+
+    def serve(self, sim_address: tuple[str, int], api_address: tuple[str, int], connect_timeout_s: float) -> int:
+        sim = _connect(sim_address, connect_timeout_s)
+        sim.settimeout(None)
+        sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.api = api = ApiLink(self, api_address)
+        splitter = codec.FrameSplitter(_CRC_EXTRAS)
+        decoder = mavlink.MAVLink(None)
+        decoder.robust_parsing = True
+        perf = time.perf_counter
+        next_check = 0.0
+        sim_lost_at: float | None = None
+        try:
+            while True:
+                readable, _, _ = select.select([sim, api.sock] if sim_lost_at is None else [api.sock], [], [], 0.02)
+                wall = perf()
+                if sim in readable and sim_lost_at is None:
+                    data = sim.recv(65536)
+                    if not data:
+                        sim_lost_at = wall
+                        api.statustext("Simulator link lost: stopping", mavlink.MAV_SEVERITY_CRITICAL)
+                        self.commander.events.clear()
+                    else:
+                        self._on_sim_data(sim, splitter, decoder, data)
+                if api.sock in readable:
+                    api.receive()
+                if wall >= next_check:
+                    api.report_events()
+                    api.telemetry(wall)
+                    api.check_link(self.params["COM_DL_LOSS_T"])
+                    next_check = wall + TELEMETRY_CHECK_S
+                if sim_lost_at is not None and wall - sim_lost_at > SIM_LOSS_EXIT_S:
+                    return 0
+        finally:
+            sim.close()
+            api.sock.close()
+
+    def _on_sim_data(self, sim: socket.socket, splitter: codec.FrameSplitter, decoder, data: bytes) -> None:
+        for msgid, payload, frame in splitter.feed(data):
+            if msgid == codec.HIL_SENSOR_ID:
+                fields = codec.decode_hil_sensor(payload)
+                motors = self.step(fields[0], fields[1:14])
+                controls = (*motors, *(0.0,) * 12)
+                mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.commander.armed else 0
+                sim.sendall(
+                    codec.encode_hil_actuator_controls(seq=self._seq, sysid=1, compid=1, time_usec=fields[0], controls=controls, mode=mode, flags=LOCKSTEP_FLAG)
+                )
+                self._seq = (self._seq + 1) & 0xFF
+            else:
+                self._handle_sim_message(msgid, payload, frame, decoder)
+
+
+def _connect(address: tuple[str, int], timeout_s: float) -> socket.socket:
+    """Connect to the simulator as PX4 does: keep retrying until it accepts."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return socket.create_connection(address, timeout=2.0)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)

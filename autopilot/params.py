@@ -1,0 +1,151 @@
+"""The bundled autopilot's parameters, declared once with PX4's names; docs/autopilot_parameters.md is generated from here.
+
+Regenerate the table with `python -m autopilot.params > docs/autopilot_parameters.md`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+MAV_PARAM_TYPE_INT32 = 6
+MAV_PARAM_TYPE_REAL32 = 9
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    kind: str  # "INT32" or "FLOAT"
+    default: float
+    min: float
+    max: float
+    unit: str
+    description: str
+
+    @property
+    def mav_type(self) -> int:
+        return MAV_PARAM_TYPE_INT32 if self.kind == "INT32" else MAV_PARAM_TYPE_REAL32
+
+
+def _f(name, default, lo, hi, unit, description) -> ParamSpec:
+    return ParamSpec(name, "FLOAT", default, lo, hi, unit, description)
+
+
+def _i(name, default, lo, hi, unit, description) -> ParamSpec:
+    return ParamSpec(name, "INT32", default, lo, hi, unit, description)
+
+
+SPECS: tuple[ParamSpec, ...] = (
+    _f("CP_DIST", 1.0, -1.0, 15.0, "m", "Minimum distance the vehicle keeps to sensed obstacles; negative disables collision prevention (the paper's setting: 1 m)."),
+    _f("CP_DELAY", 0.4, 0.0, 1.0, "s", "Sensor and estimation delay the stopping distance accounts for."),
+    _f("CP_GUIDE_ANG", 30.0, 0.0, 90.0, "deg", "Largest angle by which collision prevention turns a blocked velocity setpoint towards free space."),
+    _i("CP_GO_NO_DATA", 1, 0, 1, "", "1: allow moving in directions without range data (outside the sensor's field of view). The bundled sensor looks forward only and missions yaw into the direction of travel, so the default is 1 (PX4's is 0)."),
+    _f("MPC_XY_CRUISE", 5.0, 0.5, 20.0, "m/s", "Horizontal speed in missions."),
+    _f("MPC_XY_VEL_MAX", 12.0, 0.5, 20.0, "m/s", "Largest horizontal velocity setpoint."),
+    _f("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "Largest climb rate."),
+    _f("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "Largest descent rate."),
+    _f("MPC_TKO_SPEED", 1.5, 0.5, 5.0, "m/s", "Climb rate during takeoff."),
+    _f("MPC_LAND_SPEED", 0.7, 0.3, 3.0, "m/s", "Descent rate during landing."),
+    _f("MPC_ACC_HOR", 3.0, 0.5, 10.0, "m/s^2", "Horizontal acceleration for braking and for collision prevention's stopping distance."),
+    _f("MPC_XY_P", 0.95, 0.0, 2.0, "1/s", "Horizontal position gain."),
+    _f("MPC_XY_VEL_P_ACC", 1.8, 0.1, 5.0, "1/s", "Horizontal velocity proportional gain (to acceleration)."),
+    _f("MPC_XY_VEL_I_ACC", 0.4, 0.0, 5.0, "1/s^2", "Horizontal velocity integral gain."),
+    _f("MPC_XY_VEL_D_ACC", 0.2, 0.0, 2.0, "", "Horizontal velocity derivative gain."),
+    _f("MPC_Z_P", 1.0, 0.1, 2.0, "1/s", "Vertical position gain."),
+    _f("MPC_Z_VEL_P_ACC", 4.0, 1.0, 15.0, "1/s", "Vertical velocity proportional gain."),
+    _f("MPC_Z_VEL_I_ACC", 2.0, 0.0, 3.0, "1/s^2", "Vertical velocity integral gain."),
+    _f("MPC_THR_HOVER", 0.42, 0.1, 0.8, "", "Collective thrust that holds a hover."),
+    _f("MPC_THR_MIN", 0.08, 0.0, 0.5, "", "Smallest collective thrust in flight."),
+    _f("MPC_TILTMAX_AIR", 35.0, 10.0, 60.0, "deg", "Largest tilt in flight."),
+    _f("MC_ROLL_P", 6.5, 0.0, 12.0, "1/s", "Roll attitude gain."),
+    _f("MC_PITCH_P", 6.5, 0.0, 12.0, "1/s", "Pitch attitude gain."),
+    _f("MC_YAW_P", 2.8, 0.0, 5.0, "1/s", "Yaw attitude gain."),
+    _f("MC_YAWRATE_MAX", 60.0, 5.0, 360.0, "deg/s", "Largest yaw rate setpoint."),
+    _f("MC_ROLLRATE_P", 0.08, 0.0, 0.5, "", "Roll rate proportional gain."),
+    _f("MC_ROLLRATE_I", 0.1, 0.0, 1.0, "", "Roll rate integral gain."),
+    _f("MC_ROLLRATE_D", 0.001, 0.0, 0.01, "", "Roll rate derivative gain."),
+    _f("MC_PITCHRATE_P", 0.08, 0.0, 0.5, "", "Pitch rate proportional gain."),
+    _f("MC_PITCHRATE_I", 0.1, 0.0, 1.0, "", "Pitch rate integral gain."),
+    _f("MC_PITCHRATE_D", 0.001, 0.0, 0.01, "", "Pitch rate derivative gain."),
+    _f("MC_YAWRATE_P", 0.3, 0.0, 1.0, "", "Yaw rate proportional gain."),
+    _f("MC_YAWRATE_I", 0.1, 0.0, 1.0, "", "Yaw rate integral gain."),
+    _f("NAV_ACC_RAD", 2.0, 0.05, 200.0, "m", "Mission acceptance radius when an item gives none."),
+    _f("MIS_TAKEOFF_ALT", 2.5, 0.0, 80.0, "m", "Takeoff altitude when none is given."),
+    _f("RTL_RETURN_ALT", 15.0, 0.0, 150.0, "m", "Lowest altitude above home on the way back in return-to-launch."),
+    _f("COM_DISARM_LAND", 1.0, -1.0, 20.0, "s", "Disarm this long after landing is detected."),
+    _i("COM_DL_LOSS_T", 10, 5, 300, "s", "API link loss is declared after this long without a heartbeat; missions carry on, as in PX4."),
+    _f("EKF2_MAG_DECL", 3.0, -180.0, 180.0, "deg", "Magnetic declination at the flying site (PX4's default home, Zurich: 3 deg)."),
+    _i("EKF2_GT_MODE", 0, 0, 1, "", "1: use the simulator's ground truth (HIL_STATE_QUATERNION) instead of estimating; for debugging only."),
+    _i("SYS_AUTOSTART", 4001, 0, 9999999, "", "Airframe (4001: generic quadrotor X), reported for tools that read it."),
+    _i("MAV_SYS_ID", 1, 1, 250, "", "MAVLink system id."),
+)
+
+BY_NAME = {spec.name: spec for spec in SPECS}
+
+
+class ParamError(ValueError):
+    """An unknown parameter or a value outside its declared range."""
+
+
+class Params:
+    """Current values; PX4's parameter protocol encodes INT32 values bytewise in the float field."""
+
+    def __init__(self, overrides: dict[str, float] | None = None):
+        self._values = {spec.name: spec.default for spec in SPECS}
+        for name, value in (overrides or {}).items():
+            self.set(name, value)
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def set(self, name: str, value: float) -> float:
+        spec = BY_NAME.get(name)
+        if spec is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise ParamError(f"{name}: {value!r} is not a number")
+        if not spec.min <= value <= spec.max:
+            raise ParamError(f"{name}: {value} outside [{spec.min}, {spec.max}] {spec.unit}")
+        self._values[name] = int(value) if spec.kind == "INT32" else float(value)
+        return self._values[name]
+
+    def names(self) -> list[str]:
+        return [spec.name for spec in SPECS]
+
+    def wire_value(self, name: str) -> float:
+        value = self._values[name]
+        if BY_NAME[name].kind == "INT32":
+            return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+        return float(value)
+
+    def from_wire(self, name: str, raw: float, mav_type: int) -> float:
+        if BY_NAME.get(name) is not None and BY_NAME[name].kind == "INT32" and mav_type == MAV_PARAM_TYPE_INT32:
+            return struct.unpack("<i", struct.pack("<f", raw))[0]
+        return raw
+
+    @classmethod
+    def from_file(cls, path: Path) -> "Params":
+        """A JSON object of NAME: value overrides."""
+        return cls(json.loads(Path(path).read_text()))
+
+
+def markdown_table(specs: Iterable[ParamSpec] = SPECS) -> str:
+    lines = [
+        "# Bundled autopilot parameters",
+        "",
+        "Generated by `python -m autopilot.params` from `autopilot/params.py`; do not edit by hand.",
+        "",
+        "| name | type | default | min | max | unit | description |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for s in specs:
+        lines.append(f"| `{s.name}` | {s.kind} | {s.default:g} | {s.min:g} | {s.max:g} | {s.unit} | {s.description} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_table(), end="")

@@ -1,0 +1,227 @@
+"""Fly one concrete scenario end to end and score it from its recording.
+
+allocate a port block -> start the bridge and the SUT as real processes -> MAVSDK connects
+through the API tap -> wait until the simulation holds and the SUT is healthy -> upload the
+mission, arm, start -> release the simulation -> wait for its end -> stop everything -> merge
+the log -> score from the log.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+import sut_adapter
+from harness import fitness as scoring
+from harness import logs
+from harness.api_tap import ApiTap
+from harness.bridge_control import BridgeControl
+from harness.errors import InfrastructureError
+from harness.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
+from harness.ports import PortLease
+from harness.processes import ManagedProcess
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
+
+log = logging.getLogger(__name__)
+
+CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    sut: str = "bundled"
+    sut_params: Mapping[str, float] = field(default_factory=dict)
+    rate_hz: float = 250.0
+    hold_after_s: float = 3.0
+    setup_timeout_s: float = 60.0
+    min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
+    keep_workdir: bool = False
+
+
+@dataclass
+class EvaluationResult:
+    status: str
+    fitness: float
+    why: str | None
+    min_clearance_m: float | None
+    min_clearance_at_s: float | None
+    min_clearance_obstacle: str | None
+    sim_time_s: float
+    wall_time_s: float
+    real_time_factor: float | None
+    seed: int
+    log_path: str | None
+    scenario: str
+    sut: str
+    violations: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    mavsdk: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None) -> tuple[str, float, str | None, scoring.Clearance]:
+    clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
+    if failure is None and clearance.samples:
+        states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
+        why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary)
+        failure = ("mission_failed", why) if why else None
+    status, value, why = scoring.judge(clearance, world["safety_distance_m"], failure)
+    return status, value, why, clearance
+
+
+def rescore(log_path: Path) -> dict[str, Any]:
+    """Recompute status and fitness from a log alone (what `stella inspect` does)."""
+    world = logs.json_metadata(log_path, "world")
+    summary = logs.json_metadata(log_path, "bridge_summary") or {}
+    recorded = logs.json_metadata(log_path, "result") or {}
+    failure = None
+    if recorded.get("status") in ("timeout", "sut_crashed", "sim_crashed"):
+        failure = (recorded["status"], recorded.get("why") or "")
+    status, value, why, clearance = _score(log_path, world, summary, failure)
+    return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded}
+
+
+def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
+    """Fly the concrete scenario x; never raises for a failed run, only reports it."""
+    wall_start = time.monotonic()
+    stem = name or f"{space.logical.name.replace(' ', '_').replace('#', '')}-seed{seed}"
+    violations = space.violations(x)
+    if violations:
+        total = -sum(min(0.0, float(m[0])) for m in space.constraint_margins(np.asarray(x)[None, :]).values())
+        return EvaluationResult("infeasible", scoring.infeasible_fitness(total), "; ".join(violations), None, None, None, 0.0, 0.0, None, seed, None, space.logical.name, options.sut, violations)
+    world = world_spec(space, x, seed)
+    concrete = space.to_concrete(x)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    workdir = Path(tempfile.mkdtemp(prefix=f"stella-{stem}-"))
+    log_path = out_dir / f"{stem}.mcap"
+    timings: dict[str, float] = {}
+    failure: tuple[str, str] | None = None
+    summary: dict[str, Any] = {}
+    mavsdk_info: dict[str, Any] = {}
+    try:
+        with PortLease() as ports:
+            world_path = workdir / "world.json"
+            world_path.write_text(json.dumps(world))
+            bridge_log = workdir / "bridge.mcap"
+            bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+                           "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s)]
+            with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
+                sut = sut_adapter.get(options.sut).start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut_params)
+                session = None
+                try:
+                    failure, summary, mavsdk_info, session = _fly(world, options, bridge, sut, ports, timings)
+                finally:
+                    if session is not None:
+                        session.close()
+                    sut_exit = sut.stop()
+                    bridge.wait(5.0)
+                    bridge.stop()
+                    log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
+                    if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
+                        failure = ("sut_crashed", f"{summary['end_reason']}: {sut.stderr_tail()[-500:]}")
+                api_records = list(tap.records)
+            if not bridge_log.exists() or bridge_log.stat().st_size == 0:
+                raise InfrastructureError(f"the simulator wrote no log: {bridge.stderr_tail()}")
+            t0 = time.monotonic()
+            result_stub = {"status": failure[0] if failure else None, "why": failure[1] if failure else None}
+            logs.merge(bridge_log, log_path, api_records=api_records, extra_metadata={
+                "concrete_scenario": concrete, "sut": {"name": options.sut, "params": dict(options.sut_params)}, "result": result_stub,
+            })
+            status, value, why, clearance = _score(log_path, world, summary, failure)
+            timings["score_s"] = time.monotonic() - t0
+    except InfrastructureError as error:
+        log.warning("evaluation %s failed: %s", stem, error)
+        status, value, why, clearance = "sim_crashed", scoring.PENALTY, str(error), None
+        log_path = None
+    finally:
+        if not options.keep_workdir:
+            shutil.rmtree(workdir, ignore_errors=True)
+    wall = time.monotonic() - wall_start
+    in_run = summary.get("wall_in_run_s") or 0.0
+    run_time = summary.get("run_time_s") or 0.0
+    result = EvaluationResult(
+        status=status,
+        fitness=value,
+        why=why,
+        min_clearance_m=clearance.min_clearance_m if clearance else None,
+        min_clearance_at_s=clearance.at_s if clearance else None,
+        min_clearance_obstacle=clearance.obstacle if clearance else None,
+        sim_time_s=summary.get("sim_time_s", 0.0),
+        wall_time_s=wall,
+        real_time_factor=(run_time / in_run) if in_run > 0 else None,
+        seed=seed,
+        log_path=str(log_path) if log_path else None,
+        scenario=space.logical.name,
+        sut=options.sut,
+        timings={**timings, **{k: summary[k] for k in ("wait_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
+        mavsdk=mavsdk_info,
+    )
+    if log_path is not None:
+        _append_result(log_path, result)
+    return result
+
+
+def _append_result(log_path: Path, result: EvaluationResult) -> None:
+    """Rewrite the log with the final result as metadata (MCAP files are append-once)."""
+    temporary = log_path.with_suffix(".tmp.mcap")
+    logs.merge(log_path, temporary, api_records=[], extra_metadata={"result": result.as_dict()})
+    temporary.replace(log_path)
+
+
+def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, ports, timings: dict[str, float]):
+    """Returns (failure or None, bridge summary, MAVSDK observations, session)."""
+    t0 = time.monotonic()
+    control = BridgeControl(ports.control)
+    session = None
+    try:
+        alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
+        held = control.wait_for("holding", options.setup_timeout_s, alive)
+        if held is None:
+            return _setup_failure(bridge, sut, control, "the simulation never reached its hold point"), control_summary(control), {}, None
+        timings["start_s"] = time.monotonic() - t0
+        try:
+            session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
+            timings["discover_s"] = time.monotonic() - t0
+            timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
+            session.upload_and_start(mission_items(world))
+        except Exception as error:  # MAVSDK raises its own error types per plugin
+            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: {error}"), control_summary(control), {}, session
+        timings["setup_s"] = time.monotonic() - t0
+        control.send({"op": "run"})
+        deadline = world["time_limit_s"] / options.min_real_time_factor + 30.0
+        finished = control.wait_for("finished", deadline, lambda: bridge.poll() is None)
+        timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
+        info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}
+        if finished is None:
+            if bridge.poll() is not None:
+                return ("sim_crashed", f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info, session
+            control.send({"op": "stop"})
+            finished = control.wait_for("finished", 10.0, lambda: bridge.poll() is None)
+            return ("timeout", f"no end within {deadline:.0f} s wall time"), finished or {}, info, session
+        return None, finished, info, session
+    finally:
+        control.close()
+
+
+def control_summary(control: BridgeControl) -> dict[str, Any]:
+    return next((e for e in control.events if e.get("event") == "finished"), {})
+
+
+def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> tuple[str, str]:
+    if bridge.poll() is not None:
+        return "sim_crashed", f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"
+    if not sut.alive():
+        return "sut_crashed", f"{what}: SUT exited: {sut.stderr_tail()}"
+    return "timeout", what

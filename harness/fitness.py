@@ -1,0 +1,94 @@
+"""Fitness and status from the recorded trace alone, so a log can always be re-scored.
+
+f = min over t of (d(t) - s): d is the clearance between the UAV body and the nearest obstacle
+(python-fcl, negative when they overlap) recorded by the simulator every physics step, s the
+profile's safety distance. With no obstacle d is taken as CLEARANCE_CAP_M.
+
+Status policy (README: "Fitness and status"):
+  violation       f < 0, whatever else happened: a violation is never hidden behind a penalty.
+  ok              the mission was performed (every waypoint passed within the acceptance
+                  radius, landed within LANDING_TOLERANCE_M of the goal) and f >= 0.
+  mission_failed  not performed (why says which part); fitness = f + PENALTY.
+  timeout / sut_crashed / sim_crashed   the run could not finish; fitness = f + PENALTY, or
+                  PENALTY when nothing was recorded.
+  infeasible      never flown; fitness = PENALTY + the total constraint violation in metres,
+                  so that optimizers are led back towards feasible scenarios.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping, Sequence
+
+CLEARANCE_CAP_M = 100.0
+PENALTY = 1000.0
+LANDING_TOLERANCE_M = 3.0
+STATUSES = ("ok", "violation", "mission_failed", "infeasible", "sut_crashed", "sim_crashed", "timeout")
+
+
+@dataclass(frozen=True)
+class Clearance:
+    min_clearance_m: float
+    at_s: float | None
+    obstacle: str | None
+    samples: int
+
+    def fitness(self, safety_distance_m: float) -> float:
+        return self.min_clearance_m - safety_distance_m
+
+
+def min_clearance(samples: Iterable[Mapping[str, Any]]) -> Clearance:
+    """The smallest recorded clearance, when, and to which obstacle (first occurrence wins)."""
+    best, at, which, count = CLEARANCE_CAP_M, None, None, 0
+    for sample in samples:
+        count += 1
+        d = sample["d"]
+        if d is not None and d < best:
+            best, at, which = d, sample["t"], sample["o"]
+    return Clearance(best, at, which, count)
+
+
+def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any], acceptance_radius_m: float, summary: Mapping[str, Any]) -> str | None:
+    """None if the recorded flight performed the mission, else why not."""
+    reason = summary.get("end_reason")
+    for index, waypoint in enumerate(mission["waypoints"]):
+        closest = min(
+            (math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states),
+            default=math.inf,
+        )
+        if closest > acceptance_radius_m:
+            return f"waypoint {index + 1} missed by {closest:.1f} m (acceptance radius {acceptance_radius_m} m); run ended: {reason}"
+    if not mission.get("land", True):
+        return None
+    if reason == "crashed":
+        touchdown = summary.get("touchdown") or {}
+        return f"crashed into the ground at {touchdown.get('speed_m_s', float('nan')):.1f} m/s"
+    if reason != "landed":
+        return {"time_limit": "not landed within the time limit"}.get(reason, f"run ended: {reason}")
+    goal = mission["waypoints"][-1]
+    touchdown = summary.get("touchdown") or {}
+    miss = math.hypot(touchdown.get("north_m", math.inf) - goal["north_m"], touchdown.get("east_m", math.inf) - goal["east_m"])
+    if miss > LANDING_TOLERANCE_M:
+        return f"landed {miss:.1f} m from the goal (tolerance {LANDING_TOLERANCE_M} m)"
+    return None
+
+
+def judge(clearance: Clearance | None, safety_distance_m: float, failure: tuple[str, str] | None) -> tuple[str, float, str | None]:
+    """(status, fitness, why) from the clearance and the first failure found, if any.
+
+    failure is (status, why) with status one of mission_failed, timeout, sut_crashed, sim_crashed.
+    """
+    if clearance is None or clearance.samples == 0:
+        status, why = failure or ("sim_crashed", "nothing was recorded")
+        return status, PENALTY, why
+    f = clearance.fitness(safety_distance_m)
+    if f < 0.0:
+        return "violation", f, failure[1] if failure else None
+    if failure is not None:
+        return failure[0], f + PENALTY, failure[1]
+    return "ok", f, None
+
+
+def infeasible_fitness(total_violation_m: float) -> float:
+    return PENALTY + total_violation_m

@@ -1,0 +1,115 @@
+"""The harness's MAVSDK client (MAVSDK-Python 4.x, the native binding): connect, check health,
+configure, upload the mission, arm and start. Every wait has a timeout.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any, Mapping, Sequence
+
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk.plugins.action import Action
+from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
+from mavsdk.plugins.param import Param
+from mavsdk.plugins.telemetry import Telemetry
+
+from harness.errors import InfrastructureError
+from sim_bridge.geo import geodetic_from_local
+
+log = logging.getLogger(__name__)
+
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+MAV_FRAME_MISSION = 2
+NAV_WAYPOINT = 16
+NAV_LAND = 21
+NAV_TAKEOFF = 22
+DO_CHANGE_SPEED = 178
+ACCEPTANCE_RADIUS_M = 2.0
+
+
+def mission_items(world: Mapping[str, Any]) -> list[MissionItem]:
+    """MISSION_ITEM_INTs for the world's mission: take off, set speed, waypoints, land at the last."""
+    origin = world["origin"]
+    mission = world["mission"]
+    start = world["uav"]["start"]
+    items: list[MissionItem] = []
+
+    def add(command: int, frame: int, north: float | None, east: float | None, z: float, *params: float) -> None:
+        x = y = 0
+        if north is not None:
+            lat, lon = geodetic_from_local(origin, north, east)
+            x, y = int(round(lat * 1e7)), int(round(lon * 1e7))
+        p = list(params) + [0.0] * (4 - len(params))
+        items.append(MissionItem(seq=len(items), frame=frame, command=command, current=1 if not items else 0, autocontinue=1,
+                                 param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=x, y=y, z=float(z), mission_type=0))
+
+    add(NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, start["north_m"], start["east_m"], mission["takeoff_altitude_m"], 0.0, 0.0, 0.0, float("nan"))
+    add(DO_CHANGE_SPEED, MAV_FRAME_MISSION, None, None, 0.0, 1.0, mission["cruise_speed_m_s"], -1.0)
+    for waypoint in mission["waypoints"]:
+        add(NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, waypoint["north_m"], waypoint["east_m"], waypoint["altitude_m"], 0.0, ACCEPTANCE_RADIUS_M, 0.0, float("nan"))
+    if mission["land"]:
+        last = mission["waypoints"][-1]
+        add(NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, last["north_m"], last["east_m"], 0.0, 0.0, 0.0, 0.0, float("nan"))
+    return items
+
+
+class MavsdkSession:
+    """One MAVSDK instance talking to one SUT; close() releases it."""
+
+    def __init__(self, port: int, discover_timeout_s: float = 20.0):
+        self.sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        result = self.sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        if result != ConnectionResult.SUCCESS:
+            self.close()
+            raise InfrastructureError(f"MAVSDK could not listen on UDP {port}: {result.name}")
+        self.system = self.sdk.first_autopilot(timeout_s=discover_timeout_s)
+        if self.system is None:
+            self.close()
+            raise InfrastructureError(f"no autopilot heartbeat on UDP {port} within {discover_timeout_s:.0f} s")
+        self.telemetry = Telemetry(self.system)
+        self.action = Action(self.system)
+        self.mission = MissionRaw(self.system)
+        self.param = Param(self.system)
+        self.status_texts: list[str] = []
+        self.mission_progress: tuple[int, int] = (0, 0)
+        self._lock = threading.Lock()
+        self.telemetry.subscribe_status_text(self._on_status_text)
+        self.mission.subscribe_mission_progress(self._on_progress)
+
+    def _on_status_text(self, status, _user_data) -> None:
+        with self._lock:
+            self.status_texts.append(status.text)
+
+    def _on_progress(self, progress, _user_data) -> None:
+        with self._lock:
+            self.mission_progress = (progress.current, progress.total)
+
+    def wait_healthy(self, timeout_s: float) -> float:
+        """Seconds until MAVSDK reports every health check ok and the vehicle armable."""
+        start = time.monotonic()
+        while time.monotonic() - start < timeout_s:
+            if self.telemetry.health_all_ok():
+                return time.monotonic() - start
+            time.sleep(0.05)
+        health = self.telemetry.health()
+        raise InfrastructureError(f"the SUT did not become healthy within {timeout_s:.0f} s: {vars(health)}")
+
+    def set_params(self, values: Mapping[str, float | int]) -> None:
+        for name, value in values.items():
+            if isinstance(value, int):
+                self.param.set_param_int(name, value)
+            else:
+                self.param.set_param_float(name, float(value))
+
+    def upload_and_start(self, items: Sequence[MissionItem]) -> None:
+        self.mission.upload_mission(list(items))
+        self.action.arm()
+        self.mission.start_mission()
+
+    def close(self) -> None:
+        sdk = getattr(self, "sdk", None)
+        if sdk is not None:
+            sdk.destroy()
+            self.sdk = None

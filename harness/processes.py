@@ -1,0 +1,86 @@
+"""Child processes in their own process group, always killed with their whole group on exit."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Sequence
+
+log = logging.getLogger(__name__)
+
+
+class ManagedProcess:
+    """A context manager around Popen: stdout/stderr to files, SIGTERM then SIGKILL to the group."""
+
+    def __init__(self, name: str, argv: Sequence[str], *, log_dir: Path, cwd: Path | None = None, env: dict[str, str] | None = None):
+        self.name = name
+        self.argv = list(argv)
+        self.stdout_path = log_dir / f"{name}.stdout.log"
+        self.stderr_path = log_dir / f"{name}.stderr.log"
+        self._cwd = cwd
+        self._env = env
+        self.process: subprocess.Popen | None = None
+
+    def __enter__(self) -> "ManagedProcess":
+        log.info("starting %s: %s", self.name, " ".join(self.argv))
+        with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
+            self.process = subprocess.Popen(self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True)
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.stop()
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    def wait(self, timeout_s: float) -> int | None:
+        try:
+            return self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self, grace_s: float = 2.0) -> int | None:
+        """SIGTERM the process group, then SIGKILL what is left; returns the exit code."""
+        if self.process is None:
+            return None
+        group = self.process.pid
+        if self.process.poll() is None:
+            _signal_group(group, signal.SIGTERM)
+            if self.wait(grace_s) is None:
+                _signal_group(group, signal.SIGKILL)
+                self.wait(grace_s)
+        # Children that outlived their parent still belong to the group.
+        _signal_group(group, signal.SIGKILL)
+        return self.process.returncode
+
+    def stderr_tail(self, lines: int = 20) -> str:
+        try:
+            return "\n".join(self.stderr_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return ""
+
+
+def _signal_group(group: int, sig: int) -> None:
+    try:
+        os.killpg(group, sig)
+    except ProcessLookupError:
+        pass
+    except PermissionError:
+        log.warning("cannot signal process group %d", group)
+
+
+def wait_until(predicate, timeout_s: float, interval_s: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval_s)
+    return predicate()

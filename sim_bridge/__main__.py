@@ -1,0 +1,90 @@
+"""`python -m sim_bridge --world WORLD.json --sim-port 4560 --control-port P --mcap OUT.mcap`
+
+Listens for the SUT on the simulator port, runs the lockstep simulation, records to MCAP and
+prints the run's summary as one JSON line on stdout. Exit code 0 when the run ended normally
+(landed, time limit, stopped), 3 when the SUT never connected, stalled or disconnected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+from pathlib import Path
+
+from sim_bridge.bridge import Bridge, BridgeConfig, ControlChannel
+from sim_bridge.recording import Recorder
+
+NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed"}
+
+
+def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listener.bind((host, port))
+    listener.listen(1)
+    return listener
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
+    parser.add_argument("--world", required=True, help="world spec JSON (stella sample --json prints one)")
+    parser.add_argument("--sim-port", type=int, default=4560)
+    parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--mcap", required=True)
+    parser.add_argument("--rate-hz", type=float, default=250.0)
+    parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
+    parser.add_argument("--connect-timeout-s", type=float, default=60.0)
+    parser.add_argument("--stall-timeout-s", type=float, default=10.0)
+    parser.add_argument("-v", "--verbose", action="store_true")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
+    # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
+    signal.signal(signal.SIGTERM, _interrupt)
+
+    world = json.loads(Path(args.world).read_text())
+    if "world" in world:  # accept `stella sample --json` output as it is
+        world = world["world"]
+    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, stall_timeout_s=args.stall_timeout_s)
+    sim_listener = listen(args.sim_port, args.host)
+    control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
+    with open(args.mcap, "wb") as stream, Recorder(stream) as recorder:
+        recorder.metadata("world", {"json": json.dumps(world)})
+        recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})
+        bridge = Bridge(world, config, recorder)
+        sim_listener.settimeout(args.connect_timeout_s)
+        try:
+            sut, _ = sim_listener.accept()
+        except socket.timeout:
+            bridge.summary.end_reason = "sut_never_connected"
+            sut = None
+        except KeyboardInterrupt:
+            bridge.summary.end_reason = "interrupted"
+            sut = None
+        if sut is not None:
+            try:
+                bridge.run(sut, control)
+            except KeyboardInterrupt:
+                bridge.summary.end_reason = "interrupted"
+            finally:
+                sut.close()
+        summary = bridge.summary.as_dict()
+        recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
+    control.send({"event": "finished", **summary})
+    control.close()
+    sim_listener.close()
+    print(json.dumps(summary), flush=True)
+    return 0 if summary["end_reason"] in NORMAL_ENDS else 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""Obstacles of the world: where they are, how far the UAV body is from them, what the range sensor sees.
+
+Positions are in the local north/east/up frame (metres). Clearance is python-fcl's distance
+between the UAV body box and each obstacle, negative when they overlap. python-fcl 0.7's own
+`Box` primitive gives distances up to 0.6 m too large (e.g. 4.07 m for a true 3.70 m), so
+boxes are built as convex hulls, which it measures exactly (tests/test_obstacles.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import fcl
+import numpy as np
+
+_BOX_QUADS = (
+    (0, 1, 3, 2),
+    (4, 6, 7, 5),
+    (0, 4, 5, 1),
+    (2, 3, 7, 6),
+    (0, 2, 6, 4),
+    (1, 5, 7, 3),
+)
+
+
+def convex_box(length_m: float, width_m: float, height_m: float) -> fcl.Convex:
+    """A box as a convex hull: vertex index 4*ix + 2*iy + iz for the corner at (+-l/2, +-w/2, +-h/2)."""
+    vertices = np.array(
+        [[sx * length_m / 2, sy * width_m / 2, sz * height_m / 2] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+        dtype=float,
+    )
+    faces = np.array([value for quad in _BOX_QUADS for value in (4, *quad)], dtype=np.int64)
+    return fcl.Convex(vertices, len(_BOX_QUADS), faces)
+
+
+def yaw_rotation(yaw_rad: float) -> np.ndarray:
+    """Rotation of a body yawed clockwise from north, in the north/east/up frame."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class Obstacle:
+    """One obstacle; a dynamic one moves back and forth between a and b at constant speed."""
+
+    id: str
+    form: str
+    size: Mapping[str, float]
+    yaw_rad: float
+    a: np.ndarray
+    b: np.ndarray | None
+    speed_m_s: float
+    position: np.ndarray = field(init=False)
+    collision: fcl.CollisionObject = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.position = self.a.copy()
+        self.collision = fcl.CollisionObject(self._geometry(), fcl.Transform(yaw_rotation(self.yaw_rad), self.position))
+        self._leg_m = 0.0 if self.b is None else float(np.linalg.norm(self.b - self.a))
+
+    @classmethod
+    def from_spec(cls, spec: Mapping[str, Any]) -> "Obstacle":
+        def point(p: Mapping[str, float] | None) -> np.ndarray | None:
+            return None if p is None else np.array([p["north_m"], p["east_m"], p["up_m"]], dtype=float)
+
+        return cls(
+            id=spec["id"],
+            form=spec["form"],
+            size=dict(spec["size"]),
+            yaw_rad=float(spec.get("yaw_rad", 0.0)),
+            a=point(spec["a"]),
+            b=point(spec.get("b")),
+            speed_m_s=float(spec.get("speed_m_s", 0.0)),
+        )
+
+    def _geometry(self):
+        size = self.size
+        if self.form == "cuboid":
+            return convex_box(size["length_m"], size["width_m"], size["height_m"])
+        if self.form == "sphere":
+            return fcl.Sphere(size["diameter_m"] / 2.0)
+        if self.form == "cylinder":
+            return fcl.Cylinder(size["diameter_m"] / 2.0, size["height_m"])
+        raise ValueError(f"unknown obstacle form {self.form!r}")
+
+    @property
+    def moving(self) -> bool:
+        return self.b is not None and self.speed_m_s > 0.0 and self._leg_m > 0.0
+
+    @property
+    def half_height_m(self) -> float:
+        return self.size.get("height_m", self.size.get("diameter_m", 0.0)) / 2.0
+
+    def position_at(self, time_s: float) -> np.ndarray:
+        if not self.moving:
+            return self.a
+        travelled = (self.speed_m_s * time_s) % (2.0 * self._leg_m)
+        along = travelled if travelled <= self._leg_m else 2.0 * self._leg_m - travelled
+        return self.a + (self.b - self.a) * (along / self._leg_m)
+
+    def move_to(self, time_s: float) -> None:
+        if self.moving:
+            self.position = self.position_at(time_s)
+            self.collision.setTranslation(self.position)
+
+    def cross_section(self, up_m: float) -> tuple[str, tuple[float, ...]] | None:
+        """The obstacle's horizontal cut at a height: ("circle", (n, e, r)) or ("rect", (n, e, hl, hw, yaw))."""
+        n, e, u = self.position
+        dz = up_m - u
+        if self.form == "sphere":
+            radius = self.size["diameter_m"] / 2.0
+            return ("circle", (n, e, math.sqrt(radius * radius - dz * dz))) if abs(dz) < radius else None
+        if abs(dz) > self.half_height_m:
+            return None
+        if self.form == "cylinder":
+            return "circle", (n, e, self.size["diameter_m"] / 2.0)
+        return "rect", (n, e, self.size["length_m"] / 2.0, self.size["width_m"] / 2.0, self.yaw_rad)
+
+
+def ray_distances(origin_n: float, origin_e: float, angles_rad: np.ndarray, cut: tuple[str, tuple[float, ...]]) -> np.ndarray:
+    """Distance along horizontal rays (angles clockwise from north) to one cross-section; inf on a miss."""
+    un, ue = np.cos(angles_rad), np.sin(angles_rad)
+    kind, values = cut
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if kind == "circle":
+            cn, ce, radius = values
+            pn, pe = origin_n - cn, origin_e - ce
+            b = un * pn + ue * pe
+            c = pn * pn + pe * pe - radius * radius
+            if c <= 0.0:
+                return np.zeros_like(angles_rad)
+            disc = b * b - c
+            t = -b - np.sqrt(np.where(disc >= 0.0, disc, 0.0))
+            return np.where((disc >= 0.0) & (t >= 0.0), t, np.inf)
+        cn, ce, half_l, half_w, yaw = values
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        pn, pe = origin_n - cn, origin_e - ce
+        # Into the box frame: x along its length (heading yaw), y along its width.
+        px, py = cy * pn + sy * pe, -sy * pn + cy * pe
+        if abs(px) <= half_l and abs(py) <= half_w:
+            return np.zeros_like(angles_rad)
+        dx, dy = cy * un + sy * ue, -sy * un + cy * ue
+        t1, t2 = (-half_l - px) / dx, (half_l - px) / dx
+        t3, t4 = (-half_w - py) / dy, (half_w - py) / dy
+        t_near = np.maximum(np.minimum(t1, t2), np.minimum(t3, t4))
+        t_far = np.minimum(np.maximum(t1, t2), np.maximum(t3, t4))
+        hit = (t_far >= t_near) & (t_far >= 0.0) & np.isfinite(t_near)
+        return np.where(hit, np.maximum(t_near, 0.0), np.inf)
+
+
+class ObstacleField:
+    """All obstacles plus the UAV body; one clearance query per obstacle per step, no allocation."""
+
+    def __init__(self, obstacles: list[Obstacle], body: Mapping[str, float]):
+        self.obstacles = obstacles
+        self._body = fcl.CollisionObject(
+            convex_box(body["length_m"], body["width_m"], body["height_m"]), fcl.Transform()
+        )
+        self._request = fcl.DistanceRequest(enable_nearest_points=False, enable_signed_distance=True)
+        self._result = fcl.DistanceResult()
+
+    def add(self, obstacle: Obstacle) -> None:
+        self.obstacles = [o for o in self.obstacles if o.id != obstacle.id] + [obstacle]
+
+    def remove(self, obstacle_id: str) -> bool:
+        before = len(self.obstacles)
+        self.obstacles = [o for o in self.obstacles if o.id != obstacle_id]
+        return len(self.obstacles) < before
+
+    def move_to(self, time_s: float) -> None:
+        for obstacle in self.obstacles:
+            obstacle.move_to(time_s)
+
+    def place_body(self, north_m: float, east_m: float, up_m: float, rotation_neu: np.ndarray) -> None:
+        self._body.setTransform(fcl.Transform(rotation_neu, np.array([north_m, east_m, up_m])))
+
+    def clearances(self) -> list[float]:
+        distance, body, request, result = fcl.distance, self._body, self._request, self._result
+        return [distance(body, o.collision, request, result) for o in self.obstacles]
+
+    def sector_distances(self, north_m: float, east_m: float, up_m: float, angles_rad: np.ndarray) -> np.ndarray:
+        nearest = np.full(angles_rad.shape, np.inf)
+        for obstacle in self.obstacles:
+            cut = obstacle.cross_section(up_m)
+            if cut is not None:
+                np.minimum(nearest, ray_distances(north_m, east_m, angles_rad, cut), out=nearest)
+        return nearest

@@ -1,0 +1,236 @@
+"""Ground truth to MCAP with Foxglove's well-known JSON schemas, so a log opens in Foxglove's 3D panel.
+
+Foxglove's scene frame "world" is ENU (x east, y north, z up) and the vehicle frame "uav" is
+FLU; the simulation's north/east/up and NED/FRD values are converted here, at the edge.
+Log times are simulation time in nanoseconds from the start of the run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any, BinaryIO, Mapping
+
+from mcap.writer import CompressionType, Writer
+
+from sim_bridge.sensors import rotation_ned_from_body
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_VECTOR3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+_QUATERNION = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
+_POSE = {"type": "object", "properties": {"position": _VECTOR3, "orientation": _QUATERNION}}
+_COLOR = {"type": "object", "properties": {k: {"type": "number"} for k in "rgba"}}
+_PRIMITIVE = {"type": "object", "properties": {"pose": _POSE, "size": _VECTOR3, "color": _COLOR}}
+
+FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
+    "foxglove.FrameTransform": {
+        "title": "foxglove.FrameTransform",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "parent_frame_id": {"type": "string"},
+            "child_frame_id": {"type": "string"},
+            "translation": _VECTOR3,
+            "rotation": _QUATERNION,
+        },
+    },
+    "foxglove.PoseInFrame": {
+        "title": "foxglove.PoseInFrame",
+        "type": "object",
+        "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE},
+    },
+    "foxglove.LocationFix": {
+        "title": "foxglove.LocationFix",
+        "type": "object",
+        "properties": {
+            "timestamp": _TIME,
+            "frame_id": {"type": "string"},
+            "latitude": {"type": "number"},
+            "longitude": {"type": "number"},
+            "altitude": {"type": "number"},
+            "position_covariance": {"type": "array", "items": {"type": "number"}},
+            "position_covariance_type": {"type": "integer"},
+        },
+    },
+    "foxglove.SceneUpdate": {
+        "title": "foxglove.SceneUpdate",
+        "type": "object",
+        "properties": {
+            "deletions": {
+                "type": "array",
+                "items": {"type": "object", "properties": {"timestamp": _TIME, "type": {"type": "integer"}, "id": {"type": "string"}}},
+            },
+            "entities": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "timestamp": _TIME,
+                        "frame_id": {"type": "string"},
+                        "id": {"type": "string"},
+                        "lifetime": _TIME,
+                        "frame_locked": {"type": "boolean"},
+                        "metadata": {"type": "array", "items": {"type": "object"}},
+                        "cubes": {"type": "array", "items": _PRIMITIVE},
+                        "spheres": {"type": "array", "items": _PRIMITIVE},
+                        "cylinders": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "pose": _POSE,
+                                    "size": _VECTOR3,
+                                    "bottom_scale": {"type": "number"},
+                                    "top_scale": {"type": "number"},
+                                    "color": _COLOR,
+                                },
+                            },
+                        },
+                        "triangles": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "pose": _POSE,
+                                    "points": {"type": "array", "items": _VECTOR3},
+                                    "color": _COLOR,
+                                    "colors": {"type": "array", "items": _COLOR},
+                                    "indices": {"type": "array", "items": {"type": "integer"}},
+                                },
+                            },
+                        },
+                    },
+                },
+            },
+        },
+    },
+}
+
+STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
+    "stella.Clearance": {
+        "title": "stella.Clearance",
+        "description": "Per physics step: smallest UAV-body-to-obstacle distance (m, negative when overlapping), which obstacle, and the body's height above the terrain.",
+        "type": "object",
+        "required": ["t", "d", "o", "g"],
+        "properties": {
+            "t": {"type": "number", "description": "simulation time, s"},
+            "d": {"type": ["number", "null"]},
+            "o": {"type": ["string", "null"]},
+            "g": {"type": "number"},
+        },
+    },
+    "stella.VehicleState": {
+        "title": "stella.VehicleState",
+        "type": "object",
+        "properties": {
+            "t": {"type": "number"},
+            "north_m": {"type": "number"},
+            "east_m": {"type": "number"},
+            "up_m": {"type": "number"},
+            "v_ned_m_s": {"type": "array", "items": {"type": "number"}},
+            "rpy_rad": {"type": "array", "items": {"type": "number"}},
+            "motors": {"type": "array", "items": {"type": "number"}},
+            "agl_m": {"type": "number"},
+        },
+    },
+    "stella.ObstacleDistance": {
+        "title": "stella.ObstacleDistance",
+        "type": "object",
+        "properties": {"t": {"type": "number"}, "range_m": {"type": "number"}, "distances_cm": {"type": "array", "items": {"type": "integer"}}},
+    },
+    "stella.Event": {
+        "title": "stella.Event",
+        "type": "object",
+        "properties": {"t": {"type": "number"}, "event": {"type": "string"}, "detail": {"type": "object"}},
+    },
+    "stella.MavlinkBytes": {
+        "title": "stella.MavlinkBytes",
+        "description": "Raw MAVLink frames of one link in one direction, hex encoded, batched.",
+        "type": "object",
+        "properties": {"link": {"type": "string"}, "direction": {"type": "string"}, "hex": {"type": "string"}},
+    },
+}
+
+SCHEMAS = {**FOXGLOVE_SCHEMAS, **STELLA_SCHEMAS}
+
+TOPICS = {
+    "/tf": "foxglove.FrameTransform",
+    "/uav/pose": "foxglove.PoseInFrame",
+    "/uav/fix": "foxglove.LocationFix",
+    "/scene": "foxglove.SceneUpdate",
+    "/clearance": "stella.Clearance",
+    "/uav/state": "stella.VehicleState",
+    "/sensor/obstacle_distance": "stella.ObstacleDistance",
+    "/events": "stella.Event",
+    "/mavlink/sim": "stella.MavlinkBytes",
+    "/mavlink/api": "stella.MavlinkBytes",
+}
+
+
+def stamp(time_ns: int) -> dict[str, int]:
+    return {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}
+
+
+def quaternion_from_matrix(m) -> dict[str, float]:
+    trace = m[0][0] + m[1][1] + m[2][2]
+    if trace > 0:
+        s = 0.5 / math.sqrt(trace + 1.0)
+        return {"w": 0.25 / s, "x": (m[2][1] - m[1][2]) * s, "y": (m[0][2] - m[2][0]) * s, "z": (m[1][0] - m[0][1]) * s}
+    if m[0][0] > m[1][1] and m[0][0] > m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[0][0] - m[1][1] - m[2][2])
+        return {"w": (m[2][1] - m[1][2]) / s, "x": 0.25 * s, "y": (m[0][1] + m[1][0]) / s, "z": (m[0][2] + m[2][0]) / s}
+    if m[1][1] > m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[1][1] - m[0][0] - m[2][2])
+        return {"w": (m[0][2] - m[2][0]) / s, "x": (m[0][1] + m[1][0]) / s, "y": 0.25 * s, "z": (m[1][2] + m[2][1]) / s}
+    s = 2.0 * math.sqrt(1.0 + m[2][2] - m[0][0] - m[1][1])
+    return {"w": (m[1][0] - m[0][1]) / s, "x": (m[0][2] + m[2][0]) / s, "y": (m[1][2] + m[2][1]) / s, "z": 0.25 * s}
+
+
+def enu_flu_orientation(roll: float, pitch: float, yaw: float) -> dict[str, float]:
+    """Orientation of the FLU body in the ENU world, from NED/FRD Euler angles."""
+    r = rotation_ned_from_body(roll, pitch, yaw)
+    # ENU = P * NED with P swapping north/east and negating down; FLU = D * FRD with D = diag(1,-1,-1).
+    enu = (r[1], r[0], tuple(-v for v in r[2]))
+    m = tuple((row[0], -row[1], -row[2]) for row in enu)
+    return quaternion_from_matrix(m)
+
+
+def yaw_orientation(yaw_from_north_rad: float) -> dict[str, float]:
+    """A shape's local x axis pointing yaw clockwise from north, in ENU."""
+    angle = math.pi / 2 - yaw_from_north_rad
+    return {"x": 0.0, "y": 0.0, "z": math.sin(angle / 2), "w": math.cos(angle / 2)}
+
+
+def enu(north_m: float, east_m: float, up_m: float) -> dict[str, float]:
+    return {"x": east_m, "y": north_m, "z": up_m}
+
+
+class Recorder:
+    """An MCAP writer with the project's channels; use as a context manager so the file is always finished."""
+
+    def __init__(self, stream: BinaryIO):
+        self._stream = stream
+        self._writer = Writer(stream, compression=CompressionType.ZSTD)
+        self._channels: dict[str, int] = {}
+
+    def __enter__(self) -> "Recorder":
+        self._writer.start(profile="", library="stella-uav")
+        schema_ids = {
+            name: self._writer.register_schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
+            for name, schema in SCHEMAS.items()
+        }
+        for topic, schema in TOPICS.items():
+            self._channels[topic] = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[schema])
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self._writer.finish()
+
+    def write(self, topic: str, *, time_ns: int, message: Mapping[str, Any]) -> None:
+        self.write_raw(topic, time_ns=time_ns, data=json.dumps(message, separators=(",", ":")).encode())
+
+    def write_raw(self, topic: str, *, time_ns: int, data: bytes) -> None:
+        self._writer.add_message(self._channels[topic], log_time=time_ns, data=data, publish_time=time_ns)
+
+    def metadata(self, name: str, values: Mapping[str, str]) -> None:
+        self._writer.add_metadata(name, dict(values))

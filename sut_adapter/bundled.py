@@ -1,0 +1,31 @@
+"""The bundled autopilot (`python -m autopilot`) as a SUT."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Mapping
+
+from harness.processes import ManagedProcess
+from sut_adapter.base import SutHandle
+
+
+class BundledAutopilot:
+    name = "bundled"
+
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+        argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", "--api", f"udp:127.0.0.1:{api_port}"]
+        if params:
+            params_file = workdir / "autopilot_params.json"
+            params_file.write_text(json.dumps(dict(params)))
+            argv += ["--params", str(params_file)]
+        process = ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir)
+        process.__enter__()
+        return SutHandle(
+            name=self.name,
+            alive=lambda: process.poll() is None,
+            stop=process.stop,
+            artifacts=[process.stdout_path, process.stderr_path],
+            stderr_tail=process.stderr_tail,
+        )
