@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import math
-import select
 import socket
 import time
 
@@ -69,6 +68,9 @@ class Autopilot:
         self._controlling = False
         self.api: ApiLink | None = None
         self._seq = 0
+        self._wanted_sim_messages = {mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE}
+        if params["EKF2_GT_MODE"]:
+            self._wanted_sim_messages.add(mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
 
     # -- state helpers used by the API --------------------------------------------------------
 
@@ -181,7 +183,6 @@ class Autopilot:
 
     def serve(self, sim_address: tuple[str, int], api_address: tuple[str, int], connect_timeout_s: float) -> int:
         sim = _connect(sim_address, connect_timeout_s)
-        sim.settimeout(None)
         sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.api = api = ApiLink(self, api_address)
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
@@ -190,21 +191,28 @@ class Autopilot:
         perf = time.perf_counter
         next_check = 0.0
         sim_lost_at: float | None = None
+        # Blocking reads on the simulator link (it drives the clock); the API link is polled
+        # between steps at most every TELEMETRY_CHECK_S of wall time, and on every timeout.
+        sim.settimeout(TELEMETRY_CHECK_S)
         try:
             while True:
-                readable, _, _ = select.select([sim, api.sock] if sim_lost_at is None else [api.sock], [], [], 0.02)
-                wall = perf()
-                if sim in readable and sim_lost_at is None:
-                    data = sim.recv(65536)
-                    if not data:
-                        sim_lost_at = wall
-                        api.statustext("Simulator link lost: stopping", mavlink.MAV_SEVERITY_CRITICAL)
-                        self.commander.events.clear()
+                data = None
+                if sim_lost_at is None:
+                    try:
+                        data = sim.recv(65536)
+                    except socket.timeout:
+                        pass
                     else:
-                        self._on_sim_data(sim, splitter, decoder, data)
-                if api.sock in readable:
-                    api.receive()
+                        if data:
+                            self._on_sim_data(sim, splitter, decoder, data)
+                        else:
+                            sim_lost_at = perf()
+                            api.statustext("Simulator link lost: stopping", mavlink.MAV_SEVERITY_CRITICAL)
+                else:
+                    time.sleep(TELEMETRY_CHECK_S)
+                wall = perf()
                 if wall >= next_check:
+                    api.receive()
                     api.report_events()
                     api.telemetry(wall)
                     api.check_link(self.params["COM_DL_LOSS_T"])
@@ -226,7 +234,7 @@ class Autopilot:
                     codec.encode_hil_actuator_controls(seq=self._seq, sysid=1, compid=1, time_usec=fields[0], controls=controls, mode=mode, flags=LOCKSTEP_FLAG)
                 )
                 self._seq = (self._seq + 1) & 0xFF
-            else:
+            elif msgid in self._wanted_sim_messages:
                 self._handle_sim_message(msgid, payload, frame, decoder)
 
 

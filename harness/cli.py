@@ -169,6 +169,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 1 if args.fail_on_violation and result["status"] == "violation" else 0
 
 
+@command("inspect")
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from harness.inspect_log import plot, summarize
+
+    path = Path(args.log)
+    if not path.exists():
+        raise InputError([Problem(str(path), "", "no such file")])
+    summary = summarize(path)
+    if args.plot:
+        plot(path, Path(args.plot))
+        summary["plot"] = args.plot
+    lines = [f"{summary['log']}: {summary['scenario']}", f"duration: {summary['duration_s']:.2f} s simulated, ended: {summary['end_reason']}"]
+    lines.append(f"status: {summary['status']}" + (f" ({summary['why']})" if summary["why"] else ""))
+    if summary["min_clearance_at_s"] is not None:
+        lines.append(f"min clearance: {summary['min_clearance_m']:.3f} m at t={summary['min_clearance_at_s']:.3f} s to {summary['min_clearance_obstacle']}")
+    lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {summary['fitness_reproduced']}")
+    emit(args, summary, "\n".join(lines))
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -200,6 +220,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="lockstep rate")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
+
+    p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
+    p.add_argument("log", help="an evaluation's .mcap file")
+    p.add_argument("--plot", help="write a PNG: top view of the trajectory and the clearance over time")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

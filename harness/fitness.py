@@ -38,14 +38,17 @@ class Clearance:
         return self.min_clearance_m - safety_distance_m
 
 
-def min_clearance(samples: Iterable[Mapping[str, Any]]) -> Clearance:
-    """The smallest recorded clearance, when, and to which obstacle (first occurrence wins)."""
+def min_clearance(batches: Iterable[Mapping[str, Any]]) -> Clearance:
+    """The smallest recorded clearance, when, and to which obstacle (first occurrence wins).
+
+    batches are /clearance messages: parallel arrays t, d, o over consecutive physics steps.
+    """
     best, at, which, count = CLEARANCE_CAP_M, None, None, 0
-    for sample in samples:
-        count += 1
-        d = sample["d"]
-        if d is not None and d < best:
-            best, at, which = d, sample["t"], sample["o"]
+    for batch in batches:
+        count += len(batch["t"])
+        for t, d, o in zip(batch["t"], batch["d"], batch["o"]):
+            if d is not None and d < best:
+                best, at, which = d, t, o
     return Clearance(best, at, which, count)
 
 

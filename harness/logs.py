@@ -48,7 +48,8 @@ def merge(bridge_log: Path, out: Path, *, api_records: Sequence[tuple[int, str, 
                 data = json.dumps({"link": "api", "direction": direction, "hex": datagram.hex()}).encode()
                 writer.add_message(api_channel, log_time=time_ns, data=data, publish_time=time_ns)
         for record in reader.iter_metadata():
-            writer.add_metadata(record.name, dict(record.metadata))
+            if record.name not in extra_metadata:
+                writer.add_metadata(record.name, dict(record.metadata))
         for name, value in extra_metadata.items():
             writer.add_metadata(name, {"json": json.dumps(value)})
         writer.finish()

@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sim_bridge.obstacles import Obstacle, ObstacleField
 from sim_bridge.physics import Multirotor
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, stamp, yaw_orientation
-from sim_bridge.sensors import FIELDS_ALL, SensorModel, quaternion_from_euler, rotation_ned_from_body
+from sim_bridge.sensors import FIELDS_ALL, SensorModel, quaternion_from_euler
 from sim_bridge.terrain import is_water, terrain_height_m
 from simlink import codec
 
@@ -49,7 +49,7 @@ COMPONENT_ID = 51
 UINT16_MAX = 65535
 SECTORS = 72
 SECTOR_DEG = 5.0
-RECORD_EVERY_S = 0.02
+RECORD_EVERY_S = 0.04
 SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
 LANDED_HOLD_S = 1.0
@@ -196,6 +196,7 @@ class Bridge:
         self._link_out = bytearray()
         self._link_in = bytearray()
         self._landed_since: float | None = None
+        self._clearance_batch: tuple[list, list, list, list] = ([], [], [], [])
         self._run_start_s: float | None = None
         self._water = world["surface"]["water"]
 
@@ -295,6 +296,13 @@ class Bridge:
                 "agl_m": s.agl_m,
             },
         )
+
+    def _flush_clearance(self) -> None:
+        """One /clearance message per batch of physics steps: every step's value, few MCAP records."""
+        times, distances, obstacles, heights = self._clearance_batch
+        if times:
+            self.recorder.write("/clearance", time_ns=int(round(times[0] * 1e9)), message={"t": times, "d": distances, "o": obstacles, "g": heights})
+            self._clearance_batch = ([], [], [], [])
 
     def _flush_link(self, time_ns: int) -> None:
         for direction, buffer in (("to_sut", self._link_out), ("from_sut", self._link_in)):
@@ -534,25 +542,26 @@ class Bridge:
             while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
                 self._apply_op(self._pending_ops.pop(0), time_s)
             field_.move_to(run_time)
-            rotation = rotation_ned_from_body(s.roll_rad, s.pitch_rad, s.yaw_rad)
-            field_.place_body(s.north_m, s.east_m, s.up_m, np.array([rotation[0], rotation[1], [-v for v in rotation[2]]]) * np.array([1.0, 1.0, -1.0]))
+            field_.place_body(s.north_m, s.east_m, s.up_m, s.roll_rad, s.pitch_rad, s.yaw_rad)
             clearances = field_.clearances()
             time_ns = int(round(time_s * 1e9))
+            batch = self._clearance_batch
+            batch[0].append(time_s)
             if clearances:
                 nearest = min(range(len(clearances)), key=clearances.__getitem__)
-                recorder.write_raw(
-                    "/clearance",
-                    time_ns=time_ns,
-                    data=b'{"t":%r,"d":%r,"o":"%s","g":%r}' % (time_s, clearances[nearest], field_.obstacles[nearest].id.encode(), s.agl_m),
-                )
+                batch[1].append(clearances[nearest])
+                batch[2].append(field_.obstacles[nearest].id)
             else:
-                recorder.write_raw("/clearance", time_ns=time_ns, data=b'{"t":%r,"d":null,"o":null,"g":%r}' % (time_s, s.agl_m))
+                batch[1].append(None)
+                batch[2].append(None)
+            batch[3].append(s.agl_m)
             if step % every["record"] == 0:
                 self._record_pose(time_ns)
             if step % every["scene"] == 0:
                 self._record_scene(time_ns, everything=False)
             if step % every["flush"] == 0:
                 self._flush_link(time_ns)
+                self._flush_clearance()
             if step % every["control"] == 0:
                 self._handle_ops(control.poll(), time_s)
             if not lockstep:
@@ -568,6 +577,7 @@ class Bridge:
         if wall_run_started is not None:
             summary.wall_in_run_s = time.perf_counter() - wall_run_started
         self._flush_link(int(summary.sim_time_s * 1e9))
+        self._flush_clearance()
         self._event(summary.sim_time_s, "finished", reason=summary.end_reason)
         return summary
 

@@ -59,6 +59,8 @@ class Obstacle:
         self.position = self.a.copy()
         self.collision = fcl.CollisionObject(self._geometry(), fcl.Transform(yaw_rotation(self.yaw_rad), self.position))
         self._leg_m = 0.0 if self.b is None else float(np.linalg.norm(self.b - self.a))
+        self._a_tuple = tuple(self.a.tolist())
+        self._delta = (0.0, 0.0, 0.0) if self.b is None else tuple((self.b - self.a).tolist())
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any]) -> "Obstacle":
@@ -96,9 +98,11 @@ class Obstacle:
     def position_at(self, time_s: float) -> np.ndarray:
         if not self.moving:
             return self.a
-        travelled = (self.speed_m_s * time_s) % (2.0 * self._leg_m)
-        along = travelled if travelled <= self._leg_m else 2.0 * self._leg_m - travelled
-        return self.a + (self.b - self.a) * (along / self._leg_m)
+        leg = self._leg_m
+        travelled = (self.speed_m_s * time_s) % (2.0 * leg)
+        fraction = (travelled if travelled <= leg else 2.0 * leg - travelled) / leg
+        (an, ae, au), (dn, de, du) = self._a_tuple, self._delta
+        return np.array((an + dn * fraction, ae + de * fraction, au + du * fraction))
 
     def move_to(self, time_s: float) -> None:
         if self.moving:
@@ -173,8 +177,20 @@ class ObstacleField:
         for obstacle in self.obstacles:
             obstacle.move_to(time_s)
 
-    def place_body(self, north_m: float, east_m: float, up_m: float, rotation_neu: np.ndarray) -> None:
-        self._body.setTransform(fcl.Transform(rotation_neu, np.array([north_m, east_m, up_m])))
+    def place_body(self, north_m: float, east_m: float, up_m: float, roll: float, pitch: float, yaw: float) -> None:
+        """The body box at the vehicle's pose: NED/FRD Euler angles expressed in north/east/up."""
+        cr, sr = math.cos(roll), math.sin(roll)
+        cp, sp = math.cos(pitch), math.sin(pitch)
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        # R_ned_frd with its third row and column negated: the same rotation seen with up instead of down.
+        rotation = np.array(
+            (
+                (cp * cy, sr * sp * cy - cr * sy, -(cr * sp * cy + sr * sy)),
+                (cp * sy, sr * sp * sy + cr * cy, -(cr * sp * sy - sr * cy)),
+                (sp, -sr * cp, cr * cp),
+            )
+        )
+        self._body.setTransform(fcl.Transform(rotation, np.array((north_m, east_m, up_m))))
 
     def clearances(self) -> list[float]:
         distance, body, request, result = fcl.distance, self._body, self._request, self._result

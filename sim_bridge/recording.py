@@ -109,14 +109,14 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
 STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
     "stella.Clearance": {
         "title": "stella.Clearance",
-        "description": "Per physics step: smallest UAV-body-to-obstacle distance (m, negative when overlapping), which obstacle, and the body's height above the terrain.",
+        "description": "Every physics step of a batch: simulation time (s), the smallest UAV-body-to-obstacle distance (m, negative when overlapping; null without obstacles), which obstacle, and the gear's height above the terrain (m).",
         "type": "object",
         "required": ["t", "d", "o", "g"],
         "properties": {
-            "t": {"type": "number", "description": "simulation time, s"},
-            "d": {"type": ["number", "null"]},
-            "o": {"type": ["string", "null"]},
-            "g": {"type": "number"},
+            "t": {"type": "array", "items": {"type": "number"}},
+            "d": {"type": "array", "items": {"type": ["number", "null"]}},
+            "o": {"type": "array", "items": {"type": ["string", "null"]}},
+            "g": {"type": "array", "items": {"type": "number"}},
         },
     },
     "stella.VehicleState": {
