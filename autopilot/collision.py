@@ -2,7 +2,7 @@
 
 A 72-sector obstacle map in world-fixed bins (5 degrees each, clockwise from north) is filled
 from OBSTACLE_DISTANCE (body FRD, centimetres). The horizontal velocity setpoint is first turned
-by up to CP_GUIDE_ANG towards free space when its direction is blocked, then in every sector
+by up to CP_GUIDE_ANG into a gap when its direction is blocked, then in every sector
 with an obstacle its component towards the obstacle is limited to the speed from which the
 vehicle can still stop CP_DIST before it, after travelling CP_DELAY at its current speed:
 v_max = sqrt(2 * MPC_ACC_HOR * max(0, d - CP_DIST - CP_DELAY * v_towards)). The component
@@ -19,6 +19,7 @@ BIN_RAD = 2.0 * math.pi / BINS
 BIN_DIRECTIONS = tuple((math.cos(i * BIN_RAD), math.sin(i * BIN_RAD)) for i in range(BINS))
 UINT16_MAX = 65535
 STALE_AFTER_S = 0.5
+MAX_PASSES = 8
 
 
 class ObstacleMap:
@@ -68,18 +69,18 @@ def _clearance_around(distances: list[float | None], index: int) -> float | None
 
 
 def guided_direction(obstacles: ObstacleMap, direction_rad: float, guide_angle_rad: float, needed_m: float) -> float:
-    """Turn a blocked direction by at most guide_angle_rad towards the freest sector."""
+    """Turn a blocked direction by the smallest angle, at most guide_angle_rad, that leads into a
+    gap with the clearance needed to stop; keep it when there is no such gap (a wall)."""
     home = _bin_of(direction_rad)
     clearance = _clearance_around(obstacles.distances, home)
     if clearance is None or clearance >= needed_m:
         return direction_rad
-    best_offset, best_clearance = 0, clearance
     span = int(guide_angle_rad / BIN_RAD)
     for offset in sorted(range(-span, span + 1), key=abs):
         candidate = _clearance_around(obstacles.distances, home + offset)
-        if candidate is not None and candidate > best_clearance:
-            best_offset, best_clearance = offset, candidate
-    return direction_rad + best_offset * BIN_RAD
+        if candidate is not None and candidate >= needed_m:
+            return direction_rad + offset * BIN_RAD
+    return direction_rad
 
 
 def constrain_velocity(
@@ -110,9 +111,16 @@ def constrain_velocity(
         towards = max(0.0, velocity_ne[0] * bin_n + velocity_ne[1] * bin_e)
         stop_distance = max(0.0, distance - cp_dist - delay * towards)
         limits.append((bin_n, bin_e, math.sqrt(2.0 * acc * stop_distance)))
-    for bin_n, bin_e, allowed in limits:
-        along = vn * bin_n + ve * bin_e
-        if along > allowed:
-            vn -= (along - allowed) * bin_n
-            ve -= (along - allowed) * bin_e
+    # Each sector is a half-plane v . direction <= allowed that contains v = 0; cyclic projection
+    # onto them converges into their intersection, usually within one or two passes.
+    for _ in range(MAX_PASSES):
+        changed = False
+        for bin_n, bin_e, allowed in limits:
+            along = vn * bin_n + ve * bin_e
+            if along > allowed + 1e-9:
+                vn -= (along - allowed) * bin_n
+                ve -= (along - allowed) * bin_e
+                changed = True
+        if not changed:
+            break
     return vn, ve

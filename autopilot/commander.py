@@ -264,7 +264,11 @@ class Commander:
                 self._phase = "descend"
                 self._hold = (item.north_m, item.east_m, estimate.down_m)
             n, e, _ = self._hold
-            return self._land(now_s, estimate, collective, n, e)
+            sp = self._land(now_s, estimate, collective, n, e)
+            if self.landed:
+                self._advance(self.current)
+                return Setpoint(idle=True)
+            return sp
         self.events.append(("statustext", f"Unsupported mission item {item.command}, skipped"))
         self._advance(self.current)
         return self._hold_setpoint()

@@ -1,0 +1,93 @@
+"""A small scripted SUT for bridge tests: speaks PX4's simulator protocol, no flight stack.
+
+python tests/scripted_sut.py --port P --mode MODE [--steps N]
+  hover       climb to 3 m on a PD loop over ground truth for 5 s of simulation, then hold the
+              F450's hover throttle (0.4174) as collective until the bridge ends the run; a
+              PD attitude loop keeps it level throughout (the F450 leaves the ground with a
+              small pitch rate that nothing in the airframe damps)
+  disconnect  answer N steps, then close the connection
+  stall       answer N steps, then stop answering (keeps the connection open)
+  garbage     answer every step, with garbage bytes before every 10th answer
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import socket
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
+
+from simlink import codec  # noqa: E402
+
+HOVER_THROTTLE = 0.4174
+CLIMB_UNTIL_S = 5.0
+TARGET_UP_M = 3.0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--port", type=int, required=True)
+    parser.add_argument("--mode", required=True, choices=["hover", "disconnect", "stall", "garbage"])
+    parser.add_argument("--steps", type=int, default=100)
+    args = parser.parse_args()
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            sock = socket.create_connection(("127.0.0.1", args.port))
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                return 3
+            time.sleep(0.05)
+    splitter = codec.FrameSplitter({m: c.crc_extra for m, c in mavlink.mavlink_map.items()})
+    decoder = mavlink.MAVLink(None)
+    start_alt_mm = None
+    up_m, climb_m_s = 0.0, 0.0
+    roll = pitch = 0.0
+    answered = 0
+    while True:
+        data = sock.recv(65536)
+        if not data:
+            return 0
+        for msgid, payload, frame in splitter.feed(data):
+            if msgid == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
+                truth = decoder.decode(bytearray(frame))
+                start_alt_mm = truth.alt if start_alt_mm is None else start_alt_mm
+                up_m, climb_m_s = (truth.alt - start_alt_mm) / 1000.0, -truth.vz / 100.0
+                w, x, y, z = truth.attitude_quaternion
+                roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+                pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+            if msgid != codec.HIL_SENSOR_ID:
+                continue
+            sensor = codec.decode_hil_sensor(payload)
+            time_usec = sensor[0]
+            motors = (0.0,) * 4
+            if args.mode == "hover":
+                if time_usec / 1e6 < CLIMB_UNTIL_S:
+                    collective = min(0.7, max(0.2, HOVER_THROTTLE + 0.3 * (TARGET_UP_M - up_m) - 0.25 * climb_m_s))
+                else:
+                    collective = HOVER_THROTTLE
+                roll_cmd = -0.3 * roll - 0.05 * sensor[4]
+                pitch_cmd = -0.3 * pitch - 0.05 * sensor[5]
+                # PX4 quad-X: front-right, aft-left, front-left, aft-right.
+                motors = (collective - roll_cmd + pitch_cmd, collective + roll_cmd - pitch_cmd, collective + roll_cmd + pitch_cmd, collective - roll_cmd - pitch_cmd)
+            if args.mode in ("disconnect", "stall") and answered >= args.steps:
+                if args.mode == "disconnect":
+                    sock.close()
+                    return 0
+                time.sleep(3600)
+            answer = codec.encode_hil_actuator_controls(seq=answered, sysid=1, compid=1, time_usec=time_usec, controls=motors + (0.0,) * 12, mode=0, flags=1)
+            if args.mode == "garbage" and answered % 10 == 0:
+                answer = b"\xfd\x05garbage\x00\xfd" + answer
+            sock.sendall(answer)
+            answered += 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""The bundled autopilot's pure parts: collision prevention, mixer, controllers, estimator, commander, parameters."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from conftest import ROOT
+from autopilot.collision import BINS, ObstacleMap, constrain_velocity
+from autopilot.commander import DO_CHANGE_SPEED, MAIN_AUTO, NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
+from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
+from autopilot.estimator import Estimator, GpsFix
+from autopilot.params import SPECS, ParamError, Params, markdown_table
+
+UNKNOWN = 65535
+
+
+def obstacle_ahead(distance_m: float, now_s: float = 0.0, yaw: float = 0.0, sectors=(0,), fov_sectors=range(-10, 11)) -> ObstacleMap:
+    """A forward sensor (body FRD, 5 degree sectors) seeing an obstacle in the given sectors."""
+    distances = [UNKNOWN] * BINS
+    for sector in fov_sectors:
+        distances[sector % BINS] = 2001  # free up to 20 m
+    for sector in sectors:
+        distances[sector % BINS] = int(distance_m * 100)
+    m = ObstacleMap()
+    m.update(now_s, yaw, distances, 5.0, 0.0, 20, 2000)
+    return m
+
+
+def wall_ahead(distance_m: float, now_s: float = 0.0, yaw: float = 0.0) -> ObstacleMap:
+    """A wall across the heading at distance_m, seen by the +-50 degree forward sensor."""
+    distances = [UNKNOWN] * BINS
+    for sector in range(-10, 11):
+        slant = distance_m / math.cos(math.radians(5.0 * sector))
+        distances[sector % BINS] = int(slant * 100) if slant <= 20.0 else 2001
+    m = ObstacleMap()
+    m.update(now_s, yaw, distances, 5.0, 0.0, 20, 2000)
+    return m
+
+
+class PointMass:
+    """A vehicle that tracks its velocity setpoint with MPC_ACC_HOR, for closed-loop checks."""
+
+    def __init__(self, params):
+        self.params = params
+        self.north = 0.0
+        self.v = 0.0
+
+    def step(self, setpoint: float, dt: float) -> None:
+        acc = self.params["MPC_ACC_HOR"]
+        self.v += max(-acc * dt, min(acc * dt, setpoint - self.v))
+        self.north += self.v * dt
+
+
+def test_obstacle_straight_ahead_at_3m_with_5m_s_setpoint_keeps_cp_dist():
+    # GIVEN an obstacle straight ahead at 3 m and a 5 m/s setpoint towards it
+    params = Params()
+    vehicle = PointMass(params)
+    wall_m = 3.0
+    dt = 0.004
+    # WHEN the setpoint is constrained at every step while the vehicle flies
+    closest = wall_m
+    for step in range(2500):
+        now = step * dt
+        m = wall_ahead(wall_m - vehicle.north, now_s=now)
+        vn, ve = constrain_velocity(params, m, now, (5.0, 0.0), (vehicle.v, 0.0))
+        assert ve == pytest.approx(0.0, abs=1e-9)
+        vehicle.step(vn, dt)
+        closest = min(closest, wall_m - vehicle.north)
+    # THEN the stopping distance keeps CP_DIST
+    assert closest >= params["CP_DIST"] - 0.05
+    assert closest <= params["CP_DIST"] + 0.3  # it does approach; it does not stop needlessly far away
+
+
+def test_the_first_constrained_setpoint_is_the_stopping_speed():
+    params = Params()
+    vn, _ = constrain_velocity(params, wall_ahead(3.0), 0.0, (5.0, 0.0), (0.0, 0.0))
+    assert vn == pytest.approx(math.sqrt(2 * params["MPC_ACC_HOR"] * (3.0 - params["CP_DIST"])), rel=1e-6)
+
+
+def test_world_fixed_sectors_follow_the_heading_at_measurement():
+    params = Params()
+    # Vehicle heading east sees an obstacle dead ahead: it must block eastward, not northward, motion.
+    m = wall_ahead(1.0, yaw=math.pi / 2)
+    assert constrain_velocity(params, m, 0.0, (0.0, 3.0), (0.0, 0.0))[1] <= 1e-6  # nothing towards the wall
+    # Along the wall only its slanted sectors restrict: conservative, as PX4's sector model is.
+    assert constrain_velocity(params, m, 0.0, (3.0, 0.0), (0.0, 0.0))[0] > 2.0
+
+
+def test_guidance_turns_a_blocked_setpoint_within_cp_guide_ang():
+    params = Params()
+    # An obstacle 4 m ahead in sectors -3..3 (15 degrees either side); free beyond.
+    m = obstacle_ahead(4.0, sectors=range(-3, 4))
+    vn, ve = constrain_velocity(params, m, 0.0, (5.0, 0.0), (0.0, 0.0))
+    assert math.hypot(vn, ve) > 4.0  # turned into the gap; the obstacle's edge alongside slows it a little
+    assert 15.0 < abs(math.degrees(math.atan2(ve, vn))) <= params["CP_GUIDE_ANG"]
+    # A wall offers no gap: no turn, just the stopping speed.
+    vn, ve = constrain_velocity(params, wall_ahead(4.0), 0.0, (5.0, 0.0), (0.0, 0.0))
+    assert ve == pytest.approx(0.0, abs=1e-9) and vn < 5.0
+    params.set("CP_GUIDE_ANG", 0.0)
+    vn, ve = constrain_velocity(params, m, 0.0, (5.0, 0.0), (0.0, 0.0))
+    assert ve == pytest.approx(0.0) and vn < 5.0
+
+
+def test_sliding_keeps_the_component_along_a_wall():
+    params = Params()
+    m = wall_ahead(1.0)  # at CP_DIST: no motion towards it at all
+    vn, ve = constrain_velocity(params, m, 0.0, (3.0, 3.0), (0.0, 0.0))
+    assert vn <= 1e-9 and ve > 2.0
+
+
+def test_stale_range_data_stops_horizontal_motion_and_disabled_cp_does_nothing():
+    params = Params()
+    m = obstacle_ahead(10.0, now_s=0.0)
+    assert constrain_velocity(params, m, 0.6, (3.0, 1.0), (0.0, 0.0)) == (0.0, 0.0)
+    params.set("CP_DIST", -1.0)
+    assert constrain_velocity(params, m, 0.6, (3.0, 1.0), (0.0, 0.0)) == (3.0, 1.0)
+
+
+def test_directions_without_data_block_only_when_cp_go_no_data_is_0():
+    params = Params()
+    m = obstacle_ahead(10.0)  # the sensor sees only +-50 degrees
+    assert constrain_velocity(params, m, 0.0, (-2.0, 0.0), (0.0, 0.0)) == pytest.approx((-2.0, 0.0))
+    params.set("CP_GO_NO_DATA", 0)
+    assert constrain_velocity(params, m, 0.0, (-2.0, 0.0), (0.0, 0.0)) == pytest.approx((0.0, 0.0), abs=0.01)
+
+
+def test_mixer_turns_torques_into_px4_quad_x_motor_commands():
+    # Positive roll (right wing down) needs the left motors (1 aft-left, 2 front-left) faster.
+    roll = mix(0.5, (0.1, 0.0, 0.0))
+    assert roll[1] > 0.5 and roll[2] > 0.5 and roll[0] < 0.5 and roll[3] < 0.5
+    pitch = mix(0.5, (0.0, 0.1, 0.0))  # nose up: front motors 0 and 2 faster
+    assert pitch[0] > 0.5 and pitch[2] > 0.5
+    yaw = mix(0.5, (0.0, 0.0, 0.1))  # nose right: the counter-clockwise motors 0 and 1 faster
+    assert yaw[0] > 0.5 and yaw[1] > 0.5
+    assert len(QUAD_X_MIX) == 4
+
+
+def test_mixer_keeps_outputs_in_range_and_torque_priority_at_saturation():
+    out = mix(0.95, (0.3, 0.0, 0.0))
+    assert all(0.0 <= m <= 1.0 for m in out)
+    assert out[1] - out[0] == pytest.approx(0.6, abs=1e-9)  # the full roll differential survives
+    low = mix(0.02, (0.0, 0.0, 0.0), idle=0.05)
+    assert min(low) >= 0.05
+
+
+def test_attitude_from_thrust_tilts_towards_the_requested_acceleration():
+    q, collective = attitude_from_thrust((0.1, 0.0, -0.42), yaw=0.0)
+    roll, pitch, yaw = euler_from_quat(q)
+    assert pitch < -0.1 and abs(roll) < 1e-9 and abs(yaw) < 1e-9  # nose down to accelerate north
+    assert collective == pytest.approx(math.hypot(0.1, 0.42))
+
+
+def test_estimator_converges_on_a_resting_vehicle():
+    estimator = Estimator(math.radians(3.0))
+    # A level vehicle heading 40 degrees, at rest: specific force -g, Earth's field rotated into the body.
+    yaw = math.radians(40.0)
+    q_true = quat_from_euler(0.0, 0.0, yaw)
+    field_ned = (0.214, 0.011, 0.43)
+    body_field = quat_rotate((q_true[0], -q_true[1], -q_true[2], -q_true[3]), field_ned)
+    for step in range(2500):
+        now = step * 0.004
+        estimator.update_imu(now, 0.004, (0.0, 0.0, 0.0), (0.0, 0.0, -9.80665), body_field)
+        estimator.update_baro(0.004, 100.0)
+        if step % 25 == 0:
+            estimator.update_gps(now, 0.1, GpsFix(47.4 + 1e-5, 8.5, 500.0, 0.0, 0.0, 0.0, 3, 10))
+    roll, pitch, estimated_yaw = euler_from_quat(estimator.q)
+    assert abs(roll) < 0.01 and abs(pitch) < 0.01
+    assert estimated_yaw == pytest.approx(yaw, abs=math.radians(2.0))
+    assert max(abs(v) for v in estimator.pos) < 0.05 and max(abs(v) for v in estimator.vel) < 0.05
+    assert estimator.healthy(now)
+
+
+def estimate(north=0.0, east=0.0, down=0.0, vd=0.0, yaw=0.0):
+    return VehicleEstimate(north, east, down, 0.0, 0.0, vd, yaw)
+
+
+def test_mission_state_machine_takes_off_flies_lands_and_disarms():
+    params = Params()
+    commander = Commander(params)
+    commander.home = (0.0, 0.0, 0.0)
+    commander.set_mission([
+        MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, 5.0),
+        MissionItem(1, DO_CHANGE_SPEED, 0.0, 0.0, 0.0, 1.0, 3.0, has_position=False),
+        MissionItem(2, NAV_WAYPOINT, 20.0, 0.0, 5.0, 0.0, 2.0),
+        MissionItem(3, NAV_LAND, 20.0, 0.0, 0.0),
+    ])
+    assert commander.arm(0.0, True, "")[0]
+    assert commander.start_mission(estimate())
+    assert commander.mode == (MAIN_AUTO, SUB_AUTO_MISSION)
+    # Climbing: hold position, aim for 5 m.
+    sp = commander.update(0.1, estimate(), 0.42)
+    assert sp.down_m == pytest.approx(-5.0) and not commander.landed
+    commander.update(1.0, estimate(down=-4.5), 0.42)  # within the vertical acceptance: takeoff reached
+    commander.update(1.1, estimate(down=-5.0), 0.42)  # change speed, immediately reached
+    sp = commander.update(1.2, estimate(down=-5.0), 0.42)
+    assert sp.v_north_m_s == pytest.approx(3.0) and sp.yaw_rad == pytest.approx(0.0)  # cruise at the new speed
+    sp = commander.update(5.0, estimate(north=18.5, down=-5.0), 0.42)  # inside the 2 m acceptance radius
+    sp = commander.update(5.1, estimate(north=20.0, down=-5.0), 0.42)
+    assert sp.v_down_m_s == pytest.approx(params["MPC_LAND_SPEED"])
+    t = 5.2
+    while not commander.landed:  # on the ground: no more descent, thrust well below hover
+        commander.update(t, estimate(north=20.0, down=0.0, vd=0.0), 0.1)
+        t += 0.1
+        assert t < 10.0
+    reached = [value for kind, value in commander.events if kind == "item_reached"]
+    assert reached == [0, 1, 2, 3]
+    commander.update(t + params["COM_DISARM_LAND"] + 0.1, estimate(north=20.0), 0.0)
+    assert not commander.armed and commander.mission_finished
+
+
+def test_arming_is_refused_when_not_ready_and_disarming_in_air_needs_force():
+    commander = Commander(Params())
+    ok, reason = commander.arm(0.0, False, "position estimate not ready")
+    assert not ok and "position estimate" in reason
+    commander.arm(0.0, True, "")
+    commander.landed = False
+    assert not commander.disarm()[0]
+    assert commander.disarm(force=True)[0]
+
+
+def test_parameters_are_validated_and_ints_travel_bytewise():
+    params = Params()
+    with pytest.raises(ParamError, match="outside"):
+        params.set("CP_DIST", 99.0)
+    with pytest.raises(ParamError, match="unknown"):
+        params.set("CP_DISTT", 1.0)
+    wire = params.wire_value("CP_GO_NO_DATA")
+    assert params.from_wire("CP_GO_NO_DATA", wire, 6) == 1
+    assert len({s.name for s in SPECS}) == len(SPECS)
+
+
+def test_the_parameter_documentation_is_generated_from_the_declarations():
+    assert (ROOT / "docs" / "autopilot_parameters.md").read_text() == markdown_table(), "run: python -m autopilot.params > docs/autopilot_parameters.md"

@@ -1,0 +1,134 @@
+"""The bridge as a real process against a scripted SUT over real sockets."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import ROOT
+from harness import logs
+from harness.ports import PortLease
+
+SCRIPTED_SUT = ROOT / "tests" / "scripted_sut.py"
+BODY = {"length_m": 0.6, "width_m": 0.6, "height_m": 0.2}
+
+
+def world(*, time_limit_s=9.0, wind_north=0.0, seed=1, obstacles=()):
+    return {
+        "scenario": "bridge test",
+        "seed": seed,
+        "origin": {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0},
+        "terrain": {"kind": "flat"},
+        "surface": {"kind": "land", "water": []},
+        "atmosphere": {"wind_north_m_s": wind_north, "wind_east_m_s": 0.0, "temperature_c": 15.0},
+        "visibility_m": 10000.0,
+        "sensor": {"max_range_m": 20.0, "min_range_m": 0.2, "fov_deg": 100.0, "update_hz": 20.0, "full_range_visibility_m": 1000.0, "floor_range_m": 2.0, "range_m": 20.0},
+        "obstacles": list(obstacles),
+        "uav": {"start": {"north_m": 0.0, "east_m": 0.0, "up_m": 0.0}, "body": BODY},
+        "mission": {"takeoff_altitude_m": 3.0, "waypoints": [{"north_m": 0.0, "east_m": 0.0, "altitude_m": 3.0}], "cruise_speed_m_s": 1.0, "land": False},
+        "safety_distance_m": 1.0,
+        "time_limit_s": time_limit_s,
+    }
+
+
+def port_free(port: int) -> bool:
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+            return True
+        except OSError:
+            return False
+
+
+def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s: float = 10.0, name: str = "run"):
+    """Run the bridge and the scripted SUT to the end; returns (exit code, summary, log path)."""
+    world_path = tmp_path / f"{name}.world.json"
+    world_path.write_text(json.dumps(spec))
+    log_path = tmp_path / f"{name}.mcap"
+    with PortLease(first_slot=100) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(log_path),
+             "--hold-after-s", "0", "--stall-timeout-s", str(stall_timeout_s), "--connect-timeout-s", "20"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        )
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", mode, "--steps", str(steps)], cwd=ROOT)
+        try:
+            out, err = bridge.communicate(timeout=60)
+        finally:
+            sut.kill()
+            sut.wait()
+            bridge.kill()
+        assert port_free(ports.sim), "the bridge left its simulator port bound"
+    summary = json.loads(out.decode().strip().splitlines()[-1])
+    return bridge.returncode, summary, log_path
+
+
+def states(log_path: Path) -> list[dict]:
+    return [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
+
+
+@pytest.mark.slow
+def test_hover_throttle_holds_altitude(tmp_path):
+    code, summary, log_path = fly(tmp_path, world(), "hover")
+    assert code == 0 and summary["end_reason"] == "time_limit"
+    track = states(log_path)
+    handover = next(s for s in track if s["t"] >= 5.0)  # the SUT switches to the hover throttle
+    at_end = track[-1]
+    assert handover["up_m"] == pytest.approx(3.0, abs=0.5)
+    # Stated tolerance: 0.3 m of altitude change over 4 s at the hover throttle.
+    assert abs(at_end["up_m"] - handover["up_m"]) < 0.3
+    assert abs(at_end["north_m"]) < 0.5 and abs(at_end["east_m"]) < 0.5
+
+
+@pytest.mark.slow
+def test_wind_drifts_the_vehicle_downwind(tmp_path):
+    _code, _summary, log_path = fly(tmp_path, world(wind_north=5.0), "hover")
+    end = states(log_path)[-1]
+    assert end["north_m"] > 2.0  # pushed towards where the air moves
+    assert abs(end["east_m"]) < 0.5 * end["north_m"]
+    assert end["v_ned_m_s"][0] > 1.0
+
+
+@pytest.mark.slow
+def test_same_world_and_seed_give_an_identical_trace(tmp_path):
+    obstacle = {"id": "ball", "form": "sphere", "size": {"diameter_m": 2.0}, "yaw_rad": 0.0,
+                "a": {"north_m": 6.0, "east_m": -5.0, "up_m": 3.0}, "b": {"north_m": 6.0, "east_m": 5.0, "up_m": 3.0}, "speed_m_s": 2.0}
+    traces = []
+    for run in range(2):
+        _code, _summary, log_path = fly(tmp_path, world(time_limit_s=5.0, obstacles=[obstacle]), "hover", name=f"run{run}")
+        traces.append([(topic, ns, message) for topic, ns, message in logs.messages(log_path, ["/clearance", "/uav/state", "/sensor/obstacle_distance"])])
+    assert traces[0] == traces[1]
+    assert len(traces[0]) > 100
+
+
+@pytest.mark.slow
+def test_a_disconnecting_sut_ends_the_run_promptly(tmp_path):
+    started = time.monotonic()
+    code, summary, log_path = fly(tmp_path, world(), "disconnect", steps=200)
+    assert summary["end_reason"] == "sut_disconnected" and code == 3
+    assert time.monotonic() - started < 15
+    assert summary["steps"] == pytest.approx(200, abs=2)
+    assert logs.json_metadata(log_path, "bridge_summary")["end_reason"] == "sut_disconnected"  # the log is finished
+
+
+@pytest.mark.slow
+def test_a_stalled_sut_ends_the_run_after_the_stall_timeout(tmp_path):
+    started = time.monotonic()
+    code, summary, _log = fly(tmp_path, world(), "stall", steps=150, stall_timeout_s=1.0)
+    assert summary["end_reason"] == "sut_stalled" and code == 3
+    assert time.monotonic() - started < 15
+
+
+@pytest.mark.slow
+def test_garbage_bytes_are_counted_and_skipped(tmp_path):
+    code, summary, _log = fly(tmp_path, world(time_limit_s=3.0), "garbage")
+    assert code == 0 and summary["end_reason"] == "time_limit"
+    assert summary["bad_frames"] > 0 and summary["skipped_bytes"] > 0
+    assert summary["steps"] == 750
