@@ -4,9 +4,11 @@ A 72-sector obstacle map in world-fixed bins (5 degrees each, clockwise from nor
 from OBSTACLE_DISTANCE (body FRD, centimetres). The horizontal velocity setpoint is first turned
 by up to CP_GUIDE_ANG into a gap when its direction is blocked, then in every sector
 with an obstacle its component towards the obstacle is limited to the speed from which the
-vehicle can still stop CP_DIST before it, after travelling CP_DELAY at its current speed:
-v_max = sqrt(2 * MPC_ACC_HOR * max(0, d - CP_DIST - CP_DELAY * v_towards)). The component
-across the sector is kept, so the vehicle slides along an obstacle. Without fresh range data
+vehicle can still stop CP_DIST before it, after travelling CP_DELAY at its current speed, with
+PX4's jerk-limited braking (MPC_ACC_HOR, MPC_JERK_AUTO; math::computeMaxSpeedFromDistance):
+v_max(s) = (-b + sqrt(b^2 + 8 a s)) / 2 with b = 4 a^2 / j and s = d - CP_DIST - CP_DELAY v. The component
+across the sector is kept, so the vehicle slides along an obstacle; closer than CP_DIST it backs
+off at up to 0.5 m/s (PX4 only stops; without this, drift creeps a hovering vehicle closer). Without fresh range data
 for 0.5 s horizontal motion stops. Unlike PX4's, it is applied in every automatic mode.
 """
 
@@ -20,6 +22,8 @@ BIN_DIRECTIONS = tuple((math.cos(i * BIN_RAD), math.sin(i * BIN_RAD)) for i in r
 UINT16_MAX = 65535
 STALE_AFTER_S = 0.5
 MAX_PASSES = 8
+BACK_OFF_GAIN = 1.0  # 1/s
+BACK_OFF_MAX_M_S = 0.5
 
 
 class ObstacleMap:
@@ -68,9 +72,16 @@ def _clearance_around(distances: list[float | None], index: int) -> float | None
     return min(known) if known else None
 
 
+def max_speed_from_distance(jerk: float, accel: float, distance: float) -> float:
+    """The speed from which a jerk-limited stop comes to rest within distance (PX4's formula)."""
+    b = 4.0 * accel * accel / jerk
+    return 0.5 * (-b + math.sqrt(b * b + 8.0 * accel * max(0.0, distance)))
+
+
 def guided_direction(obstacles: ObstacleMap, direction_rad: float, guide_angle_rad: float, needed_m: float) -> float:
     """Turn a blocked direction by the smallest angle, at most guide_angle_rad, that leads into a
-    gap with the clearance needed to stop; keep it when there is no such gap (a wall)."""
+    gap with the clearance needed to stop; keep it when there is no such gap. A wall seen at
+    slant d / cos(angle) never qualifies: the clearance needed grows by the same 1 / cos(angle)."""
     home = _bin_of(direction_rad)
     clearance = _clearance_around(obstacles.distances, home)
     if clearance is None or clearance >= needed_m:
@@ -78,7 +89,7 @@ def guided_direction(obstacles: ObstacleMap, direction_rad: float, guide_angle_r
     span = int(guide_angle_rad / BIN_RAD)
     for offset in sorted(range(-span, span + 1), key=abs):
         candidate = _clearance_around(obstacles.distances, home + offset)
-        if candidate is not None and candidate >= needed_m:
+        if candidate is not None and candidate >= needed_m / math.cos(offset * BIN_RAD):
             return direction_rad + offset * BIN_RAD
     return direction_rad
 
@@ -98,19 +109,24 @@ def constrain_velocity(
         return 0.0, 0.0
     vn, ve = setpoint_ne
     speed = math.hypot(vn, ve)
-    if speed < 1e-3:
-        return vn, ve
     acc = params["MPC_ACC_HOR"]
+    jerk = params["MPC_JERK_AUTO"]
     delay = params["CP_DELAY"]
-    direction = guided_direction(
-        obstacles, math.atan2(ve, vn), math.radians(params["CP_GUIDE_ANG"]), cp_dist + delay * speed + speed * speed / (2.0 * acc)
-    )
-    vn, ve = speed * math.cos(direction), speed * math.sin(direction)
+    if speed > 1e-3:
+        # Distance to stop from this speed: the inverse of max_speed_from_distance.
+        braking_m = (speed * speed + speed * 4.0 * acc * acc / jerk) / (2.0 * acc)
+        direction = guided_direction(obstacles, math.atan2(ve, vn), math.radians(params["CP_GUIDE_ANG"]), cp_dist + delay * speed + braking_m)
+        vn, ve = speed * math.cos(direction), speed * math.sin(direction)
     limits = [(bin_n, bin_e, 0.0) for bin_n, bin_e in obstacles.unknown] if params["CP_GO_NO_DATA"] < 1 else []
     for bin_n, bin_e, distance in obstacles.occupied:
+        if distance < cp_dist:
+            # Closer than CP_DIST: back off gently instead of only refusing to go closer, or
+            # estimation drift creeps the vehicle towards the obstacle while it holds position.
+            limits.append((bin_n, bin_e, -min(BACK_OFF_MAX_M_S, BACK_OFF_GAIN * (cp_dist - distance))))
+            continue
         towards = max(0.0, velocity_ne[0] * bin_n + velocity_ne[1] * bin_e)
         stop_distance = max(0.0, distance - cp_dist - delay * towards)
-        limits.append((bin_n, bin_e, math.sqrt(2.0 * acc * stop_distance)))
+        limits.append((bin_n, bin_e, max_speed_from_distance(jerk, acc, stop_distance)))
     # Each sector is a half-plane v . direction <= allowed that contains v = 0; cyclic projection
     # onto them converges into their intersection, usually within one or two passes.
     for _ in range(MAX_PASSES):

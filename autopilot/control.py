@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 GRAVITY = 9.80665
+FEED_FORWARD_TAU_S = 0.1
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]  # w, x, y, z; rotates body FRD into NED
@@ -111,6 +112,21 @@ class PositionControl:
 
     def reset(self) -> None:
         self._int_n = self._int_e = self._int_d = 0.0
+        self._last_sp: tuple[float, float] | None = None
+        self._ff_n = self._ff_e = 0.0
+
+    def _feed_forward(self, dt: float, vel_sp: Vec3) -> tuple[float, float]:
+        """The horizontal setpoint's own acceleration, low-passed: without it the velocity loop
+        lags a braking setpoint by MPC_ACC_HOR / MPC_XY_VEL_P_ACC and overshoots the stop."""
+        if self._last_sp is not None and dt > 0.0:
+            alpha = dt / (FEED_FORWARD_TAU_S + dt)
+            limit = 2.0 * self.params["MPC_ACC_HOR"]
+            raw_n = max(-limit, min(limit, (vel_sp[0] - self._last_sp[0]) / dt))
+            raw_e = max(-limit, min(limit, (vel_sp[1] - self._last_sp[1]) / dt))
+            self._ff_n += alpha * (raw_n - self._ff_n)
+            self._ff_e += alpha * (raw_e - self._ff_e)
+        self._last_sp = (vel_sp[0], vel_sp[1])
+        return self._ff_n, self._ff_e
 
     def velocity_setpoint(self, sp: Setpoint, pos: Vec3, limit_xy_m_s: float) -> Vec3:
         p = self.params
@@ -130,8 +146,9 @@ class PositionControl:
         hover = p["MPC_THR_HOVER"]
         en, ee, ed = vel_sp[0] - vel[0], vel_sp[1] - vel[1], vel_sp[2] - vel[2]
         kp, ki, kd = p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_D_ACC"]
-        acc_n = kp * en + ki * self._int_n - kd * acc[0]
-        acc_e = kp * ee + ki * self._int_e - kd * acc[1]
+        ff_n, ff_e = self._feed_forward(dt, vel_sp)
+        acc_n = ff_n + kp * en + ki * self._int_n - kd * acc[0]
+        acc_e = ff_e + kp * ee + ki * self._int_e - kd * acc[1]
         acc_d = p["MPC_Z_VEL_P_ACC"] * ed + p["MPC_Z_VEL_I_ACC"] * self._int_d
         tilt_max = math.tan(math.radians(p["MPC_TILTMAX_AIR"]))
         # Horizontal acceleration is limited by the tilt the vertical thrust allows.

@@ -51,6 +51,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("MPC_TKO_SPEED", 1.5, 0.5, 5.0, "m/s", "Climb rate during takeoff."),
     _f("MPC_LAND_SPEED", 0.7, 0.3, 3.0, "m/s", "Descent rate during landing."),
     _f("MPC_ACC_HOR", 3.0, 0.5, 10.0, "m/s^2", "Horizontal acceleration for braking and for collision prevention's stopping distance."),
+    _f("MPC_JERK_AUTO", 4.0, 1.0, 80.0, "m/s^3", "Jerk limit of automatic braking; collision prevention plans its stops with it."),
     _f("MPC_XY_P", 0.95, 0.0, 2.0, "1/s", "Horizontal position gain."),
     _f("MPC_XY_VEL_P_ACC", 1.8, 0.1, 5.0, "1/s", "Horizontal velocity proportional gain (to acceleration)."),
     _f("MPC_XY_VEL_I_ACC", 0.4, 0.0, 5.0, "1/s^2", "Horizontal velocity integral gain."),

@@ -179,6 +179,11 @@ class Bridge:
             [min(i * SECTOR_DEG, 360.0 - i * SECTOR_DEG) <= half_fov + 1e-9 for i in range(SECTORS)]
         )
         self._sector_angles = np.radians(np.arange(SECTORS) * SECTOR_DEG)[self._sector_visible]
+        # The sensors sit on the body's edge: each ray's range starts at the hull, not the centre.
+        body = world["uav"]["body"]
+        half_l, half_w = body["length_m"] / 2.0, body["width_m"] / 2.0
+        with np.errstate(divide="ignore"):
+            self._hull_offsets = np.minimum(half_l / np.abs(np.cos(self._sector_angles)), half_w / np.abs(np.sin(self._sector_angles)))
         self._dt = 1.0 / config.rate_hz
         self._dt_us = int(round(1e6 / config.rate_hz))
         self._every = {
@@ -361,7 +366,7 @@ class Bridge:
         s = self.vehicle.state
         distances = [UINT16_MAX] * SECTORS
         reach_cm = int(self._range_m * 100)
-        nearest = self.field.sector_distances(s.north_m, s.east_m, s.up_m, self._sector_angles + s.yaw_rad)
+        nearest = self.field.sector_distances(s.north_m, s.east_m, s.up_m, self._sector_angles + s.yaw_rad) - self._hull_offsets
         visible = np.flatnonzero(self._sector_visible)
         for index, distance in zip(visible.tolist(), nearest.tolist()):
             if distance <= self._range_m:

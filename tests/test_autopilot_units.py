@@ -7,7 +7,7 @@ import math
 import pytest
 
 from conftest import ROOT
-from autopilot.collision import BINS, ObstacleMap, constrain_velocity
+from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction
 from autopilot.commander import DO_CHANGE_SPEED, MAIN_AUTO, NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
 from autopilot.estimator import Estimator, GpsFix
@@ -76,7 +76,9 @@ def test_obstacle_straight_ahead_at_3m_with_5m_s_setpoint_keeps_cp_dist():
 def test_the_first_constrained_setpoint_is_the_stopping_speed():
     params = Params()
     vn, _ = constrain_velocity(params, wall_ahead(3.0), 0.0, (5.0, 0.0), (0.0, 0.0))
-    assert vn == pytest.approx(math.sqrt(2 * params["MPC_ACC_HOR"] * (3.0 - params["CP_DIST"])), rel=1e-6)
+    a, j, s = params["MPC_ACC_HOR"], params["MPC_JERK_AUTO"], 3.0 - params["CP_DIST"]
+    b = 4 * a * a / j
+    assert vn == pytest.approx((-b + math.sqrt(b * b + 8 * a * s)) / 2, rel=1e-6)  # PX4's jerk-limited stop
 
 
 def test_world_fixed_sectors_follow_the_heading_at_measurement():
@@ -85,22 +87,24 @@ def test_world_fixed_sectors_follow_the_heading_at_measurement():
     m = wall_ahead(1.0, yaw=math.pi / 2)
     assert constrain_velocity(params, m, 0.0, (0.0, 3.0), (0.0, 0.0))[1] <= 1e-6  # nothing towards the wall
     # Along the wall only its slanted sectors restrict: conservative, as PX4's sector model is.
-    assert constrain_velocity(params, m, 0.0, (3.0, 0.0), (0.0, 0.0))[0] > 2.0
+    assert constrain_velocity(params, m, 0.0, (3.0, 0.0), (0.0, 0.0))[0] > 1.0
 
 
 def test_guidance_turns_a_blocked_setpoint_within_cp_guide_ang():
     params = Params()
     # An obstacle 4 m ahead in sectors -3..3 (15 degrees either side); free beyond.
     m = obstacle_ahead(4.0, sectors=range(-3, 4))
+    turned = math.degrees(guided_direction(m, 0.0, math.radians(params["CP_GUIDE_ANG"]), 8.0))
+    assert 15.0 < abs(turned) <= params["CP_GUIDE_ANG"]  # the smallest turn into the gap
     vn, ve = constrain_velocity(params, m, 0.0, (5.0, 0.0), (0.0, 0.0))
-    assert math.hypot(vn, ve) > 4.0  # turned into the gap; the obstacle's edge alongside slows it a little
-    assert 15.0 < abs(math.degrees(math.atan2(ve, vn))) <= params["CP_GUIDE_ANG"]
+    guided_speed = math.hypot(vn, ve)
     # A wall offers no gap: no turn, just the stopping speed.
     vn, ve = constrain_velocity(params, wall_ahead(4.0), 0.0, (5.0, 0.0), (0.0, 0.0))
     assert ve == pytest.approx(0.0, abs=1e-9) and vn < 5.0
     params.set("CP_GUIDE_ANG", 0.0)
     vn, ve = constrain_velocity(params, m, 0.0, (5.0, 0.0), (0.0, 0.0))
-    assert ve == pytest.approx(0.0) and vn < 5.0
+    assert ve == pytest.approx(0.0) and vn < guided_speed  # straight on it must brake harder
+    params.set("CP_GUIDE_ANG", 30.0)
 
 
 def test_sliding_keeps_the_component_along_a_wall():
@@ -108,6 +112,8 @@ def test_sliding_keeps_the_component_along_a_wall():
     m = wall_ahead(1.0)  # at CP_DIST: no motion towards it at all
     vn, ve = constrain_velocity(params, m, 0.0, (3.0, 3.0), (0.0, 0.0))
     assert vn <= 1e-9 and ve > 2.0
+    vn, _ = constrain_velocity(params, wall_ahead(0.8), 0.0, (0.0, 0.0), (0.0, 0.0))
+    assert vn == pytest.approx(-0.2, abs=0.01)  # too close: back off
 
 
 def test_stale_range_data_stops_horizontal_motion_and_disabled_cp_does_nothing():

@@ -129,7 +129,8 @@ def test_an_obstacle_at_bearing_30_degrees_appears_in_sector_6():
     distances, max_cm = _sectors(bridge)
     hit = [i for i, d in enumerate(distances) if d <= max_cm]
     assert 6 in hit and all(5 <= i <= 7 for i in hit)
-    assert distances[6] == pytest.approx(775, abs=3)  # 8 m to the axis minus the 0.25 m radius
+    # 8 m to the axis, minus the 0.25 m radius, minus the hull: 0.3 / cos(30 deg) from the centre.
+    assert distances[6] == pytest.approx(775 - 100 * 0.3 / math.cos(math.radians(30)), abs=3)
 
 
 def test_fog_shortens_the_sensed_range_as_the_profile_says():
@@ -137,7 +138,7 @@ def test_fog_shortens_the_sensed_range_as_the_profile_says():
     clear, clear_max = _sectors(_bridge_with(wall, visibility_m=10_000.0))
     foggy, foggy_max = _sectors(_bridge_with(wall, visibility_m=300.0))
     assert clear_max == 2000 and foggy_max == 600  # 20 m * 300 / 1000
-    assert clear[0] == pytest.approx(1150, abs=2)  # seen through clear air
+    assert clear[0] == pytest.approx(1150 - 30, abs=2)  # seen through clear air, from the hull
     assert foggy[0] == foggy_max + 1  # beyond reach in fog: reported as free up to the reduced range
 
 

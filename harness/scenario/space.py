@@ -257,6 +257,16 @@ class SearchSpace:
         """The realism constraints one point breaks, by name."""
         return [name for name, margin in self.constraint_margins(np.asarray(x, dtype=float)[None, :]).items() if margin[0] < 0.0]
 
+    def vector_from(self, values: Mapping[str, float], default: float = 0.5) -> np.ndarray:
+        """A vector from named values; unnamed dimensions at `default` of their range (0 lower, 1 upper)."""
+        unknown = set(values) - set(self._index)
+        if unknown:
+            raise KeyError(f"no dimensions {sorted(unknown)}; this space has {[d.name for d in self.dimensions]}")
+        x = self.lower + default * (self.upper - self.lower)
+        for name, value in values.items():
+            x[self._index[name]] = value
+        return x
+
     # -- concrete scenarios ------------------------------------------------------------------
 
     def to_concrete(self, x: np.ndarray) -> dict[str, Any]:

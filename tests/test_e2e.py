@@ -1,0 +1,141 @@
+"""End to end: the bridge, the bundled autopilot and MAVSDK as real processes, real flights, real numbers."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import jsonschema
+import pytest
+from mcap.reader import make_reader
+
+from conftest import ROOT
+from harness import logs
+from harness.bridge_control import BridgeControl
+from harness.evaluation import RunOptions, evaluate
+from harness.fitness import PENALTY
+from harness.inspect_log import summarize
+from harness.mavsdk_session import MavsdkSession, mission_items
+from harness.ports import PortLease
+from harness.processes import ManagedProcess
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
+
+pytestmark = pytest.mark.slow
+DATA = ROOT / "tests" / "data" / "scenarios"
+
+
+def space_for(path, profile) -> SearchSpace:
+    return SearchSpace(load_logical(path, profile), profile)
+
+
+def test_static_obstacles_only_end_ok_or_violation_with_a_finite_fitness(tmp_path, profile):
+    space = space_for(ROOT / "scenarios" / "table3" / "scenario_05.json", profile)
+    x = space.sample_feasible(__import__("numpy").random.default_rng(3), 1)[0]
+    result = evaluate(space, x, seed=3, out_dir=tmp_path)
+    assert result.status in ("ok", "violation"), result.why
+    assert math.isfinite(result.fitness) and result.fitness < PENALTY
+    assert result.min_clearance_m == pytest.approx(result.fitness + 1.0)
+    assert result.real_time_factor > 5.0
+
+
+def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_path, profile):
+    space = space_for(DATA / "one_dynamic_sphere.json", profile)
+    result = evaluate(space, space.vector_from({"obstacle_1.north_m": 40.0, "obstacle_1.east_m": 15.0}), seed=1, out_dir=tmp_path)
+    counts = {}
+    with open(result.log_path, "rb") as stream:
+        reader = make_reader(stream)
+        for schema, channel, message in reader.iter_messages():
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            counts[(channel.topic, schema.name)] = counts.get((channel.topic, schema.name), 0) + 1
+    for expected in [("/tf", "foxglove.FrameTransform"), ("/uav/pose", "foxglove.PoseInFrame"), ("/scene", "foxglove.SceneUpdate"),
+                     ("/clearance", "stella.Clearance"), ("/mavlink/sim", "stella.MavlinkBytes"), ("/mavlink/api", "stella.MavlinkBytes")]:
+        assert counts.get(expected, 0) > 0, expected
+    meta = logs.metadata(result.log_path)
+    assert {"world", "concrete_scenario", "sut", "result", "bridge_summary"} <= set(meta)
+    assert json.loads(meta["result"]["json"])["fitness"] == result.fitness
+
+
+def test_a_dynamic_obstacle_aimed_at_the_path_scores_lower_than_one_far_away(tmp_path, profile):
+    space = space_for(DATA / "one_dynamic_sphere.json", profile)
+    head_on = {"obstacle_1.diameter_m": 5.0, "obstacle_1.north_m": 50.0, "obstacle_1.east_m": 0.0, "obstacle_1.altitude_m": 5.5,
+               "obstacle_1.heading_deg": 180.0, "obstacle_1.speed_m_s": 2.0, "obstacle_1.travel_m": 35.0}
+    aimed = evaluate(space, space.vector_from(head_on), seed=1, out_dir=tmp_path, name="aimed")
+    far = evaluate(space, space.vector_from({**head_on, "obstacle_1.east_m": 25.0}), seed=1, out_dir=tmp_path, name="far")
+    assert aimed.status != "infeasible" and far.status == "ok", (aimed.why, far.why)
+    assert aimed.fitness < far.fitness - 5.0
+    assert aimed.min_clearance_m < 2.0 < far.min_clearance_m
+
+
+def test_three_repeats_are_identical_and_inspect_reproduces_the_fitness(tmp_path, profile):
+    space = space_for(ROOT / "scenarios" / "table3" / "scenario_31.json", profile)
+    x = space.sample_feasible(__import__("numpy").random.default_rng(4), 1)[0]
+    results = [evaluate(space, x, seed=4, out_dir=tmp_path / str(i)) for i in range(3)]
+    assert len({r.fitness for r in results}) == 1
+    traces = [[m for _t, _ns, m in logs.messages(r.log_path, ["/clearance"])] for r in results]
+    assert traces[0] == traces[1] == traces[2]
+    inspected = summarize(results[0].log_path)
+    assert inspected["fitness"] == results[0].fitness and inspected["fitness_reproduced"]
+    assert inspected["status"] == results[0].status
+
+
+def test_a_wall_across_the_path_stops_the_vehicle_at_cp_dist(tmp_path, profile):
+    space = space_for(DATA / "wall.json", profile)
+    # 20 m wide (east), 10 m thick (north), 20 m high, centred 30 m north: its near face is at 25 m.
+    wall = {"obstacle_1.length_m": 20.0, "obstacle_1.width_m": 10.0, "obstacle_1.height_m": 20.0,
+            "obstacle_1.north_m": 30.0, "obstacle_1.east_m": 0.0, "obstacle_1.yaw_deg": 90.0}
+    result = evaluate(space, space.vector_from(wall), seed=2, out_dir=tmp_path)
+    states = [m for _t, _ns, m in logs.messages(result.log_path, ["/uav/state"])]
+    furthest_north = max(s["north_m"] for s in states)
+    cp_dist = 1.0
+    # The body's front (0.3 m ahead of its centre) stays CP_DIST from the face, within 0.15 m of dynamics.
+    assert 25.0 - (furthest_north + 0.3) >= cp_dist - 0.15
+    assert result.min_clearance_m >= cp_dist - 0.15
+    assert furthest_north > 20.0  # it did fly up to the wall
+    assert result.status in ("mission_failed", "violation") and "waypoint 1" in (result.why or "")
+
+
+def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_path, profile):
+    space = space_for(DATA / "three_waypoints.json", profile)
+    world = world_spec(space, space.vector_from({}), seed=5)
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world))
+    log_path = tmp_path / "flight.mcap"
+    with PortLease() as ports:
+        bridge_argv = [__import__("sys").executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim),
+                       "--control-port", str(ports.control), "--mcap", str(log_path)]
+        autopilot_argv = [__import__("sys").executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{ports.sim}", "--api", f"udp:127.0.0.1:{ports.api}"]
+        with ManagedProcess("bridge", bridge_argv, log_dir=tmp_path) as bridge, ManagedProcess("autopilot", autopilot_argv, log_dir=tmp_path) as autopilot:
+            control = BridgeControl(ports.control)
+            assert control.wait_for("holding", 30.0) is not None
+            session = MavsdkSession(ports.api)
+            try:
+                session.wait_healthy(20.0)
+                assert session.param.get_param_float("CP_DIST") == pytest.approx(1.0)
+                session.param.set_param_float("CP_DIST", 2.5)
+                assert session.param.get_param_float("CP_DIST") == pytest.approx(2.5)
+                assert session.param.get_param_int("CP_GO_NO_DATA") == 1
+                items = mission_items(world)
+                session.upload_and_start(items)
+                downloaded = session.mission.download_mission()
+                assert [i.command for i in downloaded] == [i.command for i in items]
+                control.send({"op": "run"})
+                finished = control.wait_for("finished", 120.0)
+                time.sleep(0.5)
+                texts = list(session.status_texts)
+            finally:
+                session.close()
+                control.close()
+            assert bridge.wait(10.0) == 0
+            assert autopilot.poll() is None or autopilot.poll() == 0
+    assert finished["end_reason"] == "landed"
+    states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
+    for waypoint in world["mission"]["waypoints"]:
+        closest = min(math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states)
+        assert closest <= 2.0, (waypoint, closest)
+    touchdown = finished["touchdown"]
+    assert math.hypot(touchdown["north_m"] - 0.0, touchdown["east_m"] - 15.0) < 1.5
+    assert "Landing detected" in texts and "Disarmed" in texts
