@@ -62,6 +62,7 @@ class Autopilot:
         self.obstacles = ObstacleMap()
         self.now_s = 0.0
         self.collective = 0.0
+        self.lift = 0.0
         self.sensors_seen = False
         self._last_time_us: int | None = None
         self._ground_truth = None
@@ -157,10 +158,10 @@ class Autopilot:
         if not est.position_ready:
             return (0.0, 0.0, 0.0, 0.0)
         estimate = self.vehicle_estimate()
-        sp = commander.update(self.now_s, estimate, self.collective)
+        sp = commander.update(self.now_s, estimate, self.lift)
         if sp.idle:
             self._controlling = False
-            self.collective = 0.0
+            self.collective = self.lift = 0.0
             return (IDLE_THROTTLE,) * 4 if commander.armed else (0.0, 0.0, 0.0, 0.0)
         if not self._controlling:
             self.position_control.reset()
@@ -172,6 +173,7 @@ class Autopilot:
             vn, ve = constrain_velocity(params, self.obstacles, self.now_s, (vel_sp[0], vel_sp[1]), (est.vel[0], est.vel[1]))
             vel_sp = (vn, ve, vel_sp[2])
         thrust = self.position_control.thrust(dt, vel_sp, est.vel, est.acc_ned)
+        self.lift = -thrust[2]
         yaw_sp = sp.yaw_rad if sp.yaw_rad is not None else estimate.yaw_rad
         q_sp, collective = attitude_from_thrust(thrust, yaw_sp)
         self.collective = collective

@@ -185,10 +185,11 @@ class Commander:
         n, e, d = self._hold
         return Setpoint(north_m=n, east_m=e, down_m=d, yaw_rad=self._yaw_sp)
 
-    def _detect_landing(self, now_s: float, estimate: VehicleEstimate, collective: float, descending_commanded: bool) -> bool:
-        """Landed when commanded down but no longer descending, with thrust well below hover."""
+    def _detect_landing(self, now_s: float, estimate: VehicleEstimate, lift: float, descending_commanded: bool) -> bool:
+        """Landed when commanded down but no longer descending, with lift (the vertical part of the
+        thrust; a vehicle held back from sliding on the ground tilts, so not the total) well below hover."""
         hover = self.params["MPC_THR_HOVER"]
-        if descending_commanded and abs(estimate.v_down_m_s) < 0.15 and collective < 0.8 * hover:
+        if descending_commanded and abs(estimate.v_down_m_s) < 0.15 and lift < 0.8 * hover:
             if self._land_candidate_s is None:
                 self._land_candidate_s = now_s
             return now_s - self._land_candidate_s >= LANDED_CONFIRM_S
@@ -201,9 +202,9 @@ class Commander:
         self.events.append(("landed", None))
         self.events.append(("statustext", "Landing detected"))
 
-    def _land(self, now_s: float, estimate: VehicleEstimate, collective: float, north: float, east: float) -> Setpoint:
+    def _land(self, now_s: float, estimate: VehicleEstimate, lift: float, north: float, east: float) -> Setpoint:
         sp = Setpoint(north_m=north, east_m=east, v_down_m_s=self.params["MPC_LAND_SPEED"], yaw_rad=self._yaw_sp)
-        if self._detect_landing(now_s, estimate, collective, True):
+        if self._detect_landing(now_s, estimate, lift, True):
             self._touch_down(now_s)
         return sp
 
@@ -217,7 +218,7 @@ class Commander:
         self.events.append(("mission_current", self.current))
         self._phase = ""
 
-    def _mission(self, now_s: float, estimate: VehicleEstimate, collective: float) -> Setpoint:
+    def _mission(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
         if self.mission_finished:
             return self._hold_setpoint()
         item = self.mission[self.current]
@@ -264,7 +265,7 @@ class Commander:
                 self._phase = "descend"
                 self._hold = (item.north_m, item.east_m, estimate.down_m)
             n, e, _ = self._hold
-            sp = self._land(now_s, estimate, collective, n, e)
+            sp = self._land(now_s, estimate, lift, n, e)
             if self.landed:
                 self._advance(self.current)
                 return Setpoint(idle=True)
@@ -273,7 +274,7 @@ class Commander:
         self._advance(self.current)
         return self._hold_setpoint()
 
-    def _rtl(self, now_s: float, estimate: VehicleEstimate, collective: float) -> Setpoint:
+    def _rtl(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
         home_n, home_e, _ = self.home or (0.0, 0.0, 0.0)
         if self._phase == "":
             self._target_alt_m = max(self._altitude(estimate), self.params["RTL_RETURN_ALT"])
@@ -288,9 +289,9 @@ class Commander:
             if distance < 1.0:
                 self._phase = "descend"
             return sp
-        return self._land(now_s, estimate, collective, home_n, home_e)
+        return self._land(now_s, estimate, lift, home_n, home_e)
 
-    def update(self, now_s: float, estimate: VehicleEstimate, collective: float) -> Setpoint:
+    def update(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
         if not self.armed:
             self.landed = True
             return Setpoint(idle=True)
@@ -308,7 +309,7 @@ class Commander:
             self._enter(estimate)
         mode = self.mode
         if mode == (MAIN_AUTO, SUB_AUTO_MISSION):
-            return self._mission(now_s, estimate, collective)
+            return self._mission(now_s, estimate, lift)
         if mode == (MAIN_AUTO, SUB_AUTO_TAKEOFF):
             n, e, _ = self._hold
             if self._altitude(estimate) >= self._target_alt_m - VERTICAL_ACCEPTANCE_M and self._phase != "done":
@@ -320,7 +321,7 @@ class Commander:
             return Setpoint(north_m=n, east_m=e, down_m=self._down_for(self._target_alt_m), yaw_rad=self._yaw_sp)
         if mode == (MAIN_AUTO, SUB_AUTO_LAND):
             n, e, _ = self._hold
-            return self._land(now_s, estimate, collective, n, e)
+            return self._land(now_s, estimate, lift, n, e)
         if mode == (MAIN_AUTO, SUB_AUTO_RTL):
-            return self._rtl(now_s, estimate, collective)
+            return self._rtl(now_s, estimate, lift)
         return self._hold_setpoint()

@@ -189,6 +189,15 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+@command("bench")
+def cmd_bench(args: argparse.Namespace) -> int:
+    from harness.bench import bench_text, run_bench
+
+    report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin)
+    emit(args, report, bench_text(report))
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -224,6 +233,13 @@ def parser() -> argparse.ArgumentParser:
     p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
     p.add_argument("log", help="an evaluation's .mcap file")
     p.add_argument("--plot", help="write a PNG: top view of the trajectory and the clearance over time")
+
+    p = add("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes")
+    p.add_argument("--runs", type=int, default=5)
+    p.add_argument("--scenario", help="logical scenario (default: Table III scenario 31)")
+    p.add_argument("--seed", type=int, default=4)
+    p.add_argument("--rate-hz", type=float, default=250.0)
+    p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
 import signal
@@ -28,7 +29,9 @@ class ManagedProcess:
     def __enter__(self) -> "ManagedProcess":
         log.info("starting %s: %s", self.name, " ".join(self.argv))
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
-            self.process = subprocess.Popen(self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True)
+            self.process = subprocess.Popen(
+                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=_die_with_parent
+            )
         return self
 
     def __exit__(self, *exc_info) -> None:
@@ -66,6 +69,15 @@ class ManagedProcess:
             return "\n".join(self.stderr_path.read_text(errors="replace").splitlines()[-lines:])
         except OSError:
             return ""
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM when the harness dies, even by SIGKILL, so nothing is orphaned."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _signal_group(group: int, sig: int) -> None:

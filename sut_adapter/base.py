@@ -25,6 +25,7 @@ class SutHandle:
     stop: Callable[[], int | None]
     artifacts: list[Path] = field(default_factory=list)
     stderr_tail: Callable[[], str] = lambda: ""
+    pids: list[int] = field(default_factory=list)
 
 
 class SystemUnderTest(Protocol):

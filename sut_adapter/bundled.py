@@ -28,4 +28,5 @@ class BundledAutopilot:
             stop=process.stop,
             artifacts=[process.stdout_path, process.stderr_path],
             stderr_tail=process.stderr_tail,
+            pids=[process.pid],
         )

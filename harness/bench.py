@@ -1,0 +1,90 @@
+"""`stella bench`: fly a standard scenario several times and report speed as medians and ratios.
+
+The real-time factor is simulated flight time over the wall time of the flight (after setup);
+evaluations per hour assume one worker per core, each evaluation pinned to its own core.
+Per-step figures come from the bridge's own timers: the SUT's turn (from sending HIL_SENSOR to
+receiving HIL_ACTUATOR_CONTROLS, which includes both socket hops), JSBSim, and the bridge's
+world work (obstacles, clearance, recording); the rest of a step is building and sending the
+sensor messages.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from harness.evaluation import RunOptions, evaluate
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
+from harness.scenario.space import SearchSpace
+from harness.paths import scenarios_dir
+
+import numpy as np
+
+DEFAULT_SCENARIO = "table3/scenario_31.json"
+DEFAULT_SEED = 4
+
+
+def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True) -> dict[str, Any]:
+    profile = load_profile("default")
+    path = scenario or scenarios_dir() / DEFAULT_SCENARIO
+    space = SearchSpace(load_logical(path, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
+        for index in range(runs):
+            result = evaluate(space, x, seed=seed, out_dir=Path(out), options=RunOptions(rate_hz=rate_hz, pin_cpu=pin_cpu), name=f"bench-{index}")
+            if result.real_time_factor is None:
+                raise RuntimeError(f"bench run {index} did not fly: {result.status} {result.why}")
+            timings = result.timings
+            steps = result.sim_time_s * rate_hz
+            in_run = timings["wall_in_run_s"]
+            run_steps = in_run and (result.real_time_factor * in_run * rate_hz)
+            rows.append(
+                {
+                    "real_time_factor": result.real_time_factor,
+                    "wall_time_s": result.wall_time_s,
+                    "setup_s": timings.get("setup_s", 0.0),
+                    "score_s": timings.get("score_s", 0.0),
+                    "sut_turn_us": 1e6 * timings["wait_s"] / steps,
+                    "physics_us": 1e6 * timings["physics_s"] / steps,
+                    "world_us": 1e6 * timings["world_s"] / steps,
+                    "step_us": 1e6 * in_run / run_steps if run_steps else None,
+                    "fitness": result.fitness,
+                }
+            )
+    median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
+    median["sensors_and_send_us"] = median["step_us"] - median["sut_turn_us"] - median["physics_us"] - median["world_us"]
+    cores = len(os.sched_getaffinity(0))
+    return {
+        "scenario": str(path),
+        "seed": seed,
+        "rate_hz": rate_hz,
+        "runs": runs,
+        "cores": cores,
+        "median": median,
+        "evaluations_per_hour": cores * 3600.0 / median["wall_time_s"],
+        "per_run": rows,
+        "deterministic": len({r["fitness"] for r in rows}) == 1,
+    }
+
+
+def bench_text(report: dict[str, Any]) -> str:
+    m = report["median"]
+    return "\n".join(
+        [
+            f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) at {report['rate_hz']:.0f} Hz lockstep, medians:",
+            f"  real-time factor (flight)   {m['real_time_factor']:.1f}x",
+            f"  wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s)",
+            f"  evaluations per hour        {report['evaluations_per_hour']:.0f} with {report['cores']} workers",
+            f"  one lockstep step           {m['step_us']:.0f} us:",
+            f"    SUT's turn incl. sockets  {m['sut_turn_us']:.0f} us",
+            f"    JSBSim                    {m['physics_us']:.0f} us",
+            f"    world and recording       {m['world_us']:.0f} us",
+            f"    sensors and send          {m['sensors_and_send_us']:.0f} us",
+            f"  same fitness every run      {report['deterministic']}",
+        ]
+    )
