@@ -82,6 +82,8 @@ class ApiLink:
         self._upload: dict | None = None
         self.last_gcs_heartbeat = None
         self.link_lost_reported = False
+        self._reported_health = -1
+        self._home_reported = False
 
     # -- sending ------------------------------------------------------------------------------
 
@@ -106,7 +108,7 @@ class ApiLink:
         state = mavlink.MAV_STATE_ACTIVE if c.armed else mavlink.MAV_STATE_STANDBY
         self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, (sub << 24) | (main << 16), state))
 
-    def _sys_status(self) -> None:
+    def _health_bits(self) -> int:
         ap = self.ap
         health = 0
         if ap.sensors_seen:
@@ -116,6 +118,11 @@ class ApiLink:
         ready, _ = ap.ready_to_arm()
         if ready or ap.commander.armed:
             health |= mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        return health
+
+    def _sys_status(self) -> None:
+        health = self._health_bits()
+        self._reported_health = health
         present = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
         self.send(self.mav.sys_status_encode(present, present, health, 200, 16000, 500, 90, 0, 0, 0, 0, 0, 0))
 
@@ -206,6 +213,13 @@ class ApiLink:
         }[name]()
 
     def telemetry(self, wall_s: float) -> None:
+        # Health and home go out as soon as they change: a client waiting to arm should not wait
+        # for the next periodic message.
+        if self._health_bits() != self._reported_health:
+            self._next["sys_status"] = 0.0
+        if not self._home_reported and self.ap.home_geodetic() is not None:
+            self._home_reported = True
+            self._next["home"] = 0.0
         for name, due in self._next.items():
             if wall_s >= due and self.periods[name] > 0:
                 self._stream(name)

@@ -195,14 +195,14 @@ class Autopilot:
         sim_lost_at: float | None = None
         # Blocking reads on the simulator link (it drives the clock); the API link is polled
         # between steps at most every TELEMETRY_CHECK_S of wall time, and on every timeout.
-        sim.settimeout(TELEMETRY_CHECK_S)
+        codec.set_receive_timeout(sim, TELEMETRY_CHECK_S)
         try:
             while True:
                 data = None
                 if sim_lost_at is None:
                     try:
                         data = sim.recv(65536)
-                    except socket.timeout:
+                    except BlockingIOError:
                         pass
                     else:
                         if data:

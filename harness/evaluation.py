@@ -121,16 +121,15 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
             bridge_log = workdir / "bridge.mcap"
             bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
                            "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s)]
+            session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
             with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
                 sut = sut_adapter.get(options.sut).start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut_params)
                 if options.pin_cpu:
                     _pin([bridge.pid, *sut.pids], ports.slot)
-                session = None
                 try:
-                    failure, summary, mavsdk_info, session = _fly(world, options, bridge, sut, ports, timings)
+                    failure, summary, mavsdk_info = _fly(world, options, bridge, sut, session, ports, timings)
                 finally:
-                    if session is not None:
-                        session.close()
+                    session.close()
                     sut_exit = sut.stop()
                     bridge.wait(5.0)
                     bridge.stop()
@@ -196,24 +195,26 @@ def _append_result(log_path: Path, result: EvaluationResult) -> None:
     temporary.replace(log_path)
 
 
-def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, ports, timings: dict[str, float]):
-    """Returns (failure or None, bridge summary, MAVSDK observations, session)."""
+def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, session: MavsdkSession, ports, timings: dict[str, float]):
+    """Returns (failure or None, bridge summary, MAVSDK observations)."""
     t0 = time.monotonic()
     control = BridgeControl(ports.control)
-    session = None
     try:
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
+        try:
+            session.discover(options.setup_timeout_s, alive)
+            timings["discover_s"] = time.monotonic() - t0
+        except InfrastructureError as error:
+            return _setup_failure(bridge, sut, control, str(error)), control_summary(control), {}
         held = control.wait_for("holding", options.setup_timeout_s, alive)
         if held is None:
-            return _setup_failure(bridge, sut, control, "the simulation never reached its hold point"), control_summary(control), {}, None
-        timings["start_s"] = time.monotonic() - t0
+            return _setup_failure(bridge, sut, control, "the simulation never reached its hold point"), control_summary(control), {}
+        timings["hold_s"] = time.monotonic() - t0
         try:
-            session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
-            timings["discover_s"] = time.monotonic() - t0
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             session.upload_and_start(mission_items(world))
         except Exception as error:  # MAVSDK raises its own error types per plugin
-            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: {error}"), control_summary(control), {}, session
+            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: {error}"), control_summary(control), {}
         timings["setup_s"] = time.monotonic() - t0
         control.send({"op": "run"})
         deadline = world["time_limit_s"] / options.min_real_time_factor + 30.0
@@ -222,11 +223,11 @@ def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, ports, timings
         info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}
         if finished is None:
             if bridge.poll() is not None:
-                return ("sim_crashed", f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info, session
+                return ("sim_crashed", f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
             control.send({"op": "stop"})
             finished = control.wait_for("finished", 10.0, lambda: bridge.poll() is None)
-            return ("timeout", f"no end within {deadline:.0f} s wall time"), finished or {}, info, session
-        return None, finished, info, session
+            return ("timeout", f"no end within {deadline:.0f} s wall time"), finished or {}, info
+        return None, finished, info
     finally:
         control.close()
 

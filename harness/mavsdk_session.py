@@ -58,25 +58,33 @@ def mission_items(world: Mapping[str, Any]) -> list[MissionItem]:
 class MavsdkSession:
     """One MAVSDK instance talking to one SUT; close() releases it."""
 
-    def __init__(self, port: int, discover_timeout_s: float = 20.0):
+    def __init__(self, port: int):
+        """Listen on the port at once, so that no heartbeat sent before discover() is lost."""
         self.sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        self.port = port
         result = self.sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
         if result != ConnectionResult.SUCCESS:
             self.close()
             raise InfrastructureError(f"MAVSDK could not listen on UDP {port}: {result.name}")
-        self.system = self.sdk.first_autopilot(timeout_s=discover_timeout_s)
+        self.status_texts: list[str] = []
+        self.mission_progress: tuple[int, int] = (0, 0)
+        self._lock = threading.Lock()
+
+    def discover(self, timeout_s: float = 20.0, alive=lambda: True) -> "MavsdkSession":
+        """Wait for the autopilot's heartbeat, giving up early when alive() turns false."""
+        deadline = time.monotonic() + timeout_s
+        self.system = None
+        while self.system is None and time.monotonic() < deadline and alive():
+            self.system = self.sdk.first_autopilot(timeout_s=0.25)
         if self.system is None:
-            self.close()
-            raise InfrastructureError(f"no autopilot heartbeat on UDP {port} within {discover_timeout_s:.0f} s")
+            raise InfrastructureError(f"no autopilot heartbeat on UDP {self.port} within {timeout_s:.0f} s")
         self.telemetry = Telemetry(self.system)
         self.action = Action(self.system)
         self.mission = MissionRaw(self.system)
         self.param = Param(self.system)
-        self.status_texts: list[str] = []
-        self.mission_progress: tuple[int, int] = (0, 0)
-        self._lock = threading.Lock()
         self.telemetry.subscribe_status_text(self._on_status_text)
         self.mission.subscribe_mission_progress(self._on_progress)
+        return self
 
     def _on_status_text(self, status, _user_data) -> None:
         with self._lock:

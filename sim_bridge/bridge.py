@@ -473,7 +473,7 @@ class Bridge:
         config = self.config
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         sut.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sut.settimeout(config.stall_timeout_s)
+        codec.set_receive_timeout(sut, config.stall_timeout_s)
         wall_start = time.perf_counter()
         perf = time.perf_counter
         hold_after_s = config.hold_after_s
@@ -515,7 +515,7 @@ class Bridge:
                         break
                 try:
                     data = sut.recv(65536)
-                except socket.timeout:
+                except BlockingIOError:
                     summary.end_reason = "sut_stalled"
                     break
                 except OSError:

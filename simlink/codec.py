@@ -7,6 +7,7 @@ pymavlink.
 
 from __future__ import annotations
 
+import socket
 import struct
 from fastcrc import crc16
 
@@ -138,3 +139,12 @@ class FrameSplitter:
             position = start + total
         del buffer[:position]
         return frames
+
+
+def set_receive_timeout(sock, timeout_s: float) -> None:
+    """A kernel-side receive timeout on a blocking socket: one recv() syscall per message instead
+    of Python's poll() + recv() for sockets with a timeout. recv() then raises BlockingIOError
+    (EAGAIN) when the timeout passes."""
+    sock.settimeout(None)
+    seconds = int(timeout_s)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", seconds, int((timeout_s - seconds) * 1e6)))

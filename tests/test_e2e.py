@@ -111,7 +111,7 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
         with ManagedProcess("bridge", bridge_argv, log_dir=tmp_path) as bridge, ManagedProcess("autopilot", autopilot_argv, log_dir=tmp_path) as autopilot:
             control = BridgeControl(ports.control)
             assert control.wait_for("holding", 30.0) is not None
-            session = MavsdkSession(ports.api)
+            session = MavsdkSession(ports.api).discover()
             try:
                 session.wait_healthy(20.0)
                 assert session.param.get_param_float("CP_DIST") == pytest.approx(1.0)
