@@ -13,8 +13,9 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 
 demo: setup
 	$(BIN)/stella validate scenarios/table3 scenarios/examples scenarios/profiles
-	$(BIN)/stella space scenarios/examples/fig4.json
-	$(BIN)/stella sample scenarios/examples/fig4.json --seed 1
+	rm -rf runs/demo
+	$(BIN)/stella run scenarios/examples/fig4.json --seed 1 --out runs/demo
+	$(BIN)/stella inspect runs/demo/*.mcap --plot runs/demo/top_view.png
 
 test: setup
 	$(BIN)/pytest

@@ -156,11 +156,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     from harness.evaluation import RunOptions, evaluate
     from harness.scenario.world import load_concrete
 
+    import sut_adapter
+
+    if args.sut not in sut_adapter.names():
+        raise InputError([Problem("--sut", "", f"unknown SUT {args.sut!r}; available: {', '.join(sut_adapter.names())}")])
     if args.concrete:
         space, x = load_concrete(Path(args.concrete))
-    else:
+    elif args.scenario:
         space = _space(args)
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
+    else:
+        raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
     options = RunOptions(sut=args.sut, rate_hz=args.rate_hz)
     result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
     emit(args, result, _result_text(result))

@@ -9,7 +9,7 @@ import threading
 import time
 from typing import Any, Mapping, Sequence
 
-from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
 from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
 from mavsdk.plugins.param import Param
@@ -27,6 +27,19 @@ NAV_LAND = 21
 NAV_TAKEOFF = 22
 DO_CHANGE_SPEED = 178
 ACCEPTANCE_RADIUS_M = 2.0
+
+
+_MAVSDK_LEVELS = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.DEBUG, LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+_mavsdk_log = logging.getLogger("mavsdk")
+
+
+def _route_mavsdk_log(level, message: str, _file, _line) -> bool:
+    """MAVSDK's own log into Python logging (its info chatter at debug level), not onto stderr."""
+    _mavsdk_log.log(_MAVSDK_LEVELS.get(level, logging.INFO), message)
+    return True
+
+
+log_subscribe(_route_mavsdk_log)
 
 
 def mission_items(world: Mapping[str, Any]) -> list[MissionItem]:
