@@ -170,7 +170,7 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         log_path=str(log_path) if log_path else None,
         scenario=space.logical.name,
         sut=options.sut,
-        timings={**timings, **{k: summary[k] for k in ("wait_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
+        timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
         mavsdk=mavsdk_info,
     )
     if log_path is not None:

@@ -83,6 +83,8 @@ class Summary:
     wait_s: float = 0.0
     physics_s: float = 0.0
     world_s: float = 0.0
+    sensors_s: float = 0.0
+    send_s: float = 0.0
     injections: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -499,7 +501,10 @@ class Bridge:
                 if summary.end_reason != "running":
                     break
                 wall_run_started = perf()
+            ts = perf()
             frames_out = self._sensor_frames(step, time_us)
+            t_send = perf()
+            summary.sensors_s += t_send - ts
             try:
                 sut.sendall(frames_out)
             except OSError:
@@ -507,6 +512,7 @@ class Bridge:
                 break
             self._link_out += frames_out
             t0 = perf()
+            summary.send_s += t0 - t_send
             got_answer = False
             while not got_answer:
                 if not lockstep:
