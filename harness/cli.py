@@ -204,6 +204,60 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+@command("campaign")
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from harness.campaign import CampaignConfig, run_campaign
+    from harness.evaluation import RunOptions
+    from harness.executors import make_executor
+    from harness.search.optimizers import parse_algorithm
+    from harness.store import Store
+
+    for algorithm in args.algorithm:
+        try:
+            parse_algorithm(algorithm)
+        except ValueError as error:
+            raise InputError([Problem("--algorithm", "", str(error))]) from None
+    for scenario in args.scenarios:
+        load_logical(Path(scenario), load_profile(args.profile))
+    config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s)
+    executor = make_executor(args.executor, args.workers)
+    batch = getattr(executor, "workers", 1)
+    counter = {"n": 0}
+
+    def progress(result: dict[str, Any]) -> None:
+        counter["n"] += 1
+        if not args.json:
+            print(f"\r{counter['n']} evaluations flown; last: {result['status']} f={result['fitness']:.2f}   ", end="", file=sys.stderr, flush=True)
+
+    store_path = Path(args.store)
+    try:
+        with Store(store_path) as store:
+            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", batch=batch,
+                                   options=RunOptions(sut=args.sut), on_result=progress)
+    finally:
+        executor.close()
+    if not args.json:
+        print(file=sys.stderr)
+    text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
+                     f"{r['flown']} flown, {r['replayed']} from the store" for r in summary.runs) or "every run was already finished"
+    emit(args, {"store": str(store_path), "runs": summary.runs}, text)
+    return 0
+
+
+@command("compare")
+def cmd_compare(args: argparse.Namespace) -> int:
+    from harness.statistics import compare, table
+    from harness.store import Store
+
+    if not Path(args.store).exists():
+        raise InputError([Problem(args.store, "", "no such campaign store")])
+    with Store(Path(args.store)) as store:
+        report = compare(store, args.baseline)
+    emit(args, report, table(report))
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -246,6 +300,25 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--rate-hz", type=float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
+
+    p = add("campaign", "search logical scenarios for worst cases; resumable from its store")
+    p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
+    p.add_argument("--algorithm", action="append", required=True, help="NSGAII, SMPSO, BO, RANDOM or a combination of N P B R such as NPB; repeatable")
+    p.add_argument("--evaluations", type=int, required=True, help="budget per run (split evenly over a combination's steps)")
+    p.add_argument("--runs", type=int, default=1)
+    p.add_argument("--seed", type=int, default=0, help="run r uses seed + r")
+    p.add_argument("--population", type=int, default=50, help="population, swarm size and BO initial set")
+    p.add_argument("--profile", default="default")
+    p.add_argument("--sut", default="bundled")
+    p.add_argument("--executor", choices=["sequential", "local"], default="local")
+    p.add_argument("--workers", type=int, help="local executor workers (default: cores)")
+    p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
+    p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
+    p.add_argument("--wall-time-s", type=float, help="end each run after this much wall time")
+
+    p = add("compare", "the algorithm comparison table (median best fitness, relative performance, p-value, A12)")
+    p.add_argument("store")
+    p.add_argument("--baseline", default="NSGAII")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

@@ -1,0 +1,142 @@
+"""Campaigns: logical scenarios x algorithms x runs, each run a sequence of optimizer steps.
+
+A run's budget (`evaluations`) is split evenly over the steps of its algorithm string (NSGAII
+alone is one step; NPB is three). Each step after the first starts from the best solutions so
+far (`SEEDS_FROM_BEST` of them: jMetalPy's injector, BO's probes) plus candidates from the least
+explored regions: of `EXPLORE_POOL` uniform points, greedily those farthest (in the space
+scaled to the unit cube) from every evaluated point and from each other (maximin distance).
+The run's result is the lowest fitness of all its steps.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from harness.evaluation import RunOptions
+from harness.executors import Executor
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
+from harness.scenario.space import SearchSpace
+from harness.search.optimizers import OPTIMIZERS, parse_algorithm
+from harness.search.problem import CampaignProblem, StopSearch
+from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
+from harness.store import Store
+
+log = logging.getLogger(__name__)
+
+SEEDS_FROM_BEST = 5
+EXPLORE_POOL = 2000
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    scenarios: tuple[str, ...]
+    algorithms: tuple[str, ...]
+    evaluations: int
+    runs: int = 1
+    seed: int = 0
+    population: int = 50
+    profile: str = "default"
+    stop_at_violation: bool = False
+    wall_time_s: float | None = None
+
+    def identity(self) -> dict[str, Any]:
+        """What makes two invocations the same campaign (and so resumable from one store)."""
+        return {
+            "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
+            "algorithms": list(self.algorithms),
+            "evaluations": self.evaluations,
+            "runs": self.runs,
+            "seed": self.seed,
+            "population": self.population,
+            "profile": self.profile,
+            "stop_at_violation": self.stop_at_violation,
+        }
+
+
+def least_explored(space: SearchSpace, evaluated: Sequence[np.ndarray], count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """count points of a uniform pool, each the farthest from everything evaluated or chosen so far."""
+    if count <= 0:
+        return []
+    span = np.where(space.upper > space.lower, space.upper - space.lower, 1.0)
+    pool = space.sample(rng, EXPLORE_POOL)
+    scaled_pool = (pool - space.lower) / span
+    if len(evaluated):
+        known = (np.asarray(evaluated) - space.lower) / span
+        nearest = np.min(np.linalg.norm(scaled_pool[:, None, :] - known[None, :, :], axis=2), axis=1)
+    else:
+        nearest = np.full(len(pool), np.inf)
+    chosen = []
+    for _ in range(min(count, len(pool))):
+        best = int(np.argmax(nearest))
+        chosen.append(pool[best])
+        nearest = np.minimum(nearest, np.linalg.norm(scaled_pool - scaled_pool[best], axis=1))
+    return chosen
+
+
+def run_sequence(combination: str, problem: CampaignProblem, *, budget: int, seed: int, population: int, batch: int) -> None:
+    per_step = [budget // len(combination) + (1 if i < budget % len(combination) else 0) for i in range(len(combination))]
+    rng = np.random.default_rng(seed)
+    for step, (letter, step_budget) in enumerate(zip(combination, per_step)):
+        optimizer = OPTIMIZERS[letter]
+        initial: list[np.ndarray] = []
+        if problem.history:
+            ranked = sorted(problem.history, key=lambda entry: entry[1])
+            initial = [x for x, _ in ranked[: min(SEEDS_FROM_BEST, population)]]
+            initial += least_explored(problem.space, [x for x, _ in problem.history], population - len(initial), rng)
+        problem.step, problem.optimizer = step, optimizer.name
+        problem.step_limit = problem.spent + step_budget
+        try:
+            optimizer.search(problem, seed=seed * 1000 + step, population=population, batch=batch, initial=initial)
+        except StopSearch as stop:
+            if stop.campaign_done and problem.spent < problem.step_limit:
+                return
+        best = problem.best
+        problem.store.checkpoint(problem.run_id, step, {"optimizer": optimizer.name, "spent": problem.spent, "best_fitness": best[1] if best else None,
+                                                         "best_vector": best[0].tolist() if best else None})
+
+
+@dataclass
+class CampaignSummary:
+    runs: list[dict[str, Any]] = field(default_factory=list)
+
+
+def termination_for(config: CampaignConfig) -> Termination:
+    parts: list[Termination] = [EvaluationBudget(config.evaluations)]
+    if config.stop_at_violation:
+        parts.append(FirstViolation())
+    if config.wall_time_s:
+        parts.append(WallTimeBudget(config.wall_time_s))
+    return AnyOf(tuple(parts))
+
+
+def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, batch: int, options: RunOptions = RunOptions(),
+                 on_result: Callable[[dict[str, Any]], None] = lambda r: None) -> CampaignSummary:
+    combinations = [parse_algorithm(a) for a in config.algorithms]
+    campaign_id = store.campaign(config.identity())
+    profile = load_profile(config.profile)
+    summary = CampaignSummary()
+    for scenario_file in config.scenarios:
+        space = SearchSpace(load_logical(Path(scenario_file), profile), profile)
+        for algorithm, combination in zip(config.algorithms, combinations):
+            for run_index in range(config.runs):
+                seed = config.seed + run_index
+                run_id, finished = store.run(campaign_id, str(Path(scenario_file).resolve()), space.logical.name, algorithm.upper(), run_index, seed)
+                if finished:
+                    continue
+                problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result)
+                run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=batch)
+                store.finish_run(run_id)
+                best = problem.best
+                summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,
+                                     "evaluations": problem.spent, "flown": problem.flown, "replayed": problem.replayed, "violations": problem.violations,
+                                     "best_fitness": best[1] if best else None})
+                print(f"{space.logical.name} {algorithm.upper()} run {run_index}: best fitness {best[1] if best else float('nan'):.3f}, "
+                      f"{problem.violations} violations in {problem.spent} evaluations", file=sys.stderr)
+    return summary

@@ -1,0 +1,1 @@
+"""Search: the problem adapter the optimizers see, the optimizer adapters, termination objects."""

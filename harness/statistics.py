@@ -1,0 +1,90 @@
+"""The algorithm comparison of the paper's Table V, from a campaign store.
+
+Per logical scenario and algorithm: the best (lowest) fitness of each run; their median; the
+violations found (summed over runs); performance relative to the baseline,
+100 * (median_baseline - median) / |median_baseline| (positive = better, fitness is minimized);
+the two-sided Mann-Whitney U p-value of the runs' best fitness against the baseline's (scipy);
+and the Vargha-Delaney A12, the probability that a run of the algorithm finds a lower best
+fitness than a run of the baseline, ties counting half (> 0.5 = better). "overall" averages the
+relative performance over scenarios and pools the runs for the test and the A12.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import defaultdict
+from typing import Any, Sequence
+
+from scipy.stats import mannwhitneyu
+
+from harness.store import Store
+
+
+def a12(candidate: Sequence[float], baseline: Sequence[float]) -> float:
+    """Vargha-Delaney A12 for minimization: P(candidate < baseline) + 0.5 P(equal)."""
+    wins = sum((c < b) + 0.5 * (c == b) for c in candidate for b in baseline)
+    return wins / (len(candidate) * len(baseline))
+
+
+def relative_performance(median: float, baseline_median: float) -> float | None:
+    if baseline_median == 0:
+        return None
+    return 100.0 * (baseline_median - median) / abs(baseline_median)
+
+
+def p_value(candidate: Sequence[float], baseline: Sequence[float]) -> float | None:
+    if len(candidate) < 2 or len(baseline) < 2 or (len(set(candidate)) == 1 and set(candidate) == set(baseline)):
+        return None
+    return float(mannwhitneyu(candidate, baseline, alternative="two-sided").pvalue)
+
+
+def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
+    best: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    violations: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    for run in store.run_rows():
+        if run["best_fitness"] is None:
+            continue
+        best[run["scenario"]][run["algorithm"]].append(run["best_fitness"])
+        violations[run["scenario"]][run["algorithm"]] += run["violations"] or 0
+    baseline = baseline.upper()
+    rows = []
+    pooled: dict[str, list[float]] = defaultdict(list)
+    relative: dict[str, list[float]] = defaultdict(list)
+    for scenario, by_algorithm in best.items():
+        base = by_algorithm.get(baseline)
+        for algorithm, values in sorted(by_algorithm.items()):
+            median = statistics.median(values)
+            row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
+                   "violations": violations[scenario][algorithm], "relative_performance_pct": None, "p_value": None, "a12": None}
+            pooled[algorithm].extend(values)
+            if base and algorithm != baseline:
+                row["relative_performance_pct"] = relative_performance(median, statistics.median(base))
+                row["p_value"] = p_value(values, base)
+                row["a12"] = a12(values, base)
+                if row["relative_performance_pct"] is not None:
+                    relative[algorithm].append(row["relative_performance_pct"])
+            rows.append(row)
+    overall = []
+    for algorithm, values in sorted(pooled.items()):
+        base = pooled.get(baseline)
+        entry = {"algorithm": algorithm, "runs": len(values), "median_best_fitness": statistics.median(values),
+                 "violations": sum(violations[s][algorithm] for s in violations), "relative_performance_pct": None, "p_value": None, "a12": None}
+        if base and algorithm != baseline:
+            entry["relative_performance_pct"] = statistics.mean(relative[algorithm]) if relative[algorithm] else None
+            entry["p_value"] = p_value(values, base)
+            entry["a12"] = a12(values, base)
+        overall.append(entry)
+    return {"baseline": baseline, "scenarios": rows, "overall": overall}
+
+
+def table(report: dict[str, Any]) -> str:
+    def number(value, fmt):
+        return "-" if value is None else format(value, fmt)
+
+    lines = [f"baseline: {report['baseline']}", f"{'scenario':<28} {'algorithm':<10} {'runs':>4} {'median best f':>14} {'violations':>10} {'rel. %':>8} {'p':>6} {'A12':>5}"]
+    for row in report["scenarios"] + [dict(r, scenario="overall") for r in report["overall"]]:
+        lines.append(
+            f"{row['scenario'][:28]:<28} {row['algorithm']:<10} {row['runs']:>4} {row['median_best_fitness']:>14.3f} {row['violations']:>10} "
+            f"{number(row['relative_performance_pct'], '+.0f'):>8} {number(row['p_value'], '.2f'):>6} {number(row['a12'], '.2f'):>5}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,175 @@
+"""The campaign store: one SQLite file (WAL) per campaign; every evaluation committed as it finishes.
+
+A killed campaign resumes by replaying its searches with the same seeds: every candidate the
+search asks for again is found here by its exact vector and answered from the row, so nothing
+finished is lost and nothing is flown twice.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+from harness.errors import InputError, Problem
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS campaigns (
+    id INTEGER PRIMARY KEY,
+    created REAL NOT NULL,
+    config TEXT NOT NULL UNIQUE
+);
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    scenario_file TEXT NOT NULL,
+    scenario TEXT NOT NULL,
+    algorithm TEXT NOT NULL,
+    run_index INTEGER NOT NULL,
+    seed INTEGER NOT NULL,
+    finished REAL,
+    UNIQUE (campaign_id, scenario_file, algorithm, run_index)
+);
+CREATE TABLE IF NOT EXISTS evaluations (
+    id INTEGER PRIMARY KEY,
+    run_id INTEGER NOT NULL REFERENCES runs(id),
+    ordinal INTEGER NOT NULL,
+    step INTEGER NOT NULL,
+    optimizer TEXT NOT NULL,
+    vector TEXT NOT NULL,
+    vector_key TEXT NOT NULL,
+    concrete TEXT,
+    fitness REAL NOT NULL,
+    status TEXT NOT NULL,
+    why TEXT,
+    min_clearance_m REAL,
+    sim_time_s REAL,
+    wall_time_s REAL,
+    log_path TEXT,
+    seed INTEGER NOT NULL,
+    created REAL NOT NULL,
+    UNIQUE (run_id, vector_key),
+    UNIQUE (run_id, ordinal)
+);
+CREATE TABLE IF NOT EXISTS checkpoints (
+    run_id INTEGER NOT NULL REFERENCES runs(id),
+    step INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    created REAL NOT NULL,
+    PRIMARY KEY (run_id, step)
+);
+"""
+
+
+def vector_key(x: np.ndarray) -> str:
+    """Exact identity of a candidate: the bytes of its float64 values."""
+    return np.ascontiguousarray(np.asarray(x, dtype=np.float64)).tobytes().hex()
+
+
+@dataclass(frozen=True)
+class StoredEvaluation:
+    ordinal: int
+    vector: np.ndarray
+    fitness: float
+    status: str
+    log_path: str | None
+
+
+class Store:
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(self.path, timeout=30.0)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        self.db.executescript(SCHEMA)
+        self.db.commit()
+
+    def close(self) -> None:
+        self.db.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- campaigns and runs --------------------------------------------------------------------
+
+    def campaign(self, config: Mapping[str, Any]) -> int:
+        """The campaign with exactly this configuration; a store holds one campaign."""
+        text = json.dumps(config, sort_keys=True)
+        row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (text,)).fetchone()
+        if row:
+            return row[0]
+        other = self.db.execute("SELECT config FROM campaigns").fetchone()
+        if other:
+            raise InputError([Problem(str(self.path), "", "this store holds a different campaign (other scenarios, algorithms, budget, runs or seed); "
+                                      "resume it with the same arguments or use a new --store")])
+        with self.db:
+            return self.db.execute("INSERT INTO campaigns (created, config) VALUES (?, ?)", (time.time(), text)).lastrowid
+
+    def run(self, campaign_id: int, scenario_file: str, scenario: str, algorithm: str, run_index: int, seed: int) -> tuple[int, bool]:
+        """(run id, already finished)."""
+        row = self.db.execute(
+            "SELECT id, finished FROM runs WHERE campaign_id = ? AND scenario_file = ? AND algorithm = ? AND run_index = ?",
+            (campaign_id, scenario_file, algorithm, run_index),
+        ).fetchone()
+        if row:
+            return row[0], row[1] is not None
+        with self.db:
+            cursor = self.db.execute(
+                "INSERT INTO runs (campaign_id, scenario_file, scenario, algorithm, run_index, seed) VALUES (?, ?, ?, ?, ?, ?)",
+                (campaign_id, scenario_file, scenario, algorithm, run_index, seed),
+            )
+        return cursor.lastrowid, False
+
+    def finish_run(self, run_id: int) -> None:
+        with self.db:
+            self.db.execute("UPDATE runs SET finished = ? WHERE id = ?", (time.time(), run_id))
+
+    # -- evaluations ---------------------------------------------------------------------------
+
+    def evaluations(self, run_id: int) -> dict[str, StoredEvaluation]:
+        rows = self.db.execute("SELECT ordinal, vector, vector_key, fitness, status, log_path FROM evaluations WHERE run_id = ?", (run_id,))
+        return {key: StoredEvaluation(ordinal, np.array(json.loads(vector)), fitness, status, log) for ordinal, vector, key, fitness, status, log in rows}
+
+    def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: Mapping[str, Any], concrete: Mapping[str, Any] | None) -> None:
+        with self.db:
+            self.db.execute(
+                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
+                    json.dumps(concrete) if concrete is not None else None, result["fitness"], result["status"], result.get("why"),
+                    result.get("min_clearance_m"), result.get("sim_time_s"), result.get("wall_time_s"), result.get("log_path"), result["seed"], time.time(),
+                ),
+            )
+
+    def checkpoint(self, run_id: int, step: int, state: Mapping[str, Any]) -> None:
+        with self.db:
+            self.db.execute("INSERT OR REPLACE INTO checkpoints (run_id, step, state, created) VALUES (?, ?, ?, ?)", (run_id, step, json.dumps(state), time.time()))
+
+    # -- reading -------------------------------------------------------------------------------
+
+    def run_rows(self) -> Iterator[dict[str, Any]]:
+        query = (
+            "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
+            " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id)"
+            " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
+        )
+        for row in self.db.execute(query):
+            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations"), row))
+
+    def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
+        """(ordinal, best fitness up to it) for a convergence curve."""
+        best, curve = float("inf"), []
+        for ordinal, fitness in self.db.execute("SELECT ordinal, fitness FROM evaluations WHERE run_id = ? ORDER BY ordinal", (run_id,)):
+            best = min(best, fitness)
+            curve.append((ordinal, best))
+        return curve

@@ -1,0 +1,170 @@
+"""Campaigns: optimizer determinism, sequences, termination, the store's resume after kill -9, statistics."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from harness.campaign import least_explored, run_sequence
+from harness.executors import Job
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from harness.search.optimizers import parse_algorithm
+from harness.search.problem import CampaignProblem
+from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
+from harness.statistics import a12, compare, p_value, relative_performance
+from harness.store import Store
+
+SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
+
+
+class AnalyticExecutor:
+    """Stands in for the simulator in optimizer-only tests: fitness is the distance of the obstacle's
+    start from a fixed point, violation below 2 m. The product never uses it."""
+
+    name = "analytic"
+
+    def run(self, jobs):
+        for job in jobs:
+            position = job.concrete["obstacles"][0]["position"]
+            d = float(np.hypot(position["north_m"] - 30.0, position["east_m"] - 3.0)) - 2.0
+            yield job, {"fitness": d, "status": "violation" if d < 0 else "ok", "seed": job.seed, "why": None}
+
+    def close(self):
+        pass
+
+
+@pytest.fixture
+def space(profile):
+    return SearchSpace(load_logical(SCENARIO, profile), profile)
+
+
+def candidates(space, tmp_path, combination, seed, budget=20, name="store.db"):
+    with Store(tmp_path / name) as store:
+        campaign = store.campaign({"test": combination, "seed": seed, "name": name})
+        run_id, _ = store.run(campaign, str(SCENARIO), "s", combination, 0, seed)
+        problem = CampaignProblem(space, store, run_id, AnalyticExecutor(), seed, EvaluationBudget(budget), tmp_path)
+        run_sequence(combination, problem, budget=budget, seed=seed, population=6, batch=2)
+        rows = store.db.execute("SELECT ordinal, vector, fitness FROM evaluations WHERE run_id = ? ORDER BY ordinal", (run_id,)).fetchall()
+    return rows, problem
+
+
+@pytest.mark.parametrize("combination", ["N", "P", "B", "R", "NPB"])
+def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combination):
+    first, problem = candidates(space, tmp_path, combination, seed=3, name="a.db")
+    second, _ = candidates(space, tmp_path, combination, seed=3, name="b.db")
+    other, _ = candidates(space, tmp_path, combination, seed=4, name="c.db")
+    assert first == second
+    assert [r[1] for r in first] != [r[1] for r in other]
+    assert len(first) == 20 and [r[0] for r in first] == list(range(20))
+    assert problem.best[1] == min(r[2] for r in first)
+
+
+def test_a_sequence_improves_on_its_seeds_and_reports_the_lowest_fitness(space, tmp_path):
+    rows, problem = candidates(space, tmp_path, "RN", seed=1, budget=40)
+    first_half = min(r[2] for r in rows[:20])
+    assert problem.best[1] <= first_half
+    assert problem.best[1] == min(r[2] for r in rows)
+
+
+def test_termination_objects_combine():
+    progress = Progress(evaluations=10, elapsed_s=5.0, violations=0)
+    assert EvaluationBudget(10).done(progress) and not EvaluationBudget(11).done(progress)
+    assert WallTimeBudget(4.0).done(progress) and not FirstViolation().done(progress)
+    assert AnyOf((EvaluationBudget(100), WallTimeBudget(4.0))).done(progress)
+    assert not AllOf((EvaluationBudget(100), WallTimeBudget(4.0))).done(progress)
+    assert FirstViolation().done(Progress(1, 0.0, 1))
+
+
+def test_stop_at_first_violation_ends_the_run(space, tmp_path):
+    with Store(tmp_path / "v.db") as store:
+        run_id, _ = store.run(store.campaign({"v": 1}), str(SCENARIO), "s", "R", 0, 0)
+        problem = CampaignProblem(space, store, run_id, AnalyticExecutor(), 0, AnyOf((EvaluationBudget(5000), FirstViolation())), tmp_path)
+        run_sequence("R", problem, budget=5000, seed=0, population=6, batch=1)
+        assert problem.violations == 1 and problem.spent < 5000
+
+
+def test_least_explored_points_keep_away_from_what_was_evaluated(space):
+    rng = np.random.default_rng(0)
+    evaluated = list(space.sample(rng, 50))
+    chosen = least_explored(space, evaluated, 5, rng)
+    span = space.upper - space.lower
+    def gap(x):
+        return min(np.linalg.norm((x - e) / span) for e in evaluated)
+    random_gaps = sorted(gap(x) for x in space.sample(rng, 200))
+    assert min(gap(x) for x in chosen) > random_gaps[len(random_gaps) // 2]
+
+
+def test_algorithm_names_and_combinations_parse():
+    assert parse_algorithm("nsgaii") == "N" and parse_algorithm("BO") == "B" and parse_algorithm("pnb") == "PNB"
+    with pytest.raises(ValueError, match="unknown algorithm"):
+        parse_algorithm("NXP")
+
+
+def test_statistics_match_hand_computed_values():
+    assert a12([1, 2, 3], [4, 5, 6]) == 1.0
+    assert a12([1, 5], [2, 5]) == pytest.approx(2.5 / 4)  # 1<2 and 1<5 win, 5>2 loses, 5=5 counts half
+    assert relative_performance(-2.0, -1.0) == pytest.approx(100.0)  # twice as deep a violation
+    assert relative_performance(1.5, 1.0) == pytest.approx(-50.0)
+    assert p_value([1, 2, 3], [4, 5, 6]) == pytest.approx(0.1)  # exact two-sided Mann-Whitney U, n = 3 + 3
+
+
+def test_compare_lays_out_median_best_fitness_per_scenario_and_overall(tmp_path):
+    with Store(tmp_path / "c.db") as store:
+        campaign = store.campaign({"c": 1})
+        for algorithm, bests in (("NSGAII", [1.0, 2.0, 3.0]), ("BO", [4.0, 5.0, 6.0])):
+            for index, best in enumerate(bests):
+                run_id, _ = store.run(campaign, "s.json", "s", algorithm, index, index)
+                store.add_evaluation(run_id, ordinal=0, step=0, optimizer=algorithm, vector=np.array([best]), result={"fitness": best, "status": "ok", "seed": 0}, concrete=None)
+        report = compare(store, "NSGAII")
+    bo = next(r for r in report["scenarios"] if r["algorithm"] == "BO")
+    assert bo["median_best_fitness"] == 5.0 and bo["relative_performance_pct"] == pytest.approx(-150.0)
+    assert bo["a12"] == 0.0 and bo["p_value"] == pytest.approx(0.1)
+
+
+@pytest.mark.slow
+def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_evaluation(tmp_path):
+    scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
+    def command(store):
+        return [sys.executable, "-m", "harness.cli", "campaign", str(scenario), "--algorithm", "NSGAII", "--evaluations", "8",
+                "--population", "4", "--executor", "sequential", "--store", str(store), "--json"]
+    killed_store = tmp_path / "killed.db"
+    campaign = subprocess.Popen(command(killed_store), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    before = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if killed_store.exists():
+            try:
+                with sqlite3.connect(killed_store) as db:
+                    before = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
+            except sqlite3.OperationalError:
+                before = []
+            if len(before) >= 3:
+                break
+        time.sleep(0.2)
+    campaign.send_signal(signal.SIGKILL)
+    campaign.wait()
+    assert 3 <= len(before) < 8
+    resumed = subprocess.run(command(killed_store), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    with sqlite3.connect(killed_store) as db:
+        after = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
+    kept = {row[0]: row for row in after}
+    assert all(kept[row[0]] == row for row in before), "a finished evaluation was lost or redone"
+    assert [row[0] for row in after] == list(range(len(after)))
+    clean = subprocess.run(command(tmp_path / "clean.db"), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    with sqlite3.connect(tmp_path / "clean.db") as db:
+        uninterrupted = db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall()
+    assert [row[:3] for row in after] == uninterrupted  # the same candidates, in the same order, with the same results
+    report = json.loads(resumed.stdout)
+    assert report["runs"][0]["replayed"] == len(before)
