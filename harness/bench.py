@@ -90,3 +90,52 @@ def bench_text(report: dict[str, Any]) -> str:
             f"  same fitness every run      {report['deterministic']}",
         ]
     )
+
+
+def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50) -> dict[str, Any]:
+    """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
+    import time
+
+    from harness.campaign import CampaignConfig, run_campaign
+    from harness.executors import LocalExecutor
+    from harness.store import Store
+
+    path = scenario or scenarios_dir() / "table3" / "scenario_09.json"
+    config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population)
+    executor = LocalExecutor(workers)
+    with tempfile.TemporaryDirectory(prefix="stella-bench-campaign-") as folder:
+        started = time.monotonic()
+        with Store(Path(folder) / "campaign.db") as store:
+            try:
+                run_campaign(config, store, executor, Path(folder) / "logs", batch=executor.workers)
+            finally:
+                executor.close()
+            wall = time.monotonic() - started
+            rows = store.db.execute("SELECT status, wall_time_s, sim_time_s FROM evaluations").fetchall()
+    flown = [r for r in rows if r[0] != "infeasible"]
+    busy = sum(r[1] or 0.0 for r in flown)
+    return {
+        "scenario": str(path),
+        "evaluations": len(rows),
+        "flown": len(flown),
+        "workers": executor.workers,
+        "wall_time_s": wall,
+        "evaluations_per_hour": 3600.0 * len(rows) / wall,
+        "mean_evaluation_wall_s": busy / len(flown) if flown else None,
+        "simulated_s": sum(r[2] or 0.0 for r in flown),
+        "outside_evaluations_share": 1.0 - busy / (wall * executor.workers),
+        "violations": sum(1 for r in rows if r[0] == "violation"),
+    }
+
+
+def campaign_bench_text(report: dict[str, Any]) -> str:
+    return "\n".join(
+        [
+            f"NSGA-II campaign on {report['scenario']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers",
+            f"  wall time                   {report['wall_time_s']:.0f} s",
+            f"  evaluations per hour        {report['evaluations_per_hour']:.0f}",
+            f"  mean wall per evaluation    {report['mean_evaluation_wall_s']:.2f} s (in a worker)",
+            f"  time outside evaluations    {100 * report['outside_evaluations_share']:.1f} % of worker time",
+            f"  violations found            {report['violations']}",
+        ]
+    )

@@ -199,6 +199,12 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from harness.bench import bench_text, run_bench
 
+    if args.campaign:
+        from harness.bench import campaign_bench_text, run_campaign_bench
+
+        report = run_campaign_bench(args.evaluations, args.workers, Path(args.scenario) if args.scenario else None)
+        emit(args, report, campaign_bench_text(report))
+        return 0
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin)
     emit(args, report, bench_text(report))
     return 0
@@ -300,6 +306,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--rate-hz", type=float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
+    p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
+    p.add_argument("--evaluations", type=int, default=500, help="with --campaign")
+    p.add_argument("--workers", type=int, help="with --campaign (default: cores)")
 
     p = add("campaign", "search logical scenarios for worst cases; resumable from its store")
     p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
