@@ -35,6 +35,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     rows = []
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
+        autopilot = None
         for index in range(runs):
             result = evaluate(space, x, seed=seed, out_dir=Path(out), options=RunOptions(rate_hz=rate_hz, pin_cpu=pin_cpu), name=f"bench-{index}")
             if result.real_time_factor is None:
@@ -57,8 +58,11 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     "fitness": result.fitness,
                 }
             )
+            if autopilot is None:
+                autopilot = autopilot_step_bench(Path(result.log_path))
     median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
     median["other_us"] = median["step_us"] - median["sut_turn_us"] - median["physics_us"] - median["world_us"] - median["sensors_us"]
+    median["bridge_side_us"] = median["step_us"] - median["sut_turn_us"]
     cores = len(os.sched_getaffinity(0))
     return {
         "scenario": str(path),
@@ -70,6 +74,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         "evaluations_per_hour": cores * 3600.0 / median["wall_time_s"],
         "per_run": rows,
         "deterministic": len({r["fitness"] for r in rows}) == 1,
+        "autopilot_step": autopilot,
     }
 
 
@@ -87,6 +92,8 @@ def bench_text(report: dict[str, Any]) -> str:
             f"    JSBSim                    {m['physics_us']:.0f} us",
             f"    world and recording       {m['world_us']:.0f} us",
             f"    loop and timers           {m['other_us']:.0f} us",
+            f"  the bridge's side of a step {m['bridge_side_us']:.0f} us",
+            f"  the autopilot's computation {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)",
             f"  same fitness every run      {report['deterministic']}",
         ]
     )
@@ -139,3 +146,51 @@ def campaign_bench_text(report: dict[str, Any]) -> str:
             f"  violations found            {report['violations']}",
         ]
     )
+
+
+def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
+    """The bundled autopilot's cost per lockstep step (parse, estimate, control, encode), replaying
+    the simulator-to-SUT stream of a recorded flight into an in-process autopilot flying the same
+    mission. Its answers go nowhere; what is measured is its computation, without sockets."""
+    import time
+
+    from autopilot.app import Autopilot
+    from autopilot.commander import NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, MissionItem
+    from autopilot.params import Params
+    from harness import logs
+    from pymavlink.dialects.v20 import common as mavlink
+    from simlink import codec
+
+    world = logs.json_metadata(log_path, "world")
+    stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
+
+    class NullSocket:
+        def sendall(self, data: bytes) -> None:
+            pass
+
+    autopilot = Autopilot(Params())
+    crc_extras = {m: c.crc_extra for m, c in mavlink.mavlink_map.items()}
+    frames = codec.FrameSplitter(crc_extras).feed(stream)
+    splitter = codec.FrameSplitter(crc_extras)
+    decoder = mavlink.MAVLink(None)
+    mission = world["mission"]
+    items = [MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, mission["takeoff_altitude_m"])]
+    items += [MissionItem(i + 1, NAV_WAYPOINT, w["north_m"], w["east_m"], w["altitude_m"], 0.0, 2.0) for i, w in enumerate(mission["waypoints"])]
+    items.append(MissionItem(len(items), NAV_LAND, mission["waypoints"][-1]["north_m"], mission["waypoints"][-1]["east_m"], 0.0))
+    durations = []
+    armed = False
+    sock = NullSocket()
+    for msgid, _payload, frame in frames:
+        started = time.perf_counter()
+        autopilot._on_sim_data(sock, splitter, decoder, frame)
+        if msgid == codec.HIL_SENSOR_ID:
+            durations.append(time.perf_counter() - started)
+        if not armed and autopilot.now_s >= 3.0 and autopilot.ready_to_arm()[0]:
+            autopilot.commander.set_mission(items)
+            autopilot.commander.arm(autopilot.now_s, True, "")
+            autopilot.on_armed()
+            autopilot.commander.start_mission(autopilot.vehicle_estimate())
+            armed = True
+    durations.sort()
+    return {"log": str(log_path), "steps": len(durations), "median_step_us": 1e6 * durations[len(durations) // 2],
+            "p90_step_us": 1e6 * durations[int(0.9 * len(durations))], "flew_mission": armed}

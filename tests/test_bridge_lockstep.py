@@ -132,3 +132,47 @@ def test_garbage_bytes_are_counted_and_skipped(tmp_path):
     assert code == 0 and summary["end_reason"] == "time_limit"
     assert summary["bad_frames"] > 0 and summary["skipped_bytes"] > 0
     assert summary["steps"] == 750
+
+
+@pytest.mark.slow
+def test_obstacles_are_injected_moved_and_removed_through_the_control_channel(tmp_path):
+    """GIVEN a hovering vehicle WHEN the harness adds a pole 3 m away at t=2 s, moves it to 6 m at
+    t=3 s and removes it at t=4 s THEN the recorded clearance follows exactly that."""
+    from harness.bridge_control import BridgeControl
+
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world(time_limit_s=6.0)))
+    log_path = tmp_path / "inject.mcap"
+    pole = {"id": "pole", "form": "cylinder", "size": {"diameter_m": 1.0, "height_m": 20.0}, "yaw_rad": 0.0,
+            "a": {"north_m": 3.5, "east_m": 0.0, "up_m": 10.0}, "b": None, "speed_m_s": 0.0}
+    with PortLease(first_slot=120) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+             "--mcap", str(log_path), "--hold-after-s", "0.5"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        )
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", "hover"], cwd=ROOT)
+        try:
+            control = BridgeControl(ports.control)
+            assert control.wait_for("holding", 20.0) is not None
+            control.send({"op": "add_obstacle", "obstacle": pole, "at_s": 2.0})
+            control.send({"op": "move_obstacle", "id": "pole", "a": {"north_m": 6.5, "east_m": 0.0, "up_m": 10.0}, "at_s": 3.0})
+            control.send({"op": "remove_obstacle", "id": "pole", "at_s": 4.0})
+            control.send({"op": "run"})
+            finished = control.wait_for("finished", 60.0)
+            control.close()
+            bridge.communicate(timeout=30)
+        finally:
+            sut.kill()
+            sut.wait()
+            bridge.kill()
+    assert [i["op"] for i in finished["injections"]] == ["add_obstacle", "move_obstacle", "remove_obstacle"]
+    samples = [(t, d) for _topic, _ns, m in logs.messages(log_path, ["/clearance"]) for t, d in zip(m["t"], m["d"])]
+    run_start = 0.5
+    def clearance_at(run_time):
+        return next(d for t, d in samples if t >= run_start + run_time)
+    assert clearance_at(1.9) is None  # no obstacle yet
+    # The hovering body (0.3 m half length) is within centimetres of the origin.
+    assert clearance_at(2.5) == pytest.approx(3.5 - 0.5 - 0.3, abs=0.1)
+    assert clearance_at(3.5) == pytest.approx(6.5 - 0.5 - 0.3, abs=0.1)
+    assert clearance_at(4.5) is None
