@@ -425,7 +425,9 @@ class ApiLink:
             if home is None or not c.armed:
                 self._ack(msg, denied)
                 return
-            altitude = msg.param7 - home[2] if math.isfinite(msg.param7) else ap.params["MIS_TAKEOFF_ALT"]
+            # COMMAND_LONG carries the altitude in param7, COMMAND_INT in z.
+            amsl = msg.z if msg.get_type() == "COMMAND_INT" else msg.param7
+            altitude = amsl - home[2] if math.isfinite(amsl) else ap.params["MIS_TAKEOFF_ALT"]
             c.takeoff(estimate, altitude)
             self._ack(msg, accepted)
             self.heartbeat()

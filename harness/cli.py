@@ -264,6 +264,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+@command("report")
+def cmd_report(args: argparse.Namespace) -> int:
+    from harness.report import write_report
+    from harness.store import Store
+
+    if not Path(args.store).exists():
+        raise InputError([Problem(args.store, "", "no such campaign store")])
+    with Store(Path(args.store)) as store:
+        write_report(store, Path(args.out), args.worst, args.baseline)
+    emit(args, {"report": args.out}, f"wrote {args.out}")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -327,6 +340,12 @@ def parser() -> argparse.ArgumentParser:
 
     p = add("compare", "the algorithm comparison table (median best fitness, relative performance, p-value, A12)")
     p.add_argument("store")
+    p.add_argument("--baseline", default="NSGAII")
+
+    p = add("report", "a self-contained HTML report: convergence, comparison, violations, worst cases")
+    p.add_argument("store")
+    p.add_argument("--out", required=True)
+    p.add_argument("--worst", type=int, default=5)
     p.add_argument("--baseline", default="NSGAII")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")

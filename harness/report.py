@@ -1,0 +1,145 @@
+"""`stella report DB --out report.html`: one self-contained page (plots embedded as PNG data).
+
+Best fitness vs evaluations per algorithm (median and range over runs, per scenario), the
+comparison table, the violations, and the worst concrete scenarios with their top-view plots
+and MCAP paths.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from harness.statistics import compare
+from harness.store import Store
+
+PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>
+body {{ font-family: sans-serif; margin: 2em; color: #222; }}
+table {{ border-collapse: collapse; margin: 1em 0; }}
+td, th {{ border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }}
+th {{ background: #f2f2f2; }} td.text {{ text-align: left; }}
+img {{ max-width: 100%; border: 1px solid #eee; }}
+code {{ font-size: 0.9em; }}
+</style></head>
+<body>
+<h1>{title}</h1>
+{body}
+<script>
+  // Marks how many plots decoded, for a reader (or a test) that cannot look at the pictures.
+  window.addEventListener("load", function () {{
+    var images = Array.prototype.slice.call(document.querySelectorAll("img.plot"));
+    var shown = images.filter(function (img) {{ return img.complete && img.naturalWidth > 0; }}).length;
+    document.body.setAttribute("data-plots-shown", String(shown));
+    document.body.setAttribute("data-plots", String(images.length));
+  }});
+</script>
+</body></html>
+"""
+
+
+def _png(figure) -> str:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=90)
+    return base64.b64encode(buffer.getvalue()).decode()
+
+
+def _img(data: str, alt: str) -> str:
+    return f'<img class="plot" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def _convergence(store: Store) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    curves: dict[str, dict[str, list[list[float]]]] = defaultdict(lambda: defaultdict(list))
+    for run in store.run_rows():
+        curve = [best for _ordinal, best in store.best_so_far(run["id"])]
+        if curve:
+            curves[run["scenario"]][run["algorithm"]].append(curve)
+    images = []
+    for scenario, by_algorithm in sorted(curves.items()):
+        figure, axes = plt.subplots(figsize=(8, 4))
+        for algorithm, runs in sorted(by_algorithm.items()):
+            length = min(len(c) for c in runs)
+            values = np.array([c[:length] for c in runs])
+            x = np.arange(1, length + 1)
+            line, = axes.plot(x, np.median(values, axis=0), label=f"{algorithm} (median of {len(runs)})")
+            axes.fill_between(x, values.min(axis=0), values.max(axis=0), alpha=0.2, color=line.get_color())
+        axes.axhline(0.0, color="tab:red", linestyle="--", linewidth=1)
+        axes.set_xlabel("evaluations")
+        axes.set_ylabel("best fitness so far")
+        axes.set_yscale("symlog")
+        axes.set_title(scenario)
+        axes.legend()
+        figure.tight_layout()
+        images.append(f"<h3>{html.escape(scenario)}</h3>" + _img(_png(figure), f"best fitness vs evaluations, {scenario}"))
+        plt.close(figure)
+    return images
+
+
+def _comparison_table(report: dict[str, Any]) -> str:
+    def cell(value, fmt):
+        return "-" if value is None else format(value, fmt)
+
+    rows = ["<tr><th>scenario</th><th>algorithm</th><th>runs</th><th>median best fitness</th><th>violations</th><th>relative %</th><th>p</th><th>A12</th></tr>"]
+    for row in report["scenarios"] + [dict(r, scenario="overall") for r in report["overall"]]:
+        rows.append(
+            f"<tr><td class='text'>{html.escape(row['scenario'])}</td><td class='text'>{row['algorithm']}</td><td>{row['runs']}</td>"
+            f"<td>{row['median_best_fitness']:.3f}</td><td>{row['violations']}</td><td>{cell(row['relative_performance_pct'], '+.0f')}</td>"
+            f"<td>{cell(row['p_value'], '.3f')}</td><td>{cell(row['a12'], '.2f')}</td></tr>"
+        )
+    return f"<p>Baseline: {report['baseline']}.</p><table>{''.join(rows)}</table>"
+
+
+def _worst(store: Store, count: int) -> list[str]:
+    from harness.inspect_log import plot
+
+    query = (
+        "SELECT r.scenario, r.algorithm, r.run_index, e.ordinal, e.fitness, e.status, e.min_clearance_m, e.log_path, e.concrete"
+        " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.log_path IS NOT NULL ORDER BY e.fitness LIMIT ?"
+    )
+    sections = []
+    with tempfile.TemporaryDirectory() as folder:
+        for index, (scenario, algorithm, run, ordinal, fitness, status, clearance, log_path, concrete) in enumerate(store.db.execute(query, (count,))):
+            picture = Path(folder) / f"{index}.png"
+            try:
+                plot(Path(log_path), picture)
+                image = _img(base64.b64encode(picture.read_bytes()).decode(), f"top view of {log_path}")
+            except OSError:
+                image = "<p>(log no longer on disk)</p>"
+            environment = json.loads(concrete)["environment"] if concrete else {}
+            sections.append(
+                f"<h3>{index + 1}. {html.escape(scenario)}: fitness {fitness:.3f} ({status})</h3>"
+                f"<p>{algorithm} run {run}, evaluation {ordinal}; min clearance {clearance if clearance is None else round(clearance, 3)} m; "
+                f"log <code>{html.escape(log_path)}</code></p><p><code>{html.escape(json.dumps(environment))}</code></p>{image}"
+            )
+    return sections
+
+
+def _violations(store: Store) -> str:
+    query = (
+        "SELECT r.scenario, r.algorithm, r.run_index, COUNT(*), MIN(e.fitness) FROM evaluations e JOIN runs r ON r.id = e.run_id"
+        " WHERE e.status = 'violation' GROUP BY r.id ORDER BY r.scenario, r.algorithm, r.run_index"
+    )
+    rows = ["<tr><th>scenario</th><th>algorithm</th><th>run</th><th>violations</th><th>lowest fitness</th></tr>"]
+    for scenario, algorithm, run, count, lowest in store.db.execute(query):
+        rows.append(f"<tr><td class='text'>{html.escape(scenario)}</td><td class='text'>{algorithm}</td><td>{run}</td><td>{count}</td><td>{lowest:.3f}</td></tr>")
+    return f"<table>{''.join(rows)}</table>" if len(rows) > 1 else "<p>No violation found.</p>"
+
+
+def write_report(store: Store, out: Path, worst: int = 5, baseline: str = "NSGAII") -> None:
+    report = compare(store, baseline)
+    body = ["<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
+            "<h2>Violations</h2>", _violations(store), f"<h2>The {worst} worst concrete scenarios</h2>", *_worst(store, worst)]
+    out.write_text(PAGE.format(title=f"Campaign report: {html.escape(str(store.path))}", body="\n".join(body)), encoding="utf-8")
