@@ -35,7 +35,7 @@ from simlink import codec
 
 log = logging.getLogger(__name__)
 
-IDLE_THROTTLE = 0.05
+IDLE_THROTTLE = 0.05  # armed on the ground, motors spin as PX4's do
 LOCKSTEP_FLAG = 1
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 SIM_LOSS_EXIT_S = 10.0
@@ -46,10 +46,6 @@ FRAMES_WITH_POSITION = {
     mavlink.MAV_FRAME_GLOBAL,
     mavlink.MAV_FRAME_GLOBAL_INT,
 }
-
-
-class SimLinkLost(Exception):
-    pass
 
 
 class Autopilot:

@@ -73,7 +73,6 @@ class Summary:
     sim_time_s: float = 0.0
     run_time_s: float = 0.0
     steps: int = 0
-    lockstep_steps: int = 0
     airborne: bool = False
     touchdown: dict[str, Any] | None = None
     bad_frames: int = 0
@@ -487,7 +486,6 @@ class Bridge:
         every = self._every
         self._record_scene(0, everything=True)
         self._event(0.0, "sut_connected")
-        recorder = self.recorder
         field_ = self.field
         vehicle = self.vehicle
         terrain = self._terrain

@@ -3,20 +3,17 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sqlite3
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import ROOT
 from harness.campaign import least_explored, run_sequence
-from harness.executors import Job
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.search.optimizers import parse_algorithm
@@ -59,6 +56,7 @@ def candidates(space, tmp_path, combination, seed, budget=20, name="store.db"):
     return rows, problem
 
 
+@pytest.mark.slow  # BO refits its Gaussian process at every suggestion
 @pytest.mark.parametrize("combination", ["N", "P", "B", "R", "NPB"])
 def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combination):
     first, problem = candidates(space, tmp_path, combination, seed=3, name="a.db")
@@ -70,6 +68,7 @@ def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combina
     assert problem.best[1] == min(r[2] for r in first)
 
 
+@pytest.mark.slow
 def test_a_sequence_improves_on_its_seeds_and_reports_the_lowest_fitness(space, tmp_path):
     rows, problem = candidates(space, tmp_path, "RN", seed=1, budget=40)
     first_half = min(r[2] for r in rows[:20])
@@ -162,7 +161,7 @@ def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_e
     kept = {row[0]: row for row in after}
     assert all(kept[row[0]] == row for row in before), "a finished evaluation was lost or redone"
     assert [row[0] for row in after] == list(range(len(after)))
-    clean = subprocess.run(command(tmp_path / "clean.db"), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    subprocess.run(command(tmp_path / "clean.db"), cwd=ROOT, capture_output=True, text=True, timeout=300, check=True)
     with sqlite3.connect(tmp_path / "clean.db") as db:
         uninterrupted = db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall()
     assert [row[:3] for row in after] == uninterrupted  # the same candidates, in the same order, with the same results

@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from conftest import ROOT
 from harness import logs
 from harness.bridge_control import BridgeControl
-from harness.evaluation import RunOptions, evaluate
+from harness.evaluation import evaluate
 from harness.fitness import PENALTY
 from harness.inspect_log import summarize
 from harness.mavsdk_session import MavsdkSession, mission_items
