@@ -38,7 +38,6 @@ def test_static_obstacles_only_end_ok_or_violation_with_a_finite_fitness(tmp_pat
     assert result.status in ("ok", "violation"), result.why
     assert math.isfinite(result.fitness) and result.fitness < PENALTY
     assert result.min_clearance_m == pytest.approx(result.fitness + 1.0)
-    assert result.real_time_factor > 5.0
 
 
 def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_path, profile):
