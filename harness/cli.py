@@ -217,6 +217,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.executors import make_executor
     from harness.search.optimizers import parse_algorithm
     from harness.store import Store
+    from tqdm import tqdm
 
     for algorithm in args.algorithm:
         try:
@@ -229,12 +230,13 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s)
     executor = make_executor(args.executor, args.workers)
     batch = getattr(executor, "workers", 1)
-    counter = {"n": 0}
+    total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
+    # A bar on stderr for people; nothing with --json, where a script reads stdout.
+    bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
 
     def progress(result: dict[str, Any]) -> None:
-        counter["n"] += 1
-        if not args.json:
-            print(f"\r{counter['n']} evaluations flown; last: {result['status']} f={result['fitness']:.2f}   ", end="", file=sys.stderr, flush=True)
+        bar.update(1)
+        bar.set_postfix_str(f"last {result['status']} f={result['fitness']:.2f}", refresh=False)
 
     store_path = Path(args.store)
     try:
@@ -242,9 +244,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", batch=batch,
                                    options=RunOptions(sut=args.sut), on_result=progress)
     finally:
+        bar.close()
         executor.close()
-    if not args.json:
-        print(file=sys.stderr)
     text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
                      f"{r['flown']} flown, {r['replayed']} from the store" for r in summary.runs) or "every run was already finished"
     emit(args, {"store": str(store_path), "runs": summary.runs}, text)
