@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import time
@@ -11,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, port_bound
 from harness import logs
 from harness.ports import PortLease
 
@@ -37,16 +36,6 @@ def world(*, time_limit_s=9.0, wind_north=0.0, seed=1, obstacles=()):
     }
 
 
-def port_free(port: int) -> bool:
-    with socket.socket() as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            probe.bind(("127.0.0.1", port))
-            return True
-        except OSError:
-            return False
-
-
 def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s: float = 10.0, name: str = "run"):
     """Run the bridge and the scripted SUT to the end; returns (exit code, summary, log path)."""
     world_path = tmp_path / f"{name}.world.json"
@@ -65,7 +54,7 @@ def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s
             sut.kill()
             sut.wait()
             bridge.kill()
-        assert port_free(ports.sim), "the bridge left its simulator port bound"
+        assert not port_bound(ports.sim), "the bridge left its simulator port bound"
     summary = json.loads(out.decode().strip().splitlines()[-1])
     return bridge.returncode, summary, log_path
 

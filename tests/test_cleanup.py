@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, port_bound
 from harness.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
@@ -33,18 +33,6 @@ def our_processes() -> list[str]:
         if b"-m" in argv and (b"sim_bridge" in argv or b"autopilot" in argv):
             found.append(f"{pid}: {b' '.join(argv).decode(errors='replace')}")
     return found
-
-
-def bound(port: int, kind: int) -> bool:
-    """Whether a live socket holds the port; connections lingering in TIME_WAIT do not count,
-    as the bridge's own SO_REUSEADDR listener binds over them."""
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            probe.bind(("127.0.0.1", port))
-            return False
-        except OSError:
-            return True
 
 
 def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_port(tmp_path):
@@ -70,7 +58,7 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
         time.sleep(0.2)
     assert our_processes() == []
     for slot in range(4):
-        assert not bound(SIM_BASE + slot, socket.SOCK_STREAM)
-        assert not bound(CONTROL_BASE + slot, socket.SOCK_STREAM)
-        assert not bound(API_BASE + slot, socket.SOCK_DGRAM)
+        assert not port_bound(SIM_BASE + slot, socket.SOCK_STREAM)
+        assert not port_bound(CONTROL_BASE + slot, socket.SOCK_STREAM)
+        assert not port_bound(API_BASE + slot, socket.SOCK_DGRAM)
     assert outcomes.count("ok") + outcomes.count("violation") == 10
