@@ -45,6 +45,7 @@ class CampaignConfig:
     profile: str = "default"
     stop_at_violation: bool = False
     wall_time_s: float | None = None
+    sut: str = "bundled"
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
@@ -57,6 +58,7 @@ class CampaignConfig:
             "population": self.population,
             "profile": self.profile,
             "stop_at_violation": self.stop_at_violation,
+            "sut": self.sut,
         }
 
 

@@ -227,7 +227,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     for scenario in args.scenarios:
         load_logical(Path(scenario), load_profile(args.profile))
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, args.sut)
     executor = make_executor(args.executor, args.workers)
     batch = getattr(executor, "workers", 1)
     total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
@@ -242,7 +242,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         with Store(store_path) as store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", batch=batch,
-                                   options=RunOptions(sut=args.sut), on_result=progress)
+                                   options=RunOptions(sut=config.sut), on_result=progress)
     finally:
         bar.close()
         executor.close()
@@ -275,6 +275,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     with Store(Path(args.store)) as store:
         write_report(store, Path(args.out), args.worst, args.baseline)
     emit(args, {"report": args.out}, f"wrote {args.out}")
+    return 0
+
+
+@command("export-regressions")
+def cmd_export_regressions(args: argparse.Namespace) -> int:
+    from harness.regression import export_regressions
+
+    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect)
+    text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
+    emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
     return 0
 
 
@@ -348,6 +358,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--worst", type=int, default=5)
     p.add_argument("--baseline", default="NSGAII")
+
+    p = add("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies")
+    p.add_argument("store", help="SQLite campaign store")
+    p.add_argument("--out", required=True, help="folder for the NAME.regression.json files")
+    p.add_argument("--threshold", type=float, default=0.0, help="export evaluations with fitness below this (default 0: the violations)")
+    p.add_argument("--worst", type=int, default=0, help="also export the N lowest-fitness evaluations of each run")
+    p.add_argument("--expect", choices=["safe", "violation"], default="safe",
+                   help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

@@ -166,6 +166,24 @@ class Store:
         for row in self.db.execute(query):
             yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations"), row))
 
+    def campaign_sut(self) -> dict[str, Any]:
+        """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
+        row = self.db.execute("SELECT config FROM campaigns").fetchone()
+        config = json.loads(row[0]) if row else {}
+        return {"name": config.get("sut", "bundled"), "params": config.get("sut_params", {})}
+
+    def worst_cases(self, threshold: float, worst_per_run: int) -> list[dict[str, Any]]:
+        """Flown evaluations with fitness below threshold, plus each run's worst_per_run lowest, lowest first."""
+        query = (
+            "SELECT * FROM (SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed,"
+            " r.scenario_file, r.algorithm, r.run_index,"
+            " ROW_NUMBER() OVER (PARTITION BY e.run_id ORDER BY e.fitness, e.ordinal) AS rank"
+            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status != 'infeasible')"
+            " WHERE fitness < ? OR rank <= ? ORDER BY fitness, scenario_file, algorithm, run_index, ordinal"
+        )
+        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "scenario_file", "algorithm", "run_index")
+        return [dict(zip(names, row)) for row in self.db.execute(query, (threshold, worst_per_run))]
+
     def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
         """(ordinal, best fitness up to it) for a convergence curve."""
         best, curve = float("inf"), []

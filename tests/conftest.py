@@ -7,6 +7,8 @@ import pytest
 
 from harness.scenario.profile import Profile, load_profile
 
+pytest_plugins = ["pytester"]
+
 ROOT = Path(__file__).resolve().parent.parent
 TABLE3 = sorted((ROOT / "scenarios" / "table3").glob("*.json"))
 

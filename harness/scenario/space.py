@@ -259,10 +259,14 @@ class SearchSpace:
 
     def vector_from(self, values: Mapping[str, float], default: float = 0.5) -> np.ndarray:
         """A vector from named values; unnamed dimensions at `default` of their range (0 lower, 1 upper)."""
+        return self.with_values(self.lower + default * (self.upper - self.lower), values)
+
+    def with_values(self, x: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
+        """A copy of x with the named dimensions set."""
         unknown = set(values) - set(self._index)
         if unknown:
             raise KeyError(f"no dimensions {sorted(unknown)}; this space has {[d.name for d in self.dimensions]}")
-        x = self.lower + default * (self.upper - self.lower)
+        x = np.array(x, dtype=float)
         for name, value in values.items():
             x[self._index[name]] = value
         return x

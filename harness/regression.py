@@ -1,0 +1,136 @@
+"""Regression cases: concrete scenarios a campaign found, kept as files and flown again as tests.
+
+A case file (`NAME.regression.json`, schema `regression.schema.json`) holds the concrete
+scenario (which embeds its logical scenario and profile), the flight seed, the SUT and what is
+expected: `safe` (the SUT keeps the safety distance and completes the mission: a fixed fault
+stays fixed) or `violation` (a known violation still reproduces). The pytest plugin collects
+these files; `verdict` is the judgement both it and `stella` use.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from harness.errors import InputError, Problem
+from harness.scenario.documents import load_json, schema_problems
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import space_from_concrete
+from harness.store import Store
+
+FORMAT = "stella.regression/1"
+SUFFIX = ".regression.json"
+EXPECTATIONS = {
+    "safe": "must keep the safety distance and complete the mission",
+    "violation": "the known violation must still reproduce",
+}
+
+
+@dataclass(frozen=True)
+class Regression:
+    path: Path
+    name: str
+    expect: str
+    seed: int
+    sut: str
+    sut_params: Mapping[str, float]
+    concrete: Mapping[str, Any]
+    found: Mapping[str, Any]
+    space: SearchSpace
+    x: np.ndarray
+
+    @property
+    def safety_distance_m(self) -> float:
+        return self.space.profile.safety_distance_m
+
+
+def load_regression(path: Path) -> Regression:
+    document = load_json(path)
+    problems = schema_problems(document, "regression", str(path))
+    if problems:
+        raise InputError(problems)
+    concrete = document["concrete_scenario"]
+    try:
+        space = space_from_concrete(concrete, str(path))
+        x = space.from_concrete(concrete, str(path))
+    except InputError as error:
+        raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
+    return Regression(path, document["name"], document["expect"], document["seed"], document["sut"]["name"], dict(document["sut"].get("params", {})),
+                      concrete, document.get("found", {}), space, x)
+
+
+def describe(result: Mapping[str, Any], safety_distance_m: float) -> str:
+    """What happened in one flight, in the words the failure messages use."""
+    text = f"status {result['status']}, fitness {result['fitness']:.3f}"
+    if result.get("min_clearance_m") is not None:
+        relation = "<" if result["min_clearance_m"] < safety_distance_m else ">="
+        inside = " (inside the obstacle)" if result["min_clearance_m"] < 0 else ""
+        text += (f"; min clearance {result['min_clearance_m']:.3f} m{inside} {relation} safety distance {safety_distance_m:.3f} m"
+                 f" at t={result['min_clearance_at_s']:.2f} s to {result['min_clearance_obstacle']}")
+    if result.get("why"):
+        text += f" ({result['why']})"
+    if result.get("log_path"):
+        text += f"; log: {result['log_path']}"
+    return text
+
+
+def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) -> str | None:
+    """None when the flight meets the expectation, else the failure message."""
+    what = describe(result, safety_distance_m)
+    if expect == "safe":
+        if result["status"] == "ok":
+            return None
+        if result["status"] == "violation":
+            return f"safety distance violated: {what}"
+        return f"the mission was not flown safely to its end: {what}"
+    if result["status"] == "violation":
+        return None
+    return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
+
+
+def slug(text: str) -> str:
+    """A file-name and test-id safe form of text."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "scenario"
+
+
+def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe") -> list[Path]:
+    """One case file per distinct concrete scenario with fitness below `threshold`, plus the
+    `worst` lowest-fitness ones of each run; identical scenarios found twice are written once."""
+    if not store_path.exists():
+        raise InputError([Problem(str(store_path), "", "no such campaign store")])
+    if expect not in EXPECTATIONS:
+        raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    with Store(store_path) as store:
+        sut = store.campaign_sut()
+        chosen = store.worst_cases(threshold, worst)
+    seen: set[str] = set()
+    for case in chosen:
+        if case["concrete"] is None or case["vector_key"] in seen:
+            continue
+        seen.add(case["vector_key"])
+        concrete = json.loads(case["concrete"])
+        name = slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}")
+        document = {
+            "format": FORMAT,
+            "name": name,
+            "expect": expect,
+            "seed": case["seed"],
+            "sut": sut,
+            "found": {
+                "fitness": case["fitness"], "status": case["status"], "min_clearance_m": case["min_clearance_m"], "store": str(store_path.resolve()),
+                "run": case["run_index"], "algorithm": case["algorithm"], "evaluation": case["ordinal"], "log": case["log_path"],
+            },
+            "note": f"{EXPECTATIONS[expect]}; found by {case['algorithm']} with fitness {case['fitness']:.3f} ({case['status']})",
+            "concrete_scenario": concrete,
+        }
+        path = out_dir / f"{name}{SUFFIX}"
+        path.write_text(json.dumps(document, indent=2) + "\n")
+        written.append(path)
+    return written
