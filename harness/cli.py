@@ -177,11 +177,19 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 @command("inspect")
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from harness.inspect_log import plot, summarize
+    from harness.inspect_log import export_csv, plot, summarize, topics
 
     path = Path(args.log)
     if not path.exists():
         raise InputError([Problem(str(path), "", "no such file")])
+    if args.topic and not args.export:
+        raise InputError([Problem("--topic", "", "only means something with --export csv")])
+    if args.topics:
+        rows = topics(path)
+        lines = [f"{'topic':<28} {'schema':<26} {'messages':>8} {'first (s)':>10} {'last (s)':>10}"]
+        lines += [f"{r['topic']:<28} {r['schema'] or '-':<26} {r['messages']:>8} {_seconds(r['first_s']):>10} {_seconds(r['last_s']):>10}" for r in rows]
+        emit(args, {"log": str(path), "topics": rows}, "\n".join(lines))
+        return 0
     summary = summarize(path)
     if args.plot:
         plot(path, Path(args.plot))
@@ -191,8 +199,44 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if summary["min_clearance_at_s"] is not None:
         lines.append(f"min clearance: {summary['min_clearance_m']:.3f} m at t={summary['min_clearance_at_s']:.3f} s to {summary['min_clearance_obstacle']}")
     lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {summary['fitness_reproduced']}")
+    if args.export:
+        out = Path(args.out) if args.out else path.with_name(f"{path.stem}-csv")
+        written = export_csv(path, out, args.topic)
+        summary["exported"] = [str(p) for p in written]
+        lines.append(f"exported {len(written)} CSV file(s) to {out}")
     emit(args, summary, "\n".join(lines))
     return 0
+
+
+def _seconds(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+@command("diff")
+def cmd_diff(args: argparse.Namespace) -> int:
+    from harness.inspect_log import diff
+
+    for name in (args.a, args.b):
+        if not Path(name).exists():
+            raise InputError([Problem(name, "", "no such file")])
+    report = diff(Path(args.a), Path(args.b), args.tolerance)
+    lines = []
+    for side in ("a", "b"):
+        r = report[side]
+        lines.append(f"{side}: {r['log']}: {r['status']}, fitness {r['fitness']:.6f}, {r['duration_s']:.3f} s simulated")
+    different_inputs = [name for name, same in report["same_inputs"].items() if not same]
+    lines.append("inputs: " + (f"differ in {', '.join(different_inputs)}" if different_inputs else "same concrete scenario, world and SUT"))
+    lines.append(f"clearance: {report['common_steps']} common steps, largest difference {report['max_clearance_difference_m']:.6g} m"
+                 + (f", {report['steps_only_in_a']} steps only in a, {report['steps_only_in_b']} only in b" if report["steps_only_in_a"] or report["steps_only_in_b"] else ""))
+    if report["clearance_divergence"]:
+        d = report["clearance_divergence"]
+        lines.append(f"clearance first differs at t={d['t_s']:.3f} s: {d['a_m']} m vs {d['b_m']} m")
+    if report["path_divergence"]:
+        d = report["path_divergence"]
+        lines.append(f"trajectories first differ at t={d['t_s']:.3f} s, {d['distance_m']:.6g} m apart")
+    lines.append("identical" if report["identical"] else f"different (tolerance {args.tolerance} m)")
+    emit(args, report, "\n".join(lines))
+    return 0 if report["identical"] else 1
 
 
 @command("bench")
@@ -323,6 +367,15 @@ def parser() -> argparse.ArgumentParser:
     p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
     p.add_argument("log", help="an evaluation's .mcap file")
     p.add_argument("--plot", help="write a PNG: top view of the trajectory and the clearance over time")
+    p.add_argument("--topics", action="store_true", help="list the log's topics with schema, message count and time span instead")
+    p.add_argument("--export", choices=["csv"], help="also write one CSV per topic (nested fields as dotted columns, /clearance one row per step)")
+    p.add_argument("--topic", action="append", help="with --export: only this topic; repeatable (default: every topic)")
+    p.add_argument("--out", help="with --export: folder for the CSV files (default: LOG-csv/ beside the log)")
+
+    p = add("diff", "compare two logs of one scenario: inputs, results, first divergence of clearance and trajectory; exit 1 if they differ")
+    p.add_argument("a", help="first .mcap")
+    p.add_argument("b", help="second .mcap")
+    p.add_argument("--tolerance", type=float, default=0.0, help="metres of difference still counted as equal (default 0: bit-identical)")
 
     p = add("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes")
     p.add_argument("--runs", type=int, default=5)

@@ -1,12 +1,20 @@
-"""`stella inspect`: summarize an evaluation log and recompute its fitness from the log alone."""
+"""`stella inspect` and `stella diff`: read evaluation logs back.
+
+summarize (and recompute the fitness from the log alone), plot, list topics, export CSV, and
+compare two runs of one scenario.
+"""
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 from typing import Any
 
+from mcap.reader import make_reader
+
 from harness import logs
+from harness.errors import InputError, Problem
 from harness.evaluation import rescore
 
 
@@ -79,3 +87,125 @@ def plot(path: Path, out: Path) -> None:
     figure.tight_layout()
     figure.savefig(out, dpi=110)
     plt.close(figure)
+
+
+def topics(path: Path) -> list[dict[str, Any]]:
+    """Each channel: topic, schema, message count, first and last log time (simulation seconds)."""
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        if summary is None:
+            raise InputError([Problem(str(path), "", "the MCAP file has no summary section (was it cut short?)")])
+        counts: dict[int, int] = {}
+        first: dict[int, int] = {}
+        last: dict[int, int] = {}
+        for _schema, channel, message in reader.iter_messages():
+            counts[channel.id] = counts.get(channel.id, 0) + 1
+            first[channel.id] = min(first.get(channel.id, message.log_time), message.log_time)
+            last[channel.id] = max(last.get(channel.id, message.log_time), message.log_time)
+    rows = []
+    for channel_id, channel in sorted(summary.channels.items(), key=lambda item: item[1].topic):
+        schema = summary.schemas.get(channel.schema_id)
+        rows.append({
+            "topic": channel.topic, "schema": schema.name if schema else None, "encoding": channel.message_encoding, "messages": counts.get(channel_id, 0),
+            "first_s": first[channel_id] / 1e9 if channel_id in first else None, "last_s": last[channel_id] / 1e9 if channel_id in last else None,
+        })
+    return rows
+
+
+def _flatten(value: Any, prefix: str, row: dict[str, Any]) -> None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _flatten(item, f"{prefix}.{key}" if prefix else key, row)
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            _flatten(item, f"{prefix}.{index}", row)
+    else:
+        row[prefix] = value
+
+
+def _rows(message: dict[str, Any]) -> list[dict[str, Any]]:
+    """A columnar batch (every field a list of one length, as /clearance) becomes one row per
+    entry; any other message one row, nested fields named by their dotted path."""
+    columns = list(message.values())
+    if len(columns) > 1 and all(isinstance(c, list) for c in columns) and len({len(c) for c in columns}) == 1:
+        return [dict(zip(message, entry)) for entry in zip(*columns)]
+    row: dict[str, Any] = {}
+    _flatten(message, "", row)
+    return [row]
+
+
+def export_csv(path: Path, out_dir: Path, selected: list[str] | None = None) -> list[Path]:
+    """One CSV per topic (`/uav/state` -> `uav_state.csv`), first column the log time in seconds."""
+    available = [row["topic"] for row in topics(path)]
+    unknown = sorted(set(selected or []) - set(available))
+    if unknown:
+        raise InputError([Problem("--topic", "", f"{', '.join(unknown)} not in {path}; its topics: {', '.join(available)}")])
+    wanted = selected or available
+    tables: dict[str, list[dict[str, Any]]] = {topic: [] for topic in wanted}
+    for topic, time_ns, message in logs.messages(path, wanted):
+        for row in _rows(message):
+            tables[topic].append({"log_time_s": time_ns / 1e9, **row})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for topic, rows in tables.items():
+        header: dict[str, None] = {}
+        for row in rows:
+            header.update(dict.fromkeys(row))
+        target = out_dir / (topic.strip("/").replace("/", "_") + ".csv")
+        with open(target, "w", newline="") as stream:
+            writer = csv.DictWriter(stream, fieldnames=list(header))
+            writer.writeheader()
+            writer.writerows(rows)
+        written.append(target)
+    return written
+
+
+def _trace(path: Path) -> dict[float, float | None]:
+    trace: dict[float, float | None] = {}
+    for _topic, _ns, batch in logs.messages(path, ["/clearance"]):
+        trace.update(zip(batch["t"], batch["d"]))
+    return trace
+
+
+def _positions(path: Path) -> dict[float, tuple[float, float, float]]:
+    return {s["t"]: (s["north_m"], s["east_m"], s["up_m"]) for _topic, _ns, s in logs.messages(path, ["/uav/state"])}
+
+
+def diff(a: Path, b: Path, tolerance: float = 0.0) -> dict[str, Any]:
+    """Compare two runs of one scenario: same inputs?, both results, and where the clearance
+    traces and the trajectories first differ by more than `tolerance` metres."""
+    first, second = summarize(a), summarize(b)
+    inputs = {name: logs.json_metadata(a, name) == logs.json_metadata(b, name) for name in ("concrete_scenario", "world", "sut")}
+    trace_a, trace_b = _trace(a), _trace(b)
+    common = sorted(set(trace_a) & set(trace_b))
+    clearance_divergence = None
+    largest = 0.0
+    for t in common:
+        da, db = trace_a[t], trace_b[t]
+        gap = math.inf if (da is None) != (db is None) else abs(da - db) if da is not None else 0.0
+        largest = max(largest, gap)
+        if gap > tolerance and clearance_divergence is None:
+            clearance_divergence = {"t_s": t, "a_m": da, "b_m": db}
+    positions_a, positions_b = _positions(a), _positions(b)
+    path_divergence = None
+    for t in sorted(set(positions_a) & set(positions_b)):
+        gap = math.dist(positions_a[t], positions_b[t])
+        if gap > tolerance:
+            path_divergence = {"t_s": t, "distance_m": gap, "a": positions_a[t], "b": positions_b[t]}
+            break
+    lengths_differ = set(trace_a) != set(trace_b)
+    identical = clearance_divergence is None and path_divergence is None and not lengths_differ and first["fitness"] == second["fitness"]
+    return {
+        "a": {key: first[key] for key in ("log", "status", "fitness", "min_clearance_m", "min_clearance_at_s", "min_clearance_obstacle", "duration_s")},
+        "b": {key: second[key] for key in ("log", "status", "fitness", "min_clearance_m", "min_clearance_at_s", "min_clearance_obstacle", "duration_s")},
+        "same_inputs": inputs,
+        "tolerance_m": tolerance,
+        "common_steps": len(common),
+        "steps_only_in_a": len(set(trace_a) - set(trace_b)),
+        "steps_only_in_b": len(set(trace_b) - set(trace_a)),
+        "max_clearance_difference_m": largest,
+        "clearance_divergence": clearance_divergence,
+        "path_divergence": path_divergence,
+        "identical": identical,
+    }

@@ -288,6 +288,8 @@ class Bridge:
             message={"timestamp": stamp(time_ns), "parent_frame_id": "world", "child_frame_id": "uav", "translation": position, "rotation": orientation},
         )
         self.recorder.write("/uav/pose", time_ns=time_ns, message={"timestamp": stamp(time_ns), "frame_id": "world", "pose": {"position": position, "orientation": orientation}})
+        self.recorder.write("/uav/fix", time_ns=time_ns, message={"timestamp": stamp(time_ns), "frame_id": "uav", "latitude": s.lat_deg, "longitude": s.lon_deg,
+                                                               "altitude": s.alt_msl_m, "position_covariance_type": 0})
         self.recorder.write(
             "/uav/state",
             time_ns=time_ns,

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from harness.cli import main
 from harness.errors import InputError
 from harness.regression import export_regressions, load_regression, verdict
 from harness.scenario.logical import load_logical
@@ -165,3 +166,18 @@ def test_the_documented_example_suite_passes(pytester):
     result.assert_outcomes(passed=2)
     properties = junit_properties(pytester.path / "junit.xml")
     assert properties["test_moving_the_building_onto_the_route_costs_clearance"]["stella_log_2"].endswith("costs_clearance-2.mcap")
+
+
+@pytest.mark.slow
+def test_campaign_then_export_then_pytest_reproduces_the_fitness_the_campaign_found(pytester):
+    store = pytester.path / "c.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "table3" / "scenario_02.json"), "--algorithm", "RANDOM", "--evaluations", "4",
+                 "--executor", "sequential", "--store", str(store), "--json"]) == 0
+    assert main(["export-regressions", str(store), "--out", str(pytester.path / "cases"), "--worst", "1", "--json"]) == 0
+    [case] = (pytester.path / "cases").glob("*.regression.json")
+    found = json.loads(case.read_text())["found"]
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "cases", "--junitxml=junit.xml")
+    assert result.ret in (pytest.ExitCode.OK, pytest.ExitCode.TESTS_FAILED)
+    [properties] = junit_properties(pytester.path / "junit.xml").values()
+    assert float(properties["stella_fitness"]) == found["fitness"]
+    assert (result.ret == pytest.ExitCode.OK) == (found["status"] == "ok")
