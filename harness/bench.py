@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import statistics
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,9 @@ DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
 
 
-def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True) -> dict[str, Any]:
+def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
+              sut: RunOptions = RunOptions()) -> dict[str, Any]:
+    """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by default."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile), profile)
@@ -37,7 +40,8 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         autopilot = None
         for index in range(runs):
-            result = evaluate(space, x, seed=seed, out_dir=Path(out), options=RunOptions(rate_hz=rate_hz, pin_cpu=pin_cpu), name=f"bench-{index}")
+            options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu)
+            result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{index}")
             if result.real_time_factor is None:
                 raise RuntimeError(f"bench run {index} did not fly: {result.status} {result.why}")
             timings = result.timings
@@ -58,7 +62,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     "fitness": result.fitness,
                 }
             )
-            if autopilot is None:
+            if autopilot is None and sut.sut == "bundled":
                 autopilot = autopilot_step_bench(Path(result.log_path))
     median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
     median["other_us"] = median["step_us"] - median["sut_turn_us"] - median["physics_us"] - median["world_us"] - median["sensors_us"]
@@ -66,6 +70,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     cores = len(os.sched_getaffinity(0))
     return {
         "scenario": str(path),
+        "sut": sut.sut,
         "seed": seed,
         "rate_hz": rate_hz,
         "runs": runs,
@@ -82,7 +87,7 @@ def bench_text(report: dict[str, Any]) -> str:
     m = report["median"]
     return "\n".join(
         [
-            f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) at {report['rate_hz']:.0f} Hz lockstep, medians:",
+            f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) against {report['sut']} at {report['rate_hz']:.0f} Hz lockstep, medians:",
             f"  real-time factor (flight)   {m['real_time_factor']:.1f}x",
             f"  wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s)",
             f"  evaluations per hour        {report['evaluations_per_hour']:.0f} with {report['cores']} workers",
@@ -93,7 +98,8 @@ def bench_text(report: dict[str, Any]) -> str:
             f"    world and recording       {m['world_us']:.0f} us",
             f"    loop and timers           {m['other_us']:.0f} us",
             f"  the bridge's side of a step {m['bridge_side_us']:.0f} us",
-            f"  the autopilot's computation {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)",
+            *([f"  the autopilot's computation {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)"]
+              if report["autopilot_step"] else []),
             f"  same fitness every run      {report['deterministic']}",
         ]
     )

@@ -14,7 +14,7 @@ import logging
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -46,6 +46,7 @@ class CampaignConfig:
     stop_at_violation: bool = False
     wall_time_s: float | None = None
     sut: str = "bundled"
+    sut_params: Mapping[str, float] = field(default_factory=dict)
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
@@ -59,6 +60,7 @@ class CampaignConfig:
             "profile": self.profile,
             "stop_at_violation": self.stop_at_violation,
             "sut": self.sut,
+            "sut_params": dict(self.sut_params),
         }
 
 

@@ -151,15 +151,31 @@ def _result_text(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, float]]:
+    """(SUT name, its configuration, its parameters) from the command line, checked by the adapter."""
+    import sut_adapter
+
+    config = {key: value for key, value in (("px4_bin", args.px4_bin), ("command", args.sut_command), ("hold", args.sut_hold)) if value is not None}
+    params: dict[str, float] = {}
+    for item in args.sut_param or []:
+        name, _, value = item.partition("=")
+        try:
+            params[name] = int(value) if value.lstrip("-").isdigit() else float(value)
+        except ValueError:
+            raise InputError([Problem("--sut-param", "", f"{item!r} is not NAME=NUMBER (e.g. CP_DIST=2.5)")]) from None
+    try:
+        sut_adapter.get(args.sut, config)
+    except sut_adapter.SutError as error:
+        raise InputError([Problem("--sut", "", str(error))]) from None
+    return args.sut, config, params
+
+
 @command("run")
 def cmd_run(args: argparse.Namespace) -> int:
     from harness.evaluation import RunOptions, evaluate
     from harness.scenario.world import load_concrete
 
-    import sut_adapter
-
-    if args.sut not in sut_adapter.names():
-        raise InputError([Problem("--sut", "", f"unknown SUT {args.sut!r}; available: {', '.join(sut_adapter.names())}")])
+    sut, sut_config, sut_params = _sut_spec(args)
     if args.concrete:
         space, x = load_concrete(Path(args.concrete))
     elif args.scenario:
@@ -167,7 +183,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
-    options = RunOptions(sut=args.sut, rate_hz=args.rate_hz)
+    options = RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params, rate_hz=args.rate_hz)
     result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
     emit(args, result, _result_text(result))
     if result["status"] in ("sim_crashed", "sut_crashed", "timeout"):
@@ -242,6 +258,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
 @command("bench")
 def cmd_bench(args: argparse.Namespace) -> int:
     from harness.bench import bench_text, run_bench
+    from harness.evaluation import RunOptions
 
     if args.campaign:
         from harness.bench import campaign_bench_text, run_campaign_bench
@@ -249,7 +266,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         report = run_campaign_bench(args.evaluations, args.workers, Path(args.scenario) if args.scenario else None)
         emit(args, report, campaign_bench_text(report))
         return 0
-    report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin)
+    sut, sut_config, sut_params = _sut_spec(args)
+    report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
+                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params))
     emit(args, report, bench_text(report))
     return 0
 
@@ -270,8 +289,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             raise InputError([Problem("--algorithm", "", str(error))]) from None
     for scenario in args.scenarios:
         load_logical(Path(scenario), load_profile(args.profile))
+    sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, args.sut)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params)
     executor = make_executor(args.executor, args.workers)
     batch = getattr(executor, "workers", 1)
     total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
@@ -286,7 +306,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         with Store(store_path) as store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", batch=batch,
-                                   options=RunOptions(sut=config.sut), on_result=progress)
+                                   options=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), on_result=progress)
     finally:
         bar.close()
         executor.close()
@@ -322,6 +342,19 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+@command("sut")
+def cmd_sut(args: argparse.Namespace) -> int:
+    from harness.evaluation import RunOptions
+    from harness.sut_check import as_dicts, check, report_text
+
+    sut, sut_config, sut_params = _sut_spec(args)
+    space = _space(args)
+    x = space.sample_feasible(np.random.default_rng(0), 1)[0]
+    stages = check(space, x, RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), args.timeout_s)
+    emit(args, {"sut": sut, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut, stages))
+    return 0 if all(s.ok for s in stages) else 3
+
+
 @command("export-regressions")
 def cmd_export_regressions(args: argparse.Namespace) -> int:
     from harness.regression import export_regressions
@@ -354,12 +387,19 @@ def parser() -> argparse.ArgumentParser:
             p.add_argument("--seed", type=int, default=0)
             p.add_argument("--out", help="also write the concrete scenario to this file")
 
+    def add_sut(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--sut", default="bundled", help="bundled (default), px4 or command")
+        p.add_argument("--px4-bin", help="with --sut px4: the px4 binary or its build folder (default: $STELLA_PX4_BIN)")
+        p.add_argument("--sut-command", help="with --sut command: the SUT's command line with {sim_port}, {api_port}, {instance}, {workdir}")
+        p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
+        p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable")
+
     p = add("run", "fly one concrete scenario against the SUT and score it")
     p.add_argument("scenario", nargs="?", help="logical scenario JSON (a concrete one is sampled with --seed)")
     p.add_argument("--concrete", help="concrete scenario JSON (from `stella sample --out`) instead of sampling")
     p.add_argument("--seed", type=int, default=0, help="sampling and sensor-noise seed")
     p.add_argument("--profile", default="default")
-    p.add_argument("--sut", default="bundled")
+    add_sut(p)
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="lockstep rate")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
@@ -383,6 +423,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--rate-hz", type=float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
+    add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--evaluations", type=int, default=500, help="with --campaign")
     p.add_argument("--workers", type=int, help="with --campaign (default: cores)")
@@ -395,7 +436,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="run r uses seed + r")
     p.add_argument("--population", type=int, default=50, help="population, swarm size and BO initial set")
     p.add_argument("--profile", default="default")
-    p.add_argument("--sut", default="bundled")
+    add_sut(p)
     p.add_argument("--executor", choices=["sequential", "local"], default="local")
     p.add_argument("--workers", type=int, help="local executor workers (default: cores)")
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
@@ -411,6 +452,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--worst", type=int, default=5)
     p.add_argument("--baseline", default="NSGAII")
+
+    p = add("sut", "check that a SUT comes up against the simulator: each stage with its time")
+    p.add_argument("action", choices=["check"])
+    add_sut(p)
+    p.add_argument("--scenario", default=str(Path(__file__).resolve().parent.parent / "scenarios" / "examples" / "fig4.json"),
+                   help="logical scenario whose world the check starts (default: Fig. 4)")
+    p.add_argument("--profile", default="default")
+    p.add_argument("--timeout-s", type=float, default=60.0, help="per stage")
 
     p = add("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies")
     p.add_argument("store", help="SQLite campaign store")

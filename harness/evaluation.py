@@ -15,9 +15,10 @@ import shutil
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -28,10 +29,11 @@ from harness.api_tap import ApiTap
 from harness.bridge_control import BridgeControl
 from harness.errors import InfrastructureError
 from harness.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
-from harness.ports import PortLease
+from harness.ports import PortBlock, PortLease
 from harness.processes import ManagedProcess
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sut_adapter import SutHandle, SystemUnderTest
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,7 @@ CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
 class RunOptions:
     sut: str = "bundled"
     sut_params: Mapping[str, float] = field(default_factory=dict)
+    sut_config: Mapping[str, str] = field(default_factory=dict)  # e.g. {"px4_bin": PATH}; see sut_adapter
     rate_hz: float = 250.0
     hold_after_s: float = 3.0
     setup_timeout_s: float = 60.0
@@ -68,6 +71,7 @@ class EvaluationResult:
     scenario: str
     sut: str
     violations: list[str] = field(default_factory=list)
+    artifacts: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     mavsdk: dict[str, Any] = field(default_factory=dict)
 
@@ -114,38 +118,28 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
     failure: tuple[str, str] | None = None
     summary: dict[str, Any] = {}
     mavsdk_info: dict[str, Any] = {}
+    artifacts: list[str] = []
     try:
-        with PortLease() as ports:
-            world_path = workdir / "world.json"
-            world_path.write_text(json.dumps(world))
-            bridge_log = workdir / "bridge.mcap"
-            bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                           "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s)]
-            session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
-            with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
-                sut = sut_adapter.get(options.sut).start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut_params)
-                if options.pin_cpu:
-                    _pin([bridge.pid, *sut.pids], ports.slot)
-                try:
-                    failure, summary, mavsdk_info = _fly(world, options, bridge, sut, session, ports, timings)
-                finally:
-                    session.close()
-                    sut_exit = sut.stop()
-                    bridge.wait(5.0)
-                    bridge.stop()
-                    log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
-                    if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
-                        failure = ("sut_crashed", f"{summary['end_reason']}: {sut.stderr_tail()[-500:]}")
-                api_records = list(tap.records)
-            if not bridge_log.exists() or bridge_log.stat().st_size == 0:
-                raise InfrastructureError(f"the simulator wrote no log: {bridge.stderr_tail()}")
-            t0 = time.monotonic()
-            result_stub = {"status": failure[0] if failure else None, "why": failure[1] if failure else None}
-            logs.merge(bridge_log, log_path, api_records=api_records, extra_metadata={
-                "concrete_scenario": concrete, "sut": {"name": options.sut, "params": dict(options.sut_params)}, "result": result_stub,
-            })
-            status, value, why, clearance = _score(log_path, world, summary, failure)
-            timings["score_s"] = time.monotonic() - t0
+        system = sut_adapter.get(options.sut, options.sut_config)
+        with simulation_stack(world, options, system, workdir) as stack:
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings)
+        if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
+            failure = ("sut_crashed", f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
+        artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
+        api_records = list(stack.tap.records)
+        if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
+            raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
+        t0 = time.monotonic()
+        result_stub = {"status": failure[0] if failure else None, "why": failure[1] if failure else None}
+        logs.merge(stack.bridge_log, log_path, api_records=api_records, extra_metadata={
+            "concrete_scenario": concrete, "sut": {"name": options.sut, "params": dict(options.sut_params)}, "result": result_stub,
+        })
+        status, value, why, clearance = _score(log_path, world, summary, failure)
+        timings["score_s"] = time.monotonic() - t0
+    except sut_adapter.SutError as error:
+        log.warning("evaluation %s: the SUT failed to start: %s", stem, error)
+        status, value, why, clearance = "sut_crashed", scoring.PENALTY, str(error), None
+        log_path = None
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
         status, value, why, clearance = "sim_crashed", scoring.PENALTY, str(error), None
@@ -170,12 +164,64 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         log_path=str(log_path) if log_path else None,
         scenario=space.logical.name,
         sut=options.sut,
+        artifacts=artifacts,
         timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
         mavsdk=mavsdk_info,
     )
     if log_path is not None:
         _append_result(log_path, result)
     return result
+
+
+@dataclass
+class Stack:
+    """One evaluation's running parts: its port block, the simulator, the API tap, the SUT and MAVSDK."""
+
+    ports: PortBlock
+    bridge: ManagedProcess
+    bridge_log: Path
+    tap: ApiTap
+    sut: SutHandle
+    session: MavsdkSession
+
+
+@contextmanager
+def simulation_stack(world: Mapping[str, Any], options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
+    """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
+    on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first)."""
+    with PortLease() as ports:
+        world_path = workdir / "world.json"
+        world_path.write_text(json.dumps(world))
+        bridge_log = workdir / "bridge.mcap"
+        bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+                       "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode]
+        session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
+        try:
+            with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
+                sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut_params)
+                try:
+                    if options.pin_cpu:
+                        _pin([bridge.pid, *sut.pids], ports.slot)
+                    yield Stack(ports, bridge, bridge_log, tap, sut, session)
+                finally:
+                    session.close()
+                    sut_exit = sut.stop()
+                    bridge.wait(5.0)
+                    bridge.stop()
+                    log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
+        finally:
+            session.close()
+
+
+def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
+    """Copy the SUT's artifacts out of the evaluation's temporary directory, beside its log."""
+    kept = []
+    for source in files:
+        target.mkdir(parents=True, exist_ok=True)
+        destination = target / source.name
+        shutil.copy2(source, destination)
+        kept.append(str(destination))
+    return kept
 
 
 def _pin(pids: list[int], slot: int) -> None:
@@ -195,10 +241,11 @@ def _append_result(log_path: Path, result: EvaluationResult) -> None:
     temporary.replace(log_path)
 
 
-def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, session: MavsdkSession, ports, timings: dict[str, float]):
+def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
     """Returns (failure or None, bridge summary, MAVSDK observations)."""
+    bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
-    control = BridgeControl(ports.control)
+    control = BridgeControl(stack.ports.control)
     try:
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
         try:
@@ -211,6 +258,7 @@ def _fly(world, options: RunOptions, bridge: ManagedProcess, sut, session: Mavsd
             return _setup_failure(bridge, sut, control, "the simulation never reached its hold point"), control_summary(control), {}
         timings["hold_s"] = time.monotonic() - t0
         try:
+            session.set_params(sut.mavlink_params)
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             session.upload_and_start(mission_items(world))
         except Exception as error:  # MAVSDK raises its own error types per plugin

@@ -118,11 +118,20 @@ class MavsdkSession:
         raise InfrastructureError(f"the SUT did not become healthy within {timeout_s:.0f} s: {vars(health)}")
 
     def set_params(self, values: Mapping[str, float | int]) -> None:
+        """Set each parameter with the type its value has; a whole-number value the SUT refuses
+        as one type is tried as the other (a user's --sut-param cannot know PX4's types)."""
+        as_int, as_float = (self.param.set_param_int, int), (self.param.set_param_float, float)
         for name, value in values.items():
-            if isinstance(value, int):
-                self.param.set_param_int(name, value)
-            else:
-                self.param.set_param_float(name, float(value))
+            attempts = [as_int, as_float] if isinstance(value, int) else [as_float, as_int]
+            if not float(value).is_integer():
+                attempts = attempts[:1]
+            for attempt, (setter, cast) in enumerate(attempts):
+                try:
+                    setter(name, cast(value))
+                    break
+                except Exception as error:  # MAVSDK's ParamError; the last attempt's is the one to report
+                    if attempt == len(attempts) - 1:
+                        raise InfrastructureError(f"the SUT refused parameter {name} = {value}: {error}") from None
 
     def upload_and_start(self, items: Sequence[MissionItem]) -> None:
         self.mission.upload_mission(list(items))

@@ -17,7 +17,7 @@ import threading
 from concurrent.futures import Future
 from pathlib import Path
 from statistics import fmean
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 import pytest
@@ -38,6 +38,7 @@ FLIGHTS = pytest.StashKey["Flights"]()
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("stella", "Stella UAV scenario flights")
     group.addoption("--stella-sut", default=None, help="fly every regression case against this SUT instead of the one its file names")
+    group.addoption("--stella-px4-bin", default=None, help="the px4 binary or its build folder, for cases flown against PX4 SITL (default: $STELLA_PX4_BIN)")
     group.addoption("--stella-workers", type=int, default=1, help="fly regression cases in parallel with this many local workers")
     group.addoption("--stella-repeat", type=int, default=1, help="fly each regression case N times and report the spread of its fitness")
     group.addoption("--stella-out", default=None, help="folder for the flights' MCAP logs (default: stella-logs/ in the rootdir)")
@@ -132,6 +133,7 @@ class Flights:
         if self.workers < 1 or self.repeat < 1:
             raise pytest.UsageError("--stella-workers and --stella-repeat must be at least 1")
         self.sut_override: str | None = config.getoption("stella_sut")
+        self.px4_bin: str | None = config.getoption("stella_px4_bin")
         out = config.getoption("stella_out")
         self.out_dir = Path(out) if out else config.rootpath / "stella-logs"
         self.spreads: dict[str, tuple[float, list[float]]] = {}
@@ -140,7 +142,11 @@ class Flights:
         self._thread: threading.Thread | None = None
 
     def options(self, regression: Regression) -> RunOptions:
-        return RunOptions(sut=self.sut_override or regression.sut, sut_params=regression.sut_params)
+        return self.run_options(self.sut_override or regression.sut, regression.sut_params)
+
+    def run_options(self, sut: str, params: Mapping[str, float]) -> RunOptions:
+        config = {"px4_bin": self.px4_bin} if sut == "px4" and self.px4_bin else {}
+        return RunOptions(sut=sut, sut_config=config, sut_params=params)
 
     def jobs(self, item: RegressionItem, first_key: int = 0) -> list[Job]:
         regression = item.regression
@@ -219,7 +225,7 @@ def fly(request: pytest.FixtureRequest) -> Callable[..., EvaluationResult]:
             raise pytest.UsageError(str(error.args[0])) from None
         count += 1
         name = slug(request.node.name) + (f"-{count}" if count > 1 else "")
-        options = RunOptions(sut=sut or flights.sut_override or "bundled", sut_params=sut_params or {})
+        options = flights.run_options(sut or flights.sut_override or "bundled", sut_params or {})
         result = evaluate(space, x, seed=flight_seed, out_dir=flights.out_dir, options=options, name=name)
         request.node.user_properties.append(("stella_log" if count == 1 else f"stella_log_{count}", result.log_path or ""))
         return result

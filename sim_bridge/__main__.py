@@ -43,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mcap", required=True)
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
+    parser.add_argument("--hold-mode", choices=["frozen", "paced"], default="frozen",
+                        help="frozen: simulated time stops during the hold; paced: it runs on at real-time pace (for SUTs such as PX4 that follow the lockstep clock)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--stall-timeout-s", type=float, default=10.0)
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -54,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     world = json.loads(Path(args.world).read_text())
     if "world" in world:  # accept `stella sample --json` output as it is
         world = world["world"]
-    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, stall_timeout_s=args.stall_timeout_s)
+    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s)
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     with open(args.mcap, "wb") as stream, Recorder(stream) as recorder:

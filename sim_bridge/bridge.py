@@ -7,9 +7,12 @@ Until the SUT's first HIL_ACTUATOR_CONTROLS the bridge runs at real-time pace wi
 resting on the ground; from then on it waits for one actuator answer per step (lockstep).
 
 Control channel (newline-delimited JSON over TCP, one client, the harness):
-  bridge -> harness: {"event": "holding", "t": ...} once `hold_after_s` of simulation have
-      passed: the simulation pauses so the harness can connect, upload and arm without
-      simulated time passing; {"event": "finished", ...summary} at the end.
+  bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
+      "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
+      simulation have passed: the harness can now connect, upload and arm while simulated time
+      stands still (hold mode "frozen") or runs on at real-time pace (hold mode "paced", for
+      SUTs whose threads follow the lockstep clock); {"event": "finished", ...summary} at the
+      end. Messages sent before the harness connects wait for it.
   harness -> bridge: {"op": "run"} ends the hold; {"op": "stop"} ends the run;
       {"op": "add_obstacle", "obstacle": {...world-spec obstacle...}, "at_s": T};
       {"op": "move_obstacle", "id": ID, "a": {...}, "b": {...} | null, "speed_m_s": V, "at_s": T};
@@ -54,6 +57,8 @@ SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
 LANDED_HOLD_S = 1.0
 CRASH_SPEED_M_S = 4.0
+# Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
+FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 
 
@@ -61,6 +66,10 @@ _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items(
 class BridgeConfig:
     rate_hz: float = 250.0
     hold_after_s: float = 3.0
+    # "frozen": simulated time stops during the hold (for SUTs that answer MAVLink regardless of
+    # their clock, like the bundled autopilot); "paced": it runs on at real-time pace with the
+    # vehicle free to move (for SUTs whose every thread follows the lockstep clock, like PX4).
+    hold_mode: str = "frozen"
     stall_timeout_s: float = 10.0
     hold_timeout_s: float = 120.0
     gps_rate_hz: float = 10.0
@@ -97,6 +106,7 @@ class ControlChannel:
         self._listener = listener
         self._conn: socket.socket | None = None
         self._buffer = b""
+        self._backlog: list[Mapping[str, Any]] = []
         if listener is not None:
             listener.setblocking(False)
 
@@ -116,6 +126,9 @@ class ControlChannel:
             if sock is self._listener:
                 self._conn, _ = self._listener.accept()
                 self._conn.setblocking(False)
+                backlog, self._backlog = self._backlog, []
+                for message in backlog:
+                    self.send(message)
                 continue
             try:
                 data = sock.recv(65536)
@@ -135,7 +148,9 @@ class ControlChannel:
         return ops
 
     def send(self, message: Mapping[str, Any]) -> None:
+        """Send now, or as soon as the harness connects."""
         if self._conn is None:
+            self._backlog.append(message)
             return
         self._conn.setblocking(True)
         try:
@@ -185,6 +200,7 @@ class Bridge:
         half_l, half_w = body["length_m"] / 2.0, body["width_m"] / 2.0
         with np.errstate(divide="ignore"):
             self._hull_offsets = np.minimum(half_l / np.abs(np.cos(self._sector_angles)), half_w / np.abs(np.sin(self._sector_angles)))
+        self._wedges = _wedges(np.flatnonzero(self._sector_visible).tolist())
         self._dt = 1.0 / config.rate_hz
         self._dt_us = int(round(1e6 / config.rate_hz))
         self._every = {
@@ -204,6 +220,9 @@ class Bridge:
         self._landed_since: float | None = None
         self._clearance_batch: tuple[list, list, list, list] = ([], [], [], [])
         self._run_start_s: float | None = None
+        self._hold_deadline: float | None = None
+        self._control: ControlChannel | None = None
+        self._hold_announced = False
         self._water = world["surface"]["water"]
 
     # -- recording ---------------------------------------------------------------------------
@@ -211,6 +230,8 @@ class Bridge:
     def _event(self, time_s: float, event: str, **detail: Any) -> None:
         log.info("t=%.3f %s %s", time_s, event, detail)
         self.recorder.write("/events", time_ns=int(time_s * 1e9), message={"t": time_s, "event": event, "detail": detail})
+        if event in FORWARDED_EVENTS and self._control is not None:
+            self._control.send({"event": event, "t": time_s, **detail})
 
     def _scene_entity(self, obstacle: Obstacle, time_ns: int) -> dict[str, Any]:
         n, e, u = obstacle.position
@@ -358,7 +379,7 @@ class Bridge:
                 )
             )
         if step % every["sensor"] == 0:
-            extra.append(self._obstacle_distance(time_us))
+            extra.extend(self._obstacle_distance(time_us))
         if not extra:
             return sensor
         # HIL_SENSOR goes last: a SUT that steps on it has then seen this step's other messages,
@@ -377,9 +398,19 @@ class Bridge:
             else:
                 distances[index] = reach_cm + 1
         self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": self._range_m, "distances_cm": distances})
-        return self._mav.obstacle_distance_encode(
-            time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, int(self._min_range_m * 100), reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
-        )
+        min_cm = int(self._min_range_m * 100)
+        messages = [self._mav.obstacle_distance_encode(
+            time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
+        )]
+        # The same reading as DISTANCE_SENSOR wedges: PX4's simulator link ignores OBSTACLE_DISTANCE
+        # but turns DISTANCE_SENSOR into the distance_sensor topic its collision prevention reads.
+        for sensor_id, (quaternion, fov_rad, sectors) in enumerate(self._wedges):
+            nearest_cm = min(min(distances[i] for i in sectors), reach_cm)
+            messages.append(self._mav.distance_sensor_encode(
+                time_us // 1000, min_cm, reach_cm, nearest_cm, mavlink.MAV_DISTANCE_SENSOR_LASER, sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0,
+                fov_rad, fov_rad, quaternion,
+            ))
+        return messages
 
     # -- obstacle injection ------------------------------------------------------------------
 
@@ -474,6 +505,7 @@ class Bridge:
     def run(self, sut: socket.socket, control: ControlChannel) -> Summary:
         summary = self.summary
         config = self.config
+        self._control = control
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         sut.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         codec.set_receive_timeout(sut, config.stall_timeout_s)
@@ -483,6 +515,7 @@ class Bridge:
         hold_enabled = hold_after_s > 0
         if not hold_enabled:
             self._run_start_s = 0.0
+        paced_hold = config.hold_mode == "paced"
         lockstep = False
         step = 0
         every = self._every
@@ -496,10 +529,17 @@ class Bridge:
         while summary.end_reason == "running":
             time_us = step * self._dt_us
             time_s = time_us / 1e6
-            if hold_enabled and self._run_start_s is None and time_s >= hold_after_s:
+            holding = hold_enabled and self._run_start_s is None and time_s >= hold_after_s
+            if holding and not paced_hold:
                 self._hold(sut, splitter, control, time_s)
                 if summary.end_reason != "running":
                     break
+                holding = False
+            elif holding:
+                self._paced_hold(control, time_s)
+                if summary.end_reason != "running":
+                    break
+            if wall_run_started is None and hold_enabled and self._run_start_s is not None:
                 wall_run_started = perf()
             ts = perf()
             frames_out = self._sensor_frames(step, time_us)
@@ -575,7 +615,7 @@ class Bridge:
                 self._flush_clearance()
             if step % every["control"] == 0:
                 self._handle_ops(control.poll(), time_s)
-            if not lockstep:
+            if not lockstep or holding:
                 time.sleep(max(0.0, self._dt - (perf() - t0)))
             self._check_end(time_s)
             summary.world_s += perf() - t2
@@ -591,6 +631,17 @@ class Bridge:
         self._flush_clearance()
         self._event(summary.sim_time_s, "finished", reason=summary.end_reason)
         return summary
+
+    def _paced_hold(self, control: ControlChannel, time_s: float) -> None:
+        """One step of a paced hold: announce it once the harness listens, give up after the timeout."""
+        if self._hold_deadline is None:
+            self._event(time_s, "holding")
+            self._hold_deadline = time.monotonic() + self.config.hold_timeout_s
+        if not self._hold_announced and control.connected:
+            control.send({"event": "holding", "t": time_s})
+            self._hold_announced = True
+        if time.monotonic() > self._hold_deadline:
+            self.summary.end_reason = "hold_timeout"
 
     def _hold(self, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Pause the simulation until the harness says run; keep reading what the SUT sends."""
@@ -613,3 +664,20 @@ class Bridge:
                 self._link_in += data
                 splitter.feed(data)
             self._handle_ops(control.poll(0.01), time_s)
+
+
+WEDGE_SECTORS = 4
+
+
+def _wedges(visible: list[int]) -> list[tuple[list[float], float, list[int]]]:
+    """Visible sectors grouped WEDGE_SECTORS at a time from left to right: (body-yaw quaternion
+    w, x, y, z of the wedge's centre, its width in radians, its sector indices)."""
+    signed = sorted(visible, key=lambda i: ((i * SECTOR_DEG + 180.0) % 360.0) - 180.0)
+    wedges = []
+    for start in range(0, len(signed), WEDGE_SECTORS):
+        sectors = signed[start : start + WEDGE_SECTORS]
+        angles = [math.radians(((i * SECTOR_DEG + 180.0) % 360.0) - 180.0) for i in sectors]
+        centre = (angles[0] + angles[-1]) / 2.0
+        width = angles[-1] - angles[0] + math.radians(SECTOR_DEG)
+        wedges.append(([math.cos(centre / 2.0), 0.0, 0.0, math.sin(centre / 2.0)], width, sectors))
+    return wedges

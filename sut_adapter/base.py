@@ -1,4 +1,16 @@
-"""The SUT protocol and its registry."""
+"""The SUT protocol and its registry.
+
+A SUT is started for one evaluation with a port block (the simulator's TCP port it connects
+to, the UDP port it sends its API link to, the instance index those came from), a fresh
+working directory and parameters; it answers with a handle. Two properties tell the harness
+how to treat it without knowing which SUT it is:
+
+* `hold_mode`: "frozen" if it answers MAVLink while the simulation is held with simulated
+  time stopped (the bundled autopilot), "paced" if its threads follow the lockstep clock and
+  so need simulated time to pass, at real-time pace, while the harness sets up (PX4).
+* `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
+  plugin) once the SUT is discovered, before it waits for health.
+"""
 
 from __future__ import annotations
 
@@ -6,9 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
 
+HOLD_MODES = ("frozen", "paced")
+
 
 class SutError(Exception):
-    """A SUT would not start or answer; carries its name and the tail of its log."""
+    """A SUT would not start or answer, or is configured wrongly; carries its name and the tail of its log."""
 
     def __init__(self, sut: str, message: str, log_tail: str = ""):
         self.sut = sut
@@ -18,27 +32,30 @@ class SutError(Exception):
 
 @dataclass
 class SutHandle:
-    """A started SUT. `alive()` says whether it still runs; `artifacts` lists its log files."""
+    """A started SUT. `alive()` says whether it still runs; `artifacts()` lists the files worth
+    keeping once it stopped (its logs, a PX4 ULog)."""
 
     name: str
     alive: Callable[[], bool]
     stop: Callable[[], int | None]
-    artifacts: list[Path] = field(default_factory=list)
+    artifacts: Callable[[], list[Path]] = lambda: []
     stderr_tail: Callable[[], str] = lambda: ""
     pids: list[int] = field(default_factory=list)
+    mavlink_params: Mapping[str, int | float] = field(default_factory=dict)
 
 
 class SystemUnderTest(Protocol):
     name: str
+    hold_mode: str
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
         """Start the SUT so that it connects to the simulator on sim_port and sends its API link to api_port."""
 
 
-_REGISTRY: dict[str, Callable[[], SystemUnderTest]] = {}
+_REGISTRY: dict[str, Callable[[Mapping[str, str]], SystemUnderTest]] = {}
 
 
-def register(name: str, factory: Callable[[], SystemUnderTest]) -> None:
+def register(name: str, factory: Callable[[Mapping[str, str]], SystemUnderTest]) -> None:
     _REGISTRY[name] = factory
 
 
@@ -46,16 +63,21 @@ def names() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def get(name: str) -> SystemUnderTest:
+def get(name: str, config: Mapping[str, str] | None = None) -> SystemUnderTest:
+    """The SUT called name, configured by config (e.g. {"px4_bin": PATH}, {"command": TEMPLATE})."""
     if name not in _REGISTRY:
         raise SutError(name, f"unknown SUT; available: {', '.join(names())}")
-    return _REGISTRY[name]()
+    return _REGISTRY[name](config or {})
 
 
 def _register_builtins() -> None:
     from sut_adapter.bundled import BundledAutopilot
+    from sut_adapter.command import CommandSut
+    from sut_adapter.px4 import Px4Sitl
 
     register("bundled", BundledAutopilot)
+    register("command", CommandSut)
+    register("px4", Px4Sitl)
 
 
 _register_builtins()

@@ -8,11 +8,16 @@ from pathlib import Path
 from typing import Mapping
 
 from harness.processes import ManagedProcess
-from sut_adapter.base import SutHandle
+from sut_adapter.base import SutHandle, SutError
 
 
 class BundledAutopilot:
     name = "bundled"
+    hold_mode = "frozen"
+
+    def __init__(self, config: Mapping[str, str] | None = None):
+        if config:
+            raise SutError(self.name, f"takes no configuration, got {sorted(config)}")
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
         argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", "--api", f"udp:127.0.0.1:{api_port}"]
@@ -26,7 +31,6 @@ class BundledAutopilot:
             name=self.name,
             alive=lambda: process.poll() is None,
             stop=process.stop,
-            artifacts=[process.stdout_path, process.stderr_path],
             stderr_tail=process.stderr_tail,
             pids=[process.pid],
         )

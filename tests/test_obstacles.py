@@ -119,7 +119,8 @@ def _bridge_with(obstacles, visibility_m=10_000.0, fov_deg=360.0):
 
 
 def _sectors(bridge):
-    message = bridge._obstacle_distance(0)
+    message = bridge._obstacle_distance(0)[0]
+    assert message.get_type() == "OBSTACLE_DISTANCE"
     return list(message.distances), message.max_distance
 
 
@@ -131,6 +132,21 @@ def test_an_obstacle_at_bearing_30_degrees_appears_in_sector_6():
     assert 6 in hit and all(5 <= i <= 7 for i in hit)
     # 8 m to the axis, minus the 0.25 m radius, minus the hull: 0.3 / cos(30 deg) from the centre.
     assert distances[6] == pytest.approx(775 - 100 * 0.3 / math.cos(math.radians(30)), abs=3)
+
+
+def test_the_same_reading_goes_out_as_distance_sensor_wedges_for_px4():
+    north, east = 8.0 * math.cos(math.radians(30)), 8.0 * math.sin(math.radians(30))
+    bridge = _bridge_with([{"id": "pole", "form": "cylinder", "size": {"diameter_m": 0.5, "height_m": 10.0}, "a": {"north_m": north, "east_m": east, "up_m": 5.0}, "b": None}],
+                          fov_deg=100.0)
+    sectors, wedges = bridge._obstacle_distance(0)[0], bridge._obstacle_distance(0)[1:]
+    assert [w.get_type() for w in wedges] == ["DISTANCE_SENSOR"] * 6 and [w.id for w in wedges] == list(range(6))
+    yaws = [math.degrees(2 * math.atan2(w.quaternion[3], w.quaternion[0])) for w in wedges]
+    assert yaws == pytest.approx([-42.5, -22.5, -2.5, 17.5, 37.5, 50.0])  # 4 sectors of 5 degrees each, the last one alone
+    assert all(w.orientation == 100 and w.max_distance == sectors.max_distance for w in wedges)  # MAV_SENSOR_ROTATION_CUSTOM
+    # each wedge reports the nearest of its sectors; the pole at 30 degrees only in the 37.5-degree one
+    assert [w.current_distance for w in wedges] == [min(min(sectors.distances[i] for i in group), sectors.max_distance) for _q, _fov, group in bridge._wedges]
+    assert [w.current_distance < w.max_distance for w in wedges] == [False, False, False, False, True, False]
+    assert wedges[4].current_distance == sectors.distances[6]
 
 
 def test_fog_shortens_the_sensed_range_as_the_profile_says():

@@ -1,0 +1,119 @@
+"""`stella sut check`: bring a SUT up against the bridge stage by stage and time each stage.
+
+The stages are the ones an evaluation goes through before its flight: the SUT's process
+starts, connects to the simulator, the lockstep runs, its API heartbeat reaches MAVSDK, every
+health check passes, it is armable, and it accepts a mission. The first stage that fails ends
+the check and says why; nothing is armed or flown.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import sut_adapter
+from harness.bridge_control import BridgeControl
+from harness.errors import InfrastructureError
+from harness.evaluation import RunOptions, Stack, simulation_stack
+from harness.mavsdk_session import mission_items
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
+
+STAGES = ("process started", "simulator connected", "lockstep running", "API heartbeat", "health ok", "armable", "mission upload ok")
+
+
+@dataclass
+class Stage:
+    name: str
+    ok: bool | None  # None: not reached
+    after_s: float | None = None
+    detail: str = ""
+
+
+def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -> list[Stage]:
+    system = sut_adapter.get(options.sut, options.sut_config)
+    world = world_spec(space, x, 0)
+    workdir = Path(tempfile.mkdtemp(prefix="stella-sut-check-"))
+    stages = [Stage(name, None) for name in STAGES]
+    start = time.monotonic()
+    try:
+        with simulation_stack(world, options, system, workdir) as stack:
+            _run_stages(stack, world, stages, start, timeout_s)
+    except (InfrastructureError, sut_adapter.SutError) as error:
+        failed = next((stage for stage in stages if stage.ok is None), stages[0])
+        failed.ok, failed.after_s, failed.detail = False, time.monotonic() - start, str(error)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    return stages
+
+
+def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float) -> None:
+    sut, session = stack.sut, stack.session
+    alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
+
+    def passed(index: int, detail: str = "") -> None:
+        stages[index].ok, stages[index].after_s, stages[index].detail = True, time.monotonic() - start, detail
+
+    def failed(index: int, detail: str) -> None:
+        if not sut.alive():
+            detail += f"; the SUT exited: {sut.stderr_tail()[-800:]}"
+        elif stack.bridge.poll() is not None:
+            detail += f"; the simulator exited: {stack.bridge.stderr_tail()[-800:]}"
+        stages[index].ok, stages[index].after_s, stages[index].detail = False, time.monotonic() - start, detail
+
+    passed(0, f"pids {', '.join(map(str, sut.pids))}; simulator TCP {stack.ports.sim}, API UDP {stack.ports.api}")
+    control = BridgeControl(stack.ports.control)
+    try:
+        for index, event, what in ((1, "sut_connected", "the SUT never connected to the simulator"),
+                                   (2, "lockstep_started", "the SUT never answered a sensor step with HIL_ACTUATOR_CONTROLS")):
+            seen = control.wait_for(event, timeout_s, alive)
+            if seen is None:
+                return failed(index, f"{what} on TCP {stack.ports.sim} within {timeout_s:.0f} s")
+            passed(index, f"at simulated t={seen['t']:.3f} s")
+        steps: list[tuple[int, str, Callable[[], Any]]] = [
+            (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
+            (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
+            (5, "armable", lambda: _armable(session)),
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))),
+        ]
+        for index, _name, action in steps:
+            try:
+                action()
+            except Exception as error:  # MAVSDK raises its own error type per plugin
+                return failed(index, str(error))
+            passed(index, _details(index, session, sut))
+    finally:
+        control.send({"op": "stop"})
+        control.close()
+
+
+def _armable(session) -> None:
+    if not session.telemetry.health().is_armable:
+        raise InfrastructureError(f"MAVSDK reports the vehicle not armable: {vars(session.telemetry.health())}; status texts: {session.status_texts[-5:]}")
+
+
+def _details(index: int, session, sut) -> str:
+    if index == 4:
+        return f"parameters set over MAVLink: {dict(sut.mavlink_params)}" if sut.mavlink_params else ""
+    if index == 6:
+        return "mission with takeoff, speed, waypoints and land accepted"
+    return ""
+
+
+def report_text(sut: str, stages: list[Stage]) -> str:
+    lines = [f"SUT {sut}:"]
+    for stage in stages:
+        mark = {True: "ok  ", False: "FAIL", None: "-   "}[stage.ok]
+        when = f"{stage.after_s:7.2f} s" if stage.after_s is not None else "      -  "
+        lines.append(f"  {mark} {stage.name:<20} {when}" + (f"  {stage.detail}" if stage.detail else ""))
+    verdict = "every stage passed" if all(stage.ok for stage in stages) else "failed at " + next(s.name for s in stages if not s.ok)
+    lines.append(verdict)
+    return "\n".join(lines)
+
+
+def as_dicts(stages: list[Stage]) -> list[dict[str, Any]]:
+    return [asdict(stage) for stage in stages]

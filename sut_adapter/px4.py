@@ -1,0 +1,98 @@
+"""PX4 SITL as a SUT, flying against our bridge as its external simulator.
+
+Give the `px4` binary or its build folder (`build/px4_sitl_default`) with `--px4-bin` or
+STELLA_PX4_BIN. Each evaluation gets a fresh working directory (PX4 writes parameters.bson,
+dataman and log/ there) and PX4 instance k = the port block's index, so PX4's own port rules
+give simulator TCP 4560+k and API UDP 14540+k, the block's ports. The airframe is 10016
+(`none_iris`: a quadrotor that waits for an external simulator on the simulator link).
+
+PX4's threads follow its lockstep clock, so it cannot answer MAVLink while simulated time
+stands still: it needs the "paced" hold. Its collision prevention reads the distance_sensor
+topic, which the bridge feeds through DISTANCE_SENSOR messages on the simulator link; it acts
+only in Position mode, never in missions, so in a mission PX4 flies into what is in its way
+and the harness measures exactly that.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Mapping
+
+from harness.processes import ManagedProcess
+from sut_adapter.base import SutError, SutHandle
+
+AIRFRAME = "10016"
+MODEL = "none_iris"
+# PX4 maps instances above 9 onto one shared API port (ROMFS px4-rc.mavlink).
+MAX_INSTANCE = 9
+# Set over MAVLink before the flight. CP_DIST as the paper's setting; with the simulation
+# running many times faster than the wall clock, MAVSDK's 1 Hz heartbeats arrive seconds of
+# simulated time apart, which PX4 would take for a lost data link.
+DEFAULT_PARAMS: dict[str, int | float] = {"CP_DIST": 1.0, "NAV_DLL_ACT": 0}
+# PX4 stretches its link-loss and preflight-disarm timeouts by this factor (ROMFS rcS).
+SPEED_FACTOR = "20"
+
+
+def resolve_binary(given: str | None) -> tuple[Path, Path]:
+    """(px4 binary, its etc/ folder with the init scripts) from a binary or build folder path."""
+    if not given:
+        raise SutError("px4", "no PX4 build given; pass --px4-bin PATH (the px4 binary or its build folder, e.g. PX4-Autopilot/build/px4_sitl_default) or set STELLA_PX4_BIN")
+    path = Path(given).expanduser().resolve()
+    binary = path / "bin" / "px4" if path.is_dir() else path
+    if not binary.is_file() or not os.access(binary, os.X_OK):
+        raise SutError("px4", f"{binary} is not an executable px4 binary; pass the build folder (with bin/px4) or the binary itself")
+    etc = binary.parent.parent / "etc"
+    if not (etc / "init.d-posix" / "rcS").is_file():
+        raise SutError("px4", f"{etc}/init.d-posix/rcS not found: the binary must sit in a PX4 SITL build folder (bin/px4 beside etc/)")
+    return binary, etc
+
+
+class Px4Sitl:
+    name = "px4"
+    hold_mode = "paced"
+
+    def __init__(self, config: Mapping[str, str]):
+        unknown = sorted(set(config) - {"px4_bin"})
+        if unknown:
+            raise SutError(self.name, f"unknown configuration {unknown}; it takes px4_bin (--px4-bin)")
+        self.binary, self.etc = resolve_binary(config.get("px4_bin") or os.environ.get("STELLA_PX4_BIN"))
+
+    def command(self, *, instance: int, workdir: Path) -> tuple[list[str], dict[str, str]]:
+        if not 0 <= instance <= MAX_INSTANCE:
+            raise SutError(self.name, f"instance {instance} is out of range: PX4 gives instances above {MAX_INSTANCE} one shared API port; run at most {MAX_INSTANCE + 1} PX4 evaluations at once")
+        env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": SPEED_FACTOR}
+        return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
+
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+        if (sim_port, api_port) != (4560 + instance, 14540 + instance):
+            raise SutError(self.name, f"PX4 instance {instance} uses simulator port {4560 + instance} and API port {14540 + instance}, not {sim_port} and {api_port}")
+        px4_dir = workdir / "px4"
+        px4_dir.mkdir()
+        argv, env = self.command(instance=instance, workdir=px4_dir)
+        process = ManagedProcess("px4", argv, log_dir=workdir, cwd=px4_dir, env=env)
+        try:
+            process.__enter__()
+        except OSError as error:
+            raise SutError(self.name, f"cannot start {self.binary}: {error}") from None
+        return SutHandle(
+            name=self.name,
+            alive=lambda: process.poll() is None,
+            stop=process.stop,
+            artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
+            stderr_tail=lambda: process.stderr_tail() or tail(process.stdout_path),
+            pids=[process.pid],
+            mavlink_params={**DEFAULT_PARAMS, **params},
+        )
+
+
+def collect_artifacts(px4_dir: Path, console_logs: list[Path]) -> list[Path]:
+    """PX4's ULog files (log/DATE/TIME.ulg) and its console output."""
+    return sorted(px4_dir.glob("log/**/*.ulg")) + [p for p in console_logs if p.exists() and p.stat().st_size > 0]
+
+
+def tail(path: Path, lines: int = 20) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return ""

@@ -1,0 +1,194 @@
+"""SUT adapters: the generic command template, PX4 SITL's command line, ports, parameters and
+ULog collection (without PX4), and the generic adapter flying the bundled autopilot for real."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+import sut_adapter
+from conftest import ROOT
+from harness import logs
+from harness.cli import main
+from harness.evaluation import RunOptions, evaluate
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from sut_adapter.command import CommandSut
+from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
+
+FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
+AUTOPILOT = f"{sys.executable} -m autopilot --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}"
+
+
+def fake_px4_build(tmp_path, script: str):
+    """A folder shaped like build/px4_sitl_default whose bin/px4 is a shell script."""
+    build = tmp_path / "build"
+    (build / "bin").mkdir(parents=True)
+    (build / "etc" / "init.d-posix").mkdir(parents=True)
+    (build / "etc" / "init.d-posix" / "rcS").write_text("# PX4's startup script\n")
+    binary = build / "bin" / "px4"
+    binary.write_text("#!/bin/sh\n" + textwrap.dedent(script))
+    binary.chmod(binary.stat().st_mode | stat.S_IXUSR)
+    return build
+
+
+# -- the generic command template ---------------------------------------------------------------
+
+
+def test_a_template_is_split_like_a_shell_and_filled_word_by_word(tmp_path):
+    sut = CommandSut({"command": "ap --sim 'tcp:127.0.0.1:{sim_port}' --gcs udp:127.0.0.1:{api_port} --id {instance} --dir {workdir}"})
+    workdir = tmp_path / "with space"
+    assert sut.argv(sim_port=4561, api_port=14541, instance=1, workdir=workdir) == [
+        "ap", "--sim", "tcp:127.0.0.1:4561", "--gcs", "udp:127.0.0.1:14541", "--id", "1", "--dir", str(workdir)]
+    assert sut.hold_mode == "paced"
+
+
+@pytest.mark.parametrize(("config", "message"), [
+    ({"command": ""}, "--sut-command is empty"),
+    ({"command": "ap {sim_port} {api_port} {port}"}, "unknown placeholder(s) {port}; available: {sim_port}, {api_port}, {instance}, {workdir}"),
+    ({"command": "ap --sim {sim_port}"}, "--sut-command must use {api_port}"),
+    ({"command": "ap 'unclosed {sim_port} {api_port}"}, "cannot be split into words"),
+    ({"command": "ap {sim_port} {api_port}", "hold": "later"}, "--sut-hold 'later' is not one of frozen, paced"),
+    ({"command": "ap {sim_port} {api_port}", "px4_bin": "x"}, "unknown configuration ['px4_bin']"),
+])
+def test_bad_templates_say_what_to_fix(config, message):
+    with pytest.raises(sut_adapter.SutError) as error:
+        CommandSut(config)
+    assert message in str(error.value)
+
+
+def test_the_cli_refuses_a_bad_sut_before_flying(capsys):
+    assert main(["run", str(FIG4), "--sut", "command", "--sut-command", "ap {sim_port}"]) == 2
+    assert "--sut: /: command: --sut-command must use {api_port}" in capsys.readouterr().err
+    assert main(["run", str(FIG4), "--sut", "nope"]) == 2
+    assert "unknown SUT; available: bundled, command, px4" in capsys.readouterr().err
+
+
+# -- PX4 SITL, without PX4 -----------------------------------------------------------------------
+
+
+def test_px4_needs_a_build_and_says_where_to_give_it(tmp_path, monkeypatch):
+    monkeypatch.delenv("STELLA_PX4_BIN", raising=False)
+    with pytest.raises(sut_adapter.SutError, match="pass --px4-bin PATH .* or set STELLA_PX4_BIN"):
+        Px4Sitl({})
+    with pytest.raises(sut_adapter.SutError, match="is not an executable px4 binary"):
+        Px4Sitl({"px4_bin": str(tmp_path)})
+    build = fake_px4_build(tmp_path, "exit 0\n")
+    (build / "etc" / "init.d-posix" / "rcS").unlink()
+    with pytest.raises(sut_adapter.SutError, match="init.d-posix/rcS not found"):
+        Px4Sitl({"px4_bin": str(build / "bin" / "px4")})
+
+
+def test_px4_command_line_airframe_and_instance_ports(tmp_path, monkeypatch):
+    build = fake_px4_build(tmp_path, "exit 0\n")
+    monkeypatch.setenv("STELLA_PX4_BIN", str(build))
+    px4 = Px4Sitl({})
+    argv, env = px4.command(instance=3, workdir=tmp_path / "w")
+    assert argv == [str(build / "bin" / "px4"), "-i", "3", "-d", "-w", str(tmp_path / "w"), str(build / "etc")]
+    assert (env["PX4_SYS_AUTOSTART"], env["PX4_SIM_MODEL"]) == ("10016", "none_iris")
+    assert px4.hold_mode == "paced"
+    with pytest.raises(sut_adapter.SutError, match="instance 10 is out of range"):
+        px4.command(instance=10, workdir=tmp_path)
+    with pytest.raises(sut_adapter.SutError, match="uses simulator port 4563 and API port 14543"):
+        px4.start(sim_port=4560, api_port=14540, instance=3, workdir=tmp_path, params={})
+
+
+def test_px4_is_started_in_a_fresh_directory_with_its_parameters_for_mavlink(tmp_path):
+    build = fake_px4_build(tmp_path, """\
+        echo "$@" > args.txt
+        echo "$PX4_SYS_AUTOSTART $PX4_SIM_MODEL" > env.txt
+        pwd > cwd.txt
+        """)
+    workdir = tmp_path / "evaluation"
+    workdir.mkdir()
+    handle = Px4Sitl({"px4_bin": str(build)}).start(sim_port=4562, api_port=14542, instance=2, workdir=workdir, params={"CP_DIST": 2.5, "MPC_XY_CRUISE": 4.0})
+    deadline = time.monotonic() + 10.0
+    while handle.alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert handle.stop() == 0
+    px4_dir = workdir / "px4"
+    assert (px4_dir / "args.txt").read_text().split() == ["-i", "2", "-d", "-w", str(px4_dir), str(build / "etc")]
+    assert (px4_dir / "env.txt").read_text().split() == ["10016", "none_iris"]
+    assert (px4_dir / "cwd.txt").read_text().strip() == str(px4_dir)
+    assert handle.mavlink_params == {**DEFAULT_PARAMS, "CP_DIST": 2.5, "MPC_XY_CRUISE": 4.0}
+
+
+def test_px4_ulogs_and_console_are_its_artifacts(tmp_path):
+    (tmp_path / "log" / "2026-11-22").mkdir(parents=True)
+    (tmp_path / "log" / "2026-11-22" / "10_00_01.ulg").write_bytes(b"ULog\x01\x12\x35")
+    console = tmp_path / "px4.stdout.log"
+    console.write_text("INFO  [px4] startup\n")
+    empty = tmp_path / "px4.stderr.log"
+    empty.write_text("")
+    assert collect_artifacts(tmp_path, [console, empty]) == [tmp_path / "log" / "2026-11-22" / "10_00_01.ulg", console]
+
+
+@pytest.mark.slow
+def test_a_px4_that_dies_before_connecting_is_classified_and_its_ulog_kept(tmp_path, profile):
+    build = fake_px4_build(tmp_path, """\
+        mkdir -p log/2026-11-22 && printf 'ULog' > log/2026-11-22/10_00_01.ulg
+        echo "ERROR [simulator_mavlink] gave up" >&2
+        exit 1
+        """)
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    options = RunOptions(sut="px4", sut_config={"px4_bin": str(build)}, setup_timeout_s=10.0)
+    result = evaluate(space, x, seed=1, out_dir=tmp_path / "out", options=options)
+    assert result.status == "sut_crashed" and "gave up" in result.why
+    assert [os.path.basename(a) for a in result.artifacts] == ["10_00_01.ulg", "px4.stderr.log"]
+    assert open(result.artifacts[0], "rb").read() == b"ULog"
+
+
+# -- the generic adapter flying the bundled autopilot, and the stage check ------------------------
+
+
+@pytest.mark.slow
+def test_the_command_adapter_flies_the_bundled_autopilot_exactly_as_the_bundled_adapter(tmp_path, profile):
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    bundled = evaluate(space, x, seed=1, out_dir=tmp_path, name="bundled")
+    generic = evaluate(space, x, seed=1, out_dir=tmp_path, name="generic", options=RunOptions(sut="command", sut_config={"command": AUTOPILOT, "hold": "frozen"}))
+    assert generic.status == bundled.status == "ok"
+    assert generic.fitness == bundled.fitness
+    traces = [[m["d"] for _t, _ns, m in logs.messages(r.log_path, ["/clearance"])] for r in (bundled, generic)]
+    assert traces[0] == traces[1]
+    assert generic.artifacts == []  # the autopilot printed nothing, so no empty console logs are kept
+
+
+@pytest.mark.slow
+def test_parameters_reach_the_sut_over_mavlink(tmp_path, profile):
+    """CP_DIST set through the generic adapter (over MAVLink) changes where a wall stops the vehicle."""
+    space = SearchSpace(load_logical(ROOT / "tests" / "data" / "scenarios" / "wall.json", profile), profile)
+    x = space.vector_from({})
+    results = {}
+    for cp_dist in (1.0, 3.0):
+        options = RunOptions(sut="command", sut_config={"command": AUTOPILOT, "hold": "frozen"}, sut_params={"CP_DIST": cp_dist})
+        results[cp_dist] = evaluate(space, x, seed=1, out_dir=tmp_path, name=f"cp{cp_dist}", options=options)
+    assert results[3.0].min_clearance_m == pytest.approx(results[1.0].min_clearance_m + 2.0, abs=0.6)
+
+
+@pytest.mark.slow
+def test_sut_check_passes_every_stage_for_the_bundled_autopilot(capsys):
+    assert main(["sut", "check", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [stage["name"] for stage in report["stages"]] == ["process started", "simulator connected", "lockstep running", "API heartbeat",
+                                                              "health ok", "armable", "mission upload ok"]
+    assert all(stage["ok"] for stage in report["stages"])
+    times = [stage["after_s"] for stage in report["stages"]]
+    assert times == sorted(times)
+
+
+@pytest.mark.slow
+def test_sut_check_names_the_stage_a_silent_sut_fails_at(capsys):
+    silent = f"{sys.executable} -c 'import time, sys; time.sleep(60)' {{sim_port}} {{api_port}}"
+    assert main(["sut", "check", "--sut", "command", "--sut-command", silent, "--timeout-s", "3", "--json"]) == 3
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    assert [stage["ok"] for stage in stages] == [True, False, None, None, None, None, None]
+    assert "the SUT never connected to the simulator on TCP" in stages[1]["detail"]
