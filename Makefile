@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test browser
+.PHONY: setup demo test browser docker
 setup: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml constraints.txt
@@ -22,5 +22,15 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 browser:
 	command -v chromium >/dev/null || ($(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium)
 
-test: setup browser
+# The docker executor's tests need a Docker Engine and the worker image: Debian's docker.io,
+# dockerd started in the background when none answers (there is no systemd), and the image
+# built on a debootstrapped base, as no image registry is reachable (made once; later builds
+# reuse the cached dependency layer and only copy the project again).
+docker: setup
+	(command -v dockerd && command -v debootstrap) >/dev/null || ($(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq docker.io debootstrap)
+	docker info >/dev/null 2>&1 || ($(SUDO) sh -c 'nohup dockerd >/tmp/stella-dockerd.log 2>&1 &'; \
+		for i in $$(seq 60); do docker info >/dev/null 2>&1 && break; sleep 1; done; docker info >/dev/null)
+	$(BIN)/stella docker build --make-base
+
+test: setup browser docker
 	$(BIN)/pytest

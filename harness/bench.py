@@ -154,6 +154,53 @@ def campaign_bench_text(report: dict[str, Any]) -> str:
     )
 
 
+def run_executor_bench(executor_name: str, workers: int, evaluations: int, scenario: Path | None = None, seed: int = DEFAULT_SEED) -> dict[str, Any]:
+    """The standard scenario flown `evaluations` times through an executor: evaluations per hour,
+    and, as the executor's overhead per evaluation, wall time per evaluation per worker minus the
+    evaluation's own wall time (process or container start, teardown, bringing the log back)."""
+    import time
+
+    from harness.executors import Job, make_executor
+
+    profile = load_profile("default")
+    path = scenario or scenarios_dir() / DEFAULT_SCENARIO
+    space = SearchSpace(load_logical(path, profile), profile)
+    concrete = space.to_concrete(space.sample_feasible(np.random.default_rng(seed), 1)[0])
+    executor = make_executor(executor_name, workers)
+    with tempfile.TemporaryDirectory(prefix="stella-bench-executor-") as out:
+        jobs = [Job(index, concrete, seed, out, f"bench-{index}", RunOptions()) for index in range(evaluations)]
+        started = time.monotonic()
+        try:
+            results = [result for _job, result in executor.run(jobs)]
+        finally:
+            executor.close()
+        wall = time.monotonic() - started
+    inside = statistics.median(r["wall_time_s"] for r in results)
+    return {
+        "executor": executor_name,
+        "workers": executor.workers,
+        "scenario": str(path),
+        "evaluations": evaluations,
+        "statuses": sorted({r["status"] for r in results}),
+        "wall_time_s": wall,
+        "evaluations_per_hour": 3600.0 * evaluations / wall,
+        "median_evaluation_wall_s": inside,
+        "overhead_per_evaluation_s": wall * executor.workers / evaluations - inside,
+    }
+
+
+def executor_bench_text(report: dict[str, Any]) -> str:
+    return "\n".join(
+        [
+            f"{report['evaluations']} evaluations of {report['scenario']} through {report['executor']} with {report['workers']} workers ({', '.join(report['statuses'])}):",
+            f"  wall time                   {report['wall_time_s']:.1f} s",
+            f"  evaluations per hour        {report['evaluations_per_hour']:.0f}",
+            f"  evaluation's own wall time  {report['median_evaluation_wall_s']:.2f} s (median)",
+            f"  executor overhead           {report['overhead_per_evaluation_s']:.2f} s per evaluation (wall x workers / evaluations - own wall)",
+        ]
+    )
+
+
 def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
     """The bundled autopilot's cost per lockstep step (parse, estimate, control, encode), replaying
     the simulator-to-SUT stream of a recorded flight into an in-process autopilot flying the same

@@ -144,7 +144,7 @@ def _result_text(result: dict[str, Any]) -> str:
     lines = [f"status: {result['status']}" + (f" ({result['why']})" if result.get("why") else "")]
     lines.append(f"fitness: {result['fitness']:.3f}")
     if result.get("min_clearance_m") is not None:
-        lines.append(f"min clearance: {result['min_clearance_m']:.3f} m at t={result['min_clearance_at_s']} s to {result['min_clearance_obstacle']}")
+        lines.append(f"min clearance: {result['min_clearance_m']:.3f} m at t={result['min_clearance_at_s']:.3f} s to {result['min_clearance_obstacle']}")
     lines.append(f"simulated {result['sim_time_s']:.1f} s in {result['wall_time_s']:.1f} s wall" + (f" (flight at {result['real_time_factor']:.1f}x real time)" if result.get("real_time_factor") else ""))
     if result.get("log_path"):
         lines.append(f"log: {result['log_path']}")
@@ -260,10 +260,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from harness.bench import bench_text, run_bench
     from harness.evaluation import RunOptions
 
+    if args.executor:
+        from harness.bench import executor_bench_text, run_executor_bench
+
+        report = run_executor_bench(args.executor, args.workers or 1, args.evaluations or 10, Path(args.scenario) if args.scenario else None)
+        emit(args, report, executor_bench_text(report))
+        return 0
     if args.campaign:
         from harness.bench import campaign_bench_text, run_campaign_bench
 
-        report = run_campaign_bench(args.evaluations, args.workers, Path(args.scenario) if args.scenario else None)
+        report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None)
         emit(args, report, campaign_bench_text(report))
         return 0
     sut, sut_config, sut_params = _sut_spec(args)
@@ -292,8 +298,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params)
-    executor = make_executor(args.executor, args.workers)
-    batch = getattr(executor, "workers", 1)
+    settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
+    try:
+        executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
+    except ValueError as error:
+        raise InputError([Problem("--executor", "", str(error))]) from None
+    batch = executor.workers
     total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
     # A bar on stderr for people; nothing with --json, where a script reads stdout.
     bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
@@ -353,6 +363,23 @@ def cmd_sut(args: argparse.Namespace) -> int:
     stages = check(space, x, RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), args.timeout_s)
     emit(args, {"sut": sut, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut, stages))
     return 0 if all(s.ok for s in stages) else 3
+
+
+@command("docker")
+def cmd_docker(args: argparse.Namespace) -> int:
+    from harness.docker_executor import BASE_IMAGE, build_image, image_exists, make_base
+
+    base = args.base
+    if args.make_base:
+        base = BASE_IMAGE
+        if not image_exists(BASE_IMAGE):
+            print(f"making {BASE_IMAGE} with debootstrap", file=sys.stderr)
+            make_base()
+    for line in build_image(base or "debian:bookworm-slim", args.tag):
+        if args.verbose:
+            print(line, file=sys.stderr)
+    emit(args, {"image": args.tag, "base": base}, f"built {args.tag} from {base}")
+    return 0
 
 
 @command("export-regressions")
@@ -425,8 +452,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
-    p.add_argument("--evaluations", type=int, default=500, help="with --campaign")
-    p.add_argument("--workers", type=int, help="with --campaign (default: cores)")
+    p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
+    p.add_argument("--evaluations", type=int, help="with --campaign (default 500) or --executor (default 10)")
+    p.add_argument("--workers", type=int, help="with --campaign (default: cores) or --executor (default 1)")
 
     p = add("campaign", "search logical scenarios for worst cases; resumable from its store")
     p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
@@ -437,8 +465,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--population", type=int, default=50, help="population, swarm size and BO initial set")
     p.add_argument("--profile", default="default")
     add_sut(p)
-    p.add_argument("--executor", choices=["sequential", "local"], default="local")
-    p.add_argument("--workers", type=int, help="local executor workers (default: cores)")
+    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
+                   help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
+    p.add_argument("--workers", type=int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
+    p.add_argument("--attempts", type=int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
+    p.add_argument("--eval-timeout-s", type=float, default=600.0, help="hard wall-clock limit of one try (default 600)")
+    p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")
+    p.add_argument("--docker-image", help="with --executor docker: the worker image (default: stella-worker:latest)")
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
     p.add_argument("--wall-time-s", type=float, help="end each run after this much wall time")
@@ -460,6 +493,12 @@ def parser() -> argparse.ArgumentParser:
                    help="logical scenario whose world the check starts (default: Fig. 4)")
     p.add_argument("--profile", default="default")
     p.add_argument("--timeout-s", type=float, default=60.0, help="per stage")
+
+    p = add("docker", "build the worker image for --executor docker and docker/compose.yaml")
+    p.add_argument("action", choices=["build"])
+    p.add_argument("--base", help="base image (default: debian:bookworm-slim, or the one --make-base makes)")
+    p.add_argument("--make-base", action="store_true", help="build on stella-base:bookworm, made first with debootstrap if missing (for machines that reach no image registry)")
+    p.add_argument("--tag", default="stella-worker:latest")
 
     p = add("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies")
     p.add_argument("store", help="SQLite campaign store")

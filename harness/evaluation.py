@@ -261,8 +261,12 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
             session.set_params(sut.mavlink_params)
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             session.upload_and_start(mission_items(world))
-        except Exception as error:  # MAVSDK raises its own error types per plugin
-            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: {error}"), control_summary(control), {}
+        except InfrastructureError as error:  # not healthy in time, a parameter refused
+            return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
+        except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
+            if _unanswered(error):
+                return _setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {}
+            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: the SUT refused: {error}"), control_summary(control), {}
         timings["setup_s"] = time.monotonic() - t0
         control.send({"op": "run"})
         deadline = world["time_limit_s"] / options.min_real_time_factor + 30.0
@@ -282,6 +286,12 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
 
 def control_summary(control: BridgeControl) -> dict[str, Any]:
     return next((e for e in control.events if e.get("event") == "finished"), {})
+
+
+def _unanswered(error: Exception) -> bool:
+    """Whether a MAVSDK error means no answer came (rather than an answer that said no)."""
+    result = getattr(getattr(error, "result", None), "name", "")
+    return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
 def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> tuple[str, str]:

@@ -1,22 +1,43 @@
-"""Executors evaluate a batch of concrete scenarios and hand back results as they finish.
+"""Executors fly batches of concrete scenarios and hand back results as they finish.
 
-`sequential` flies them one after another in this process; `local` in a pool of worker
-processes, each evaluation with its own port block, temp dir and core (see evaluation.py).
-Jobs carry the concrete scenario JSON, which embeds its logical scenario and profile, so a
-worker needs nothing but the job.
+The contract, the same for every executor:
+
+* `run(jobs)` yields `(job, result)` as evaluations finish, in any order.
+* A try that ends `sut_crashed`, `sim_crashed` or `timeout`, or whose worker died on the way
+  (a killed worker process, a killed container, a lost Dask worker), is tried again, up to
+  `attempts` tries in all; every try's status and cause are in `result["attempts"]` and the
+  last try's result stands. A SUT that crashes in every try is then a finding, not bad luck.
+* Each try has a hard wall-clock limit, `timeout_s`: past it the try is ended and is a
+  `timeout`.
+* `cancel()` drops what has not started; `close()` ends the workers.
+
+`sequential` flies in this process; `local` in a pool of worker processes, each evaluation with
+its own port block, temp dir and core (see evaluation.py); `dask` (harness/dask_executor.py)
+and `docker` (harness/docker_executor.py) elsewhere. Jobs carry the concrete scenario JSON,
+which embeds its logical scenario and profile, so a worker needs nothing but the job.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import logging
 import multiprocessing
 import os
-from dataclasses import dataclass
+import signal
+import threading
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Protocol
+from typing import Any, Iterable, Iterator, Mapping
 
-from harness.evaluation import RunOptions, evaluate
+from harness.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.fitness import PENALTY
 from harness.scenario.world import space_from_concrete
+
+log = logging.getLogger(__name__)
+
+RETRIED_STATUSES = ("sut_crashed", "sim_crashed", "timeout")
+DEFAULT_ATTEMPTS = 2
+DEFAULT_TIMEOUT_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -28,60 +49,188 @@ class Job:
     name: str
     options: RunOptions
 
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "options": {**asdict(self.options), "sut_params": dict(self.options.sut_params), "sut_config": dict(self.options.sut_config)}}
+
+    @classmethod
+    def from_json(cls, document: Mapping[str, Any]) -> "Job":
+        return cls(**{**document, "options": RunOptions(**document["options"])})
+
 
 def run_job(job: Job) -> dict[str, Any]:
+    """One try of one evaluation, in this process."""
     space = space_from_concrete(job.concrete, job.name)
     x = space.from_concrete(job.concrete, job.name)
     return evaluate(space, x, seed=job.seed, out_dir=Path(job.out_dir), options=job.options, name=job.name).as_dict()
 
 
-class Executor(Protocol):
-    name: str
+def failed_try(job: Job, status: str, why: str) -> dict[str, Any]:
+    """The result of a try that produced none of its own (its worker died or ran out of time)."""
+    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.concrete.get("scenario", job.name), job.options.sut).as_dict()
+
+
+class _TryTimedOut(BaseException):
+    """Raised into the evaluation by the watchdog; a BaseException so nothing swallows it."""
+
+
+def run_job_with_watchdog(job: Job, timeout_s: float) -> dict[str, Any]:
+    """run_job under a wall-clock limit. The limit is a SIGALRM, so it needs the main thread
+    (pool workers and the sequential executor run there); the evaluation's context managers
+    stop its processes and free its ports on the way out."""
+    if threading.current_thread() is not threading.main_thread():
+        return run_job(job)
+
+    def expire(_signum, _frame):
+        raise _TryTimedOut()
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    try:
+        return run_job(job)
+    except _TryTimedOut:
+        return failed_try(job, "timeout", f"no result within {timeout_s:.0f} s wall time (the executor's limit per try)")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+class WorkerLost(Exception):
+    """A try's worker died under it: a killed process or container, a lost Dask worker."""
+
+
+class Executor:
+    """The retrying loop every executor shares; subclasses say how one try is submitted."""
+
+    name = "base"
+
+    def __init__(self, workers: int, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
+        if attempts < 1:
+            raise ValueError("attempts must be at least 1")
+        self.workers = workers
+        self.attempts = attempts
+        self.timeout_s = timeout_s
+        self._cancelled = threading.Event()
+
+    def submit(self, job: Job) -> concurrent.futures.Future:
+        """Start one try; the future holds its result dict, or raises WorkerLost."""
+        raise NotImplementedError
+
+    def recover(self) -> None:
+        """Make the executor usable again after a worker died (a pool rebuilt, say)."""
 
     def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, dict[str, Any]]]:
-        """Results in the order they finish."""
-
-    def close(self) -> None: ...
-
-
-class SequentialExecutor:
-    name = "sequential"
-
-    def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, dict[str, Any]]]:
-        for job in jobs:
-            yield job, run_job(job)
-
-    def close(self) -> None:
-        pass
-
-
-class LocalExecutor:
-    name = "local"
-
-    def __init__(self, workers: int | None = None):
-        self.workers = workers or len(os.sched_getaffinity(0))
-        # spawn, not fork: the parent may hold threads (MAVSDK, progress) that fork would copy half-way.
-        self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
-
-    def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, dict[str, Any]]]:
-        futures = {self._pool.submit(run_job, job): job for job in jobs}
+        self._cancelled.clear()
+        pending: dict[concurrent.futures.Future, tuple[Job, list[dict[str, Any]]]] = {self.submit(job): (job, []) for job in jobs}
         try:
-            for future in concurrent.futures.as_completed(futures):
-                yield futures[future], future.result()
+            while pending:
+                done, _ = concurrent.futures.wait(pending, return_when=concurrent.futures.FIRST_COMPLETED)
+                for future in done:
+                    job, tries = pending.pop(future)
+                    if future.cancelled():
+                        continue
+                    try:
+                        result = future.result()
+                    except WorkerLost as lost:
+                        log.warning("%s: %s", job.name, lost)
+                        self.recover()
+                        result = failed_try(job, "sim_crashed", f"the worker died: {lost}")
+                    tries.append({"status": result["status"], "why": result["why"]})
+                    if result["status"] in RETRIED_STATUSES and len(tries) < self.attempts and not self._cancelled.is_set():
+                        log.warning("%s: try %d ended %s (%s); trying again", job.name, len(tries), result["status"], result["why"])
+                        pending[self.submit(job)] = (job, tries)
+                        continue
+                    result["attempts"] = tries
+                    yield job, result
         finally:
-            for future in futures:
+            for future in pending:
                 future.cancel()
 
+    def cancel(self) -> None:
+        self._cancelled.set()
+
     def close(self) -> None:
+        self.cancel()
+
+
+class SequentialExecutor(Executor):
+    name = "sequential"
+
+    def __init__(self, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
+        super().__init__(1, attempts, timeout_s)
+
+    def submit(self, job: Job) -> concurrent.futures.Future:
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        future.set_result(run_job_with_watchdog(job, self.timeout_s))
+        return future
+
+
+class LocalExecutor(Executor):
+    """A pool of worker processes on this machine. A worker that dies (killed, out of memory)
+    breaks Python's pool for every try in flight: the pool is rebuilt and those tries count as
+    failed ones with the cause recorded."""
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
+        super().__init__(workers or len(os.sched_getaffinity(0)), attempts, timeout_s)
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        # spawn, not fork: the parent may hold threads (MAVSDK, progress) that fork would copy half-way.
+        return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def submit(self, job: Job) -> concurrent.futures.Future:
+        outer: concurrent.futures.Future = concurrent.futures.Future()
+        try:
+            inner = self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
+        except concurrent.futures.process.BrokenProcessPool:
+            self.recover()
+            inner = self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
+
+        def relay(done: concurrent.futures.Future) -> None:
+            if done.cancelled():
+                outer.cancel()
+            elif isinstance(done.exception(), concurrent.futures.process.BrokenProcessPool):
+                outer.set_exception(WorkerLost(f"a worker process of the local pool died ({done.exception()})"))
+            elif done.exception() is not None:
+                outer.set_exception(done.exception())
+            else:
+                outer.set_result(done.result())
+
+        inner.add_done_callback(relay)
+        return outer
+
+    def recover(self) -> None:
+        if getattr(self._pool, "_broken", False):
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = self._new_pool()
+
+    def worker_pids(self) -> list[int]:
+        """The pool's worker processes (fault tests kill one)."""
+        return [process.pid for process in self._pool._processes.values()]
+
+    def close(self) -> None:
+        super().close()
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-EXECUTORS = {"sequential": SequentialExecutor, "local": LocalExecutor}
+EXECUTORS = ("sequential", "local", "dask", "docker")
 
 
-def make_executor(name: str, workers: int | None) -> Executor:
+def make_executor(name: str, workers: int | None, *, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S,
+                  settings: Mapping[str, str] | None = None) -> Executor:
+    """settings: `scheduler` for dask (an address; none starts a LocalCluster), `image` for docker."""
+    settings = settings or {}
     if name == "sequential":
-        return SequentialExecutor()
+        return SequentialExecutor(attempts, timeout_s)
     if name == "local":
-        return LocalExecutor(workers)
+        return LocalExecutor(workers, attempts, timeout_s)
+    if name == "dask":
+        from harness.dask_executor import DaskExecutor
+
+        return DaskExecutor(workers, attempts, timeout_s, scheduler=settings.get("scheduler"))
+    if name == "docker":
+        from harness.docker_executor import DockerExecutor
+
+        return DockerExecutor(workers, attempts, timeout_s, image=settings.get("image"))
     raise ValueError(f"unknown executor {name!r}; available: {', '.join(EXECUTORS)}")

@@ -30,7 +30,7 @@ class ManagedProcess:
         log.info("starting %s: %s", self.name, " ".join(self.argv))
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
             self.process = subprocess.Popen(
-                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=_die_with_parent
+                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=die_with_parent
             )
         return self
 
@@ -74,7 +74,7 @@ class ManagedProcess:
 _PR_SET_PDEATHSIG = 1
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """In the child: get SIGTERM when the harness dies, even by SIGKILL, so nothing is orphaned."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)

@@ -24,7 +24,7 @@ import pytest
 
 from harness.errors import InputError
 from harness.evaluation import EvaluationResult, RunOptions, evaluate
-from harness.executors import Job, LocalExecutor, run_job
+from harness.executors import Executor, Job, LocalExecutor, run_job
 from harness.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, slug, verdict
 from harness.scenario.documents import load_json
 from harness.scenario.logical import load_logical
@@ -138,7 +138,7 @@ class Flights:
         self.out_dir = Path(out) if out else config.rootpath / "stella-logs"
         self.spreads: dict[str, tuple[float, list[float]]] = {}
         self._futures: dict[str, list[Future]] = {}
-        self._executor: LocalExecutor | None = None
+        self._executor: Executor | None = None
         self._thread: threading.Thread | None = None
 
     def options(self, regression: Regression) -> RunOptions:

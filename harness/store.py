@@ -53,6 +53,7 @@ CREATE TABLE IF NOT EXISTS evaluations (
     log_path TEXT,
     seed INTEGER NOT NULL,
     created REAL NOT NULL,
+    attempts TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -88,6 +89,9 @@ class Store:
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         self.db.executescript(SCHEMA)
+        columns = {row[1] for row in self.db.execute("PRAGMA table_info(evaluations)")}
+        if "attempts" not in columns:  # a store written before tries were recorded
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN attempts TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -142,12 +146,13 @@ class Store:
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: Mapping[str, Any], concrete: Mapping[str, Any] | None) -> None:
         with self.db:
             self.db.execute(
-                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result["fitness"], result["status"], result.get("why"),
                     result.get("min_clearance_m"), result.get("sim_time_s"), result.get("wall_time_s"), result.get("log_path"), result["seed"], time.time(),
+                    json.dumps(result["attempts"]) if result.get("attempts") else None,
                 ),
             )
 

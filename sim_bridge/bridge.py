@@ -615,10 +615,10 @@ class Bridge:
                 self._flush_clearance()
             if step % every["control"] == 0:
                 self._handle_ops(control.poll(), time_s)
-            if not lockstep or holding:
-                time.sleep(max(0.0, self._dt - (perf() - t0)))
             self._check_end(time_s)
             summary.world_s += perf() - t2
+            if not lockstep or holding:
+                time.sleep(max(0.0, self._dt - (perf() - t0)))
         summary.steps = step
         summary.sim_time_s = step * self._dt
         summary.run_time_s = self._run_time(summary.sim_time_s)

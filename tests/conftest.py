@@ -28,3 +28,21 @@ def port_bound(port: int, kind: int = socket.SOCK_STREAM) -> bool:
 @pytest.fixture(scope="session")
 def profile() -> Profile:
     return load_profile("default")
+
+
+FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
+FIG4_SEED1_FITNESS = 9.882575416238263  # the bundled autopilot's fitness on Fig. 4 sampled with seed 1
+
+
+def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
+    """An executor job: Fig. 4 sampled with seed 1, flown with seed 1."""
+    import numpy as np
+
+    from harness.evaluation import RunOptions
+    from harness.executors import Job
+    from harness.scenario.logical import load_logical
+    from harness.scenario.space import SearchSpace
+
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    return Job(key, space.to_concrete(x), 1, str(out_dir), f"job{key}", RunOptions(**options))

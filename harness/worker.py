@@ -1,0 +1,36 @@
+"""One try of one evaluation as a process of its own: `python -m harness.worker`.
+
+Reads a job (JSON, `Job.to_json`) from a file or stdin, flies it, writes the result (JSON) to a
+file or stdout. The Dask and Docker executors run evaluations this way, so that each has its
+own process group and can be killed whole when it overruns.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from harness.executors import Job, run_job
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m harness.worker", description=__doc__.splitlines()[0])
+    parser.add_argument("--job", help="job JSON file (default: stdin)")
+    parser.add_argument("--result", help="where to write the result JSON (default: stdout)")
+    args = parser.parse_args(argv)
+    document = json.loads(Path(args.job).read_text() if args.job else sys.stdin.read())
+    result = run_job(Job.from_json(document))
+    text = json.dumps(result)
+    if args.result:
+        temporary = Path(args.result).with_suffix(".tmp")
+        temporary.write_text(text)
+        temporary.replace(args.result)
+    else:
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""The Docker executor on a real engine: one container per try, limits, logs brought back,
+containers removed, a killed container retried, and the same campaign as everywhere else.
+`make test` installs and starts the engine and builds the worker image first."""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import pytest
+
+from conftest import FIG4_SEED1_FITNESS, fig4_job
+from harness import logs
+from harness.errors import InfrastructureError
+from test_executors import SILENT_SUT, campaign_fitness
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def engine():
+    from harness.docker_executor import IMAGE, engine, image_exists
+
+    try:
+        client = engine()
+    except InfrastructureError as error:
+        pytest.skip(f"no Docker Engine can be reached here: {error}")
+    if not image_exists(IMAGE):
+        pytest.skip(f"no worker image {IMAGE}: `make docker` (part of `make test`) builds it")
+    return client
+
+
+def stella_containers(client) -> list:
+    return client.containers.list(all=True, filters={"label": "stella.job"})
+
+
+@pytest.fixture
+def executor(engine):
+    from harness.executors import make_executor
+
+    made = []
+
+    def make(workers=2, **kwargs):
+        made.append(make_executor("docker", workers, **kwargs))
+        return made[-1]
+
+    yield make
+    for each in made:
+        each.close()
+    assert stella_containers(engine) == []
+
+
+def test_a_container_flies_a_scenario_with_limits_and_its_log_comes_back(engine, executor, tmp_path, profile):
+    docker = executor()
+    seen = {}
+
+    def watch():
+        deadline = time.monotonic() + 60.0
+        while not seen and time.monotonic() < deadline:
+            for container_id in list(docker.running.values()):
+                seen.update(engine.api.inspect_container(container_id)["HostConfig"])
+            time.sleep(0.05)
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile)]))
+    watcher.join()
+    assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
+    assert result["log_path"] == str(tmp_path / "job0.mcap")
+    assert sum(len(m["d"]) for _t, _ns, m in logs.messages(result["log_path"], ["/clearance"])) > 1000
+    assert (seen["NetworkMode"], seen["NanoCpus"], seen["Memory"], seen["PidsLimit"]) == ("none", 1_000_000_000, 2 * 1024**3, 512)
+
+
+def test_a_killed_container_is_retried(engine, executor, tmp_path, profile):
+    docker = executor(attempts=2)
+    results = []
+    runner = threading.Thread(target=lambda: results.extend(docker.run([fig4_job(tmp_path, profile)])))
+    runner.start()
+    deadline = time.monotonic() + 60.0
+    while not docker.running and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.5)
+    engine.containers.get(next(iter(docker.running.values()))).kill()
+    runner.join(timeout=180.0)
+    [(_job, result)] = results
+    assert result["attempts"][0]["status"] == "sim_crashed" and "exited with 137 (killed)" in result["attempts"][0]["why"]
+    assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
+
+
+def test_a_container_that_overruns_is_ended_as_a_timeout(executor, tmp_path, profile):
+    docker = executor(attempts=1, timeout_s=8.0)
+    silent = SILENT_SUT.replace(sys.executable, "python")  # the image's python
+    [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": silent})]))
+    assert result["status"] == "timeout" and "the executor's limit per try" in result["why"]
+
+
+def test_the_same_seeded_campaign_gives_the_same_fitness_values_in_containers(engine, tmp_path, capsys):
+    assert campaign_fitness(tmp_path, capsys, "docker", "--workers", "2") == campaign_fitness(tmp_path, capsys, "sequential")
+    assert stella_containers(engine) == []

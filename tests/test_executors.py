@@ -1,0 +1,140 @@
+"""The executor contract, for real: retries of infrastructure failures with their causes, the
+hard limit per try, a worker killed mid-evaluation, and the same campaign through every executor."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+import time
+
+import pytest
+
+from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound
+from harness.campaign import CampaignConfig, run_campaign
+from harness.cli import main
+from harness.evaluation import RunOptions
+from harness.executors import LocalExecutor, SequentialExecutor, make_executor
+from harness.ports import PortLease
+from harness.store import Store
+
+pytestmark = pytest.mark.slow
+SILENT_SUT = f"{sys.executable} -c 'import time; time.sleep(600)' {{sim_port}} {{api_port}}"
+AUTOPILOT = f"{sys.executable} -m autopilot --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}"
+# The bundled autopilot, frozen by SIGSTOP a second after it starts: alive but answering nothing.
+HANGING_SUT = f"sh -c '{AUTOPILOT} & sleep 1; kill -STOP $!; wait' -- {{sim_port}} {{api_port}}"
+
+
+def no_leftovers() -> None:
+    """Every port block free again (children of killed workers die with them)."""
+    deadline = time.monotonic() + 10.0
+    with PortLease() as block:
+        slot = block.slot
+    while time.monotonic() < deadline and any(port_bound(4560 + s) for s in range(slot + 1)):
+        time.sleep(0.2)
+    assert slot == 0 and not port_bound(4560)
+
+
+def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, profile):
+    executor = SequentialExecutor(attempts=2)
+    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)]))
+    assert result["status"] == "timeout"
+    assert [a["status"] for a in result["attempts"]] == ["timeout", "timeout"]
+    assert all("no autopilot heartbeat" in a["why"] for a in result["attempts"])
+    no_leftovers()
+
+
+def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
+    executor = SequentialExecutor(attempts=2)
+    options = {"sut": "command", "sut_config": {"command": HANGING_SUT, "hold": "frozen"}, "setup_timeout_s": 5.0}
+    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, **options)]))
+    assert len(result["attempts"]) == 2
+    assert {a["status"] for a in result["attempts"]} <= {"timeout", "sut_crashed"}
+    no_leftovers()
+
+
+def test_the_hard_limit_per_try_ends_a_try_and_frees_everything(tmp_path, profile):
+    executor = SequentialExecutor(attempts=1, timeout_s=2.0)
+    started = time.monotonic()
+    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT})]))
+    assert time.monotonic() - started < 10.0
+    assert result["status"] == "timeout" and "the executor's limit per try" in result["why"]
+    no_leftovers()
+
+
+def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_again(tmp_path, profile):
+    executor = LocalExecutor(workers=1, attempts=2)
+    try:
+        results = []
+        runner = threading.Thread(target=lambda: results.extend(executor.run([fig4_job(tmp_path, profile)])))
+        runner.start()
+        deadline = time.monotonic() + 30.0
+        while not executor.worker_pids() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.5)  # the worker is inside the evaluation: the bridge and the autopilot run
+        os.kill(executor.worker_pids()[0], signal.SIGKILL)
+        runner.join(timeout=120.0)
+        [(_job, result)] = results
+        assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
+        assert result["attempts"][0]["status"] == "sim_crashed" and "the worker died" in result["attempts"][0]["why"]
+        assert result["attempts"][1]["status"] == "ok"
+    finally:
+        executor.close()
+    no_leftovers()
+
+
+def test_a_campaign_with_a_broken_sut_finishes_with_every_evaluation_accounted_for(tmp_path):
+    config = CampaignConfig((str(FIG4),), ("RANDOM",), 3, population=3, sut="command")
+    executor = make_executor("local", 2, attempts=2)
+    options = RunOptions(sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)
+    try:
+        with Store(tmp_path / "c.db") as store:
+            run_campaign(config, store, executor, tmp_path / "logs", batch=2, options=options)
+            rows = store.db.execute("SELECT status, attempts FROM evaluations").fetchall()
+    finally:
+        executor.close()
+    assert len(rows) == 3
+    assert all(status == "timeout" and len(json.loads(attempts)) == 2 for status, attempts in rows)
+
+
+def campaign_fitness(tmp_path, capsys, executor: str, *extra: str) -> list[float]:
+    store = tmp_path / f"{executor}.db"
+    argv = ["campaign", str(ROOT / "scenarios" / "table3" / "scenario_02.json"), "--algorithm", "RANDOM", "--evaluations", "4", "--seed", "5",
+            "--executor", executor, "--store", str(store), "--json", *extra]
+    assert main(argv) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    with Store(store) as opened:
+        return sorted(row[0] for row in opened.db.execute("SELECT fitness FROM evaluations"))
+
+
+def test_the_same_seeded_campaign_gives_the_same_fitness_values_sequentially_locally_and_on_dask(tmp_path, capsys):
+    sequential = campaign_fitness(tmp_path, capsys, "sequential")
+    assert campaign_fitness(tmp_path, capsys, "local", "--workers", "2") == sequential
+    assert campaign_fitness(tmp_path, capsys, "dask", "--workers", "2") == sequential
+
+
+def test_dask_retries_the_task_of_a_lost_worker(tmp_path, profile):
+    executor = make_executor("dask", 2, attempts=1)
+    try:
+        results = []
+        jobs = [fig4_job(tmp_path, profile, key=k) for k in range(2)]
+        runner = threading.Thread(target=lambda: results.extend(executor.run(jobs)))
+        runner.start()
+        time.sleep(3.0)  # both tasks are flying
+        worker_pids = executor.client.run(os.getpid)  # {worker address: its pid}
+        os.kill(next(iter(worker_pids.values())), signal.SIGKILL)
+        runner.join(timeout=180.0)
+        assert len(results) == 2
+        assert all(result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS for _job, result in results)
+    finally:
+        executor.close()
+
+
+def test_the_executor_benchmark_reports_its_figures(capsys):
+    assert main(["bench", "--executor", "local", "--workers", "2", "--evaluations", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["executor"], report["workers"], report["evaluations"], report["statuses"]) == ("local", 2, 2, ["ok"])
+    assert report["evaluations_per_hour"] == pytest.approx(3600.0 * 2 / report["wall_time_s"])
+    assert 0.0 < report["median_evaluation_wall_s"] < report["wall_time_s"]
