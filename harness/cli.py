@@ -382,6 +382,14 @@ def cmd_docker(args: argparse.Namespace) -> int:
     return 0
 
 
+@command("ui")
+def cmd_ui(args: argparse.Namespace) -> int:
+    from harness.ui.server import serve
+
+    serve(Path(args.store_dir), args.host, args.port, args.token)
+    return 0
+
+
 @command("export-regressions")
 def cmd_export_regressions(args: argparse.Namespace) -> int:
     from harness.regression import export_regressions
@@ -499,6 +507,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--base", help="base image (default: debian:bookworm-slim, or the one --make-base makes)")
     p.add_argument("--make-base", action="store_true", help="build on stella-base:bookworm, made first with debootstrap if missing (for machines that reach no image registry)")
     p.add_argument("--tag", default="stella-worker:latest")
+
+    p = add("ui", "a web page to set up, launch, watch and browse campaigns")
+    p.add_argument("--store-dir", default="runs/ui", help="where campaigns' stores, logs and uploads live (default: runs/ui)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback; any other needs the token)")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--token", help="the token the page asks for (default: made up and printed when binding beyond loopback)")
 
     p = add("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies")
     p.add_argument("store", help="SQLite campaign store")

@@ -1,0 +1,1 @@
+"""The campaign web page (`stella ui`)."""

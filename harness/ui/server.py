@@ -1,0 +1,207 @@
+"""`stella ui`: a web page to set up, launch, watch and browse campaigns (FastAPI + uvicorn).
+
+Everything the page reaches is either under the store directory (stores, logs, plots, reports,
+uploads) or a logical scenario under scenarios/; files are only ever found from a campaign
+name and an evaluation id, never from a path the browser sends. Bound to anything but
+loopback, every request needs the token (`--token`, or one made up and printed at start),
+which the page asks for once and keeps in a cookie.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import ipaddress
+import json
+import secrets
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, File, HTTPException, Request, UploadFile
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response, StreamingResponse
+
+from harness.errors import InputError
+from harness.ui.campaigns import MAX_UPLOAD_BYTES, Campaigns
+
+STATIC = Path(__file__).resolve().parent / "static"
+COOKIE = "stella_token"
+
+
+def is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
+    campaigns = Campaigns(store_dir)
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI):
+        yield
+        await asyncio.to_thread(campaigns.close)  # as Ctrl-C would: stores keep what finished
+
+    app = FastAPI(title="stella", docs_url=None, redoc_url=None, openapi_url=None, lifespan=lifespan)
+    app.state.campaigns = campaigns
+
+    @app.middleware("http")
+    async def require_token(request: Request, call_next):
+        open_paths = ("/", "/static/app.js", "/static/style.css", "/api/login")
+        if token is None or request.url.path in open_paths:
+            return await call_next(request)
+        given = request.cookies.get(COOKIE) or request.headers.get("x-stella-token") or ""
+        if not hmac.compare_digest(given, token):
+            return JSONResponse({"detail": "this server needs its token: enter it on the page"}, status_code=401)
+        return await call_next(request)
+
+    @app.get("/", response_class=HTMLResponse)
+    def page() -> str:
+        return (STATIC / "index.html").read_text()
+
+    @app.get("/static/{name}")
+    def static(name: str) -> FileResponse:
+        if name not in ("app.js", "style.css"):
+            raise HTTPException(404)
+        return FileResponse(STATIC / name, media_type="text/javascript" if name.endswith(".js") else "text/css")
+
+    @app.post("/api/login")
+    async def login(request: Request) -> Response:
+        given = (await request.json()).get("token", "")
+        if token is not None and not hmac.compare_digest(str(given), token):
+            raise HTTPException(401, "wrong token")
+        response = JSONResponse({"ok": True})
+        response.set_cookie(COOKIE, str(given), httponly=True, samesite="strict")
+        return response
+
+    @app.get("/api/setup")
+    def setup() -> dict[str, Any]:
+        return {"scenarios": campaigns.scenario_choices(), "profiles": ["default"], "executors": ["local", "sequential", "dask", "docker"],
+                "max_upload_bytes": MAX_UPLOAD_BYTES}
+
+    @app.post("/api/scenarios")
+    async def upload(file: UploadFile = File(...)) -> JSONResponse:
+        data = await file.read(MAX_UPLOAD_BYTES + 1)
+        if len(data) > MAX_UPLOAD_BYTES:
+            raise HTTPException(413, f"{file.filename} is larger than {MAX_UPLOAD_BYTES // 1024} KiB")
+        choice, problems = campaigns.upload(file.filename or "scenario.json", data)
+        if problems:
+            return JSONResponse({"problems": [p.__dict__ | {"text": str(p)} for p in problems]}, status_code=422)
+        return JSONResponse({"scenario": choice})
+
+    @app.post("/api/campaigns")
+    async def launch(request: Request) -> JSONResponse:
+        try:
+            name = campaigns.launch(await request.json())
+        except InputError as error:
+            return JSONResponse({"problems": [p.__dict__ | {"text": str(p)} for p in error.problems]}, status_code=422)
+        return JSONResponse({"name": name})
+
+    def known(name: str) -> str:
+        if not campaigns.exists(name):
+            raise HTTPException(404, f"no campaign {name!r}")
+        return name
+
+    @app.get("/api/campaigns")
+    def listing() -> list[dict[str, Any]]:
+        return [{"name": n, "state": campaigns.state(n), **{k: v for k, v in campaigns.progress(n).items() if k in ("done", "total")}} for n in campaigns.names()]
+
+    @app.post("/api/campaigns/{name}/cancel")
+    async def cancel(name: str) -> dict[str, str]:
+        await asyncio.to_thread(campaigns.cancel, known(name))
+        return {"state": campaigns.state(name)}
+
+    @app.post("/api/campaigns/{name}/resume")
+    def resume(name: str) -> dict[str, str]:
+        campaigns.resume(known(name))
+        return {"state": campaigns.state(name)}
+
+    @app.get("/api/campaigns/{name}/events")
+    async def events(name: str) -> StreamingResponse:
+        known(name)
+
+        async def stream():
+            last = None
+            while True:
+                progress = await asyncio.to_thread(campaigns.progress, name)
+                state = campaigns.state(name)
+                message = json.dumps({**progress, "state": state})
+                if message != last:
+                    yield f"data: {message}\n\n"
+                    last = message
+                if state != "running":
+                    return
+                await asyncio.sleep(0.5)
+
+        return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/api/campaigns/{name}")
+    def details(name: str) -> dict[str, Any]:
+        from harness.statistics import compare
+
+        store = campaigns.store(known(name))
+        if store is None:
+            return {"name": name, "comparison": None, "evaluations": []}
+        with store:
+            baseline = next(iter(json.loads((campaigns.store_dir / f"{name}.json").read_text())["algorithms"]))
+            comparison = compare(store, baseline)
+            rows = store.db.execute(
+                "SELECT e.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.status, e.fitness, e.min_clearance_m, e.concrete, e.log_path IS NOT NULL"
+                " FROM evaluations e JOIN runs r ON r.id = e.run_id ORDER BY e.fitness LIMIT 200").fetchall()
+        keys = ("id", "scenario", "algorithm", "run", "ordinal", "status", "fitness", "min_clearance_m", "concrete", "has_log")
+        return {"name": name, "comparison": comparison, "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
+
+    def log_of(name: str, evaluation: int) -> Path:
+        store = campaigns.store(known(name))
+        if store is None:
+            raise HTTPException(404, "no store yet")
+        with store:
+            row = store.db.execute("SELECT log_path FROM evaluations WHERE id = ?", (evaluation,)).fetchone()
+        if row is None or row[0] is None:
+            raise HTTPException(404, f"evaluation {evaluation} has no log")
+        path = Path(row[0]).resolve()
+        if not path.is_relative_to(campaigns.store_dir) or not path.is_file():
+            raise HTTPException(404, f"evaluation {evaluation}'s log is not in the store directory")
+        return path
+
+    @app.get("/api/campaigns/{name}/evaluations/{evaluation}/log.mcap")
+    def download(name: str, evaluation: int) -> FileResponse:
+        path = log_of(name, evaluation)
+        return FileResponse(path, media_type="application/octet-stream", filename=f"{name}-{path.name}")
+
+    @app.get("/api/campaigns/{name}/evaluations/{evaluation}/plot.png")
+    def plot(name: str, evaluation: int) -> FileResponse:
+        from harness.inspect_log import plot as draw
+
+        log_path = log_of(name, evaluation)
+        target = campaigns.store_dir / f"{name}-plots" / f"evaluation{evaluation}.png"
+        if not target.exists():
+            target.parent.mkdir(exist_ok=True)
+            draw(log_path, target)
+        return FileResponse(target, media_type="image/png")
+
+    @app.get("/api/campaigns/{name}/report.html")
+    def report(name: str) -> FileResponse:
+        from harness.report import write_report
+
+        store = campaigns.store(known(name))
+        if store is None:
+            raise HTTPException(404, "no store yet")
+        target = campaigns.store_dir / f"{name}-report.html"
+        baseline = next(iter(json.loads((campaigns.store_dir / f"{name}.json").read_text())["algorithms"]))
+        with store:
+            write_report(store, target, 5, baseline)
+        return FileResponse(target, media_type="text/html")
+
+    return app
+
+
+def serve(store_dir: Path, host: str, port: int, token: str | None) -> None:
+    import uvicorn
+
+    if not is_loopback(host) and token is None:
+        token = secrets.token_urlsafe(18)
+        print(f"stella ui on {host}:{port} needs a token; it is: {token}", flush=True)
+    print(f"stella ui: http://{host}:{port}/ (store directory {store_dir.resolve()})", flush=True)
+    uvicorn.run(create_app(store_dir, token), host=host, port=port, log_level="warning")

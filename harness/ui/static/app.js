@@ -1,0 +1,222 @@
+// The campaign page: set up and launch, watch progress pushed by server-sent events, browse results.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+let current = null;      // the campaign shown
+let events = null;       // its EventSource
+const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
+
+async function api(path, options = {}) {
+  const response = await fetch(path, options);
+  if (response.status === 401) { showLogin(); throw new Error("token needed"); }
+  return response;
+}
+
+function showLogin() { $("login").hidden = false; $("main").hidden = true; }
+
+function fill(list, items, render) {
+  list.replaceChildren(...items.map(render));
+}
+
+function element(tag, text, attributes = {}) {
+  const node = document.createElement(tag);
+  if (text !== undefined && text !== null) node.textContent = text;
+  for (const [key, value] of Object.entries(attributes)) node.setAttribute(key, value);
+  return node;
+}
+
+function number(value, digits = 3) { return value === null || value === undefined ? "-" : Number(value).toFixed(digits); }
+
+function duration(seconds) {
+  if (seconds === null || seconds === undefined) return "-";
+  const s = Math.round(seconds);
+  return s >= 3600 ? `${Math.floor(s / 3600)} h ${Math.round((s % 3600) / 60)} min` : s >= 60 ? `${Math.floor(s / 60)} min ${s % 60} s` : `${s} s`;
+}
+
+function showProblems(list, problems) {
+  fill(list, problems, (p) => element("li", p.text));
+}
+
+async function loadSetup(select) {
+  const setup = await (await api("/api/setup")).json();
+  const checked = new Set([...document.querySelectorAll("#scenario-list input:checked")].map((i) => i.value));
+  if (select) checked.add(select);
+  fill($("scenario-list"), setup.scenarios, (choice) => {
+    const label = element("label");
+    const box = element("input", null, { type: "checkbox", value: choice, name: "scenario" });
+    box.checked = checked.has(choice);
+    label.append(box, " " + choice);
+    return label;
+  });
+  if (!$("profile").options.length) {
+    fill($("profile"), setup.profiles, (p) => element("option", p, { value: p }));
+    fill($("executor"), setup.executors, (e) => element("option", e, { value: e }));
+  }
+}
+
+async function upload(event) {
+  const file = event.target.files[0];
+  if (!file) return;
+  const form = new FormData();
+  form.append("file", file);
+  const response = await api("/api/scenarios", { method: "POST", body: form });
+  const body = await response.json();
+  if (response.ok) { showProblems($("upload-problems"), []); await loadSetup(body.scenario); }
+  else showProblems($("upload-problems"), body.problems || [{ text: body.detail }]);
+  event.target.value = "";
+}
+
+async function launch(event) {
+  event.preventDefault();
+  const spec = {
+    name: $("name").value,
+    scenarios: [...document.querySelectorAll("#scenario-list input:checked")].map((i) => i.value),
+    profile: $("profile").value,
+    algorithms: $("algorithms").value.split(","),
+    evaluations: $("evaluations").value, population: $("population").value, runs: $("runs").value, seed: $("seed").value,
+    executor: $("executor").value, workers: $("workers").value || null,
+  };
+  const response = await api("/api/campaigns", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(spec) });
+  const body = await response.json();
+  if (!response.ok) { showProblems($("launch-problems"), body.problems); return; }
+  showProblems($("launch-problems"), []);
+  await loadCampaigns();
+  open(body.name);
+}
+
+async function loadCampaigns() {
+  const campaigns = await (await api("/api/campaigns")).json();
+  fill($("campaign-list"), campaigns, (c) => {
+    const item = element("li");
+    const link = element("a", c.name, { "data-name": c.name });
+    link.addEventListener("click", () => open(c.name));
+    item.append(link, ` ${c.state}, ${c.done}/${c.total} evaluations`);
+    return item;
+  });
+}
+
+function drawChart(progress) {
+  const svg = $("chart");
+  const curves = Object.entries(progress.curves);
+  const points = curves.flatMap(([, curve]) => curve);
+  svg.replaceChildren();
+  if (!points.length) return;
+  const width = 720, height = 260, pad = 40;
+  const maxX = Math.max(progress.runs[0] ? progress.runs[0].total - 1 : 1, ...points.map((p) => p[0]), 1);
+  const ys = points.map((p) => p[1]).filter((y) => y < 1000);
+  const low = Math.min(...ys, 0), high = Math.max(...ys, 1);
+  const x = (v) => pad + (width - 2 * pad) * v / maxX;
+  const y = (v) => height - pad - (height - 2 * pad) * (Math.min(v, high) - low) / (high - low || 1);
+  const ns = "http://www.w3.org/2000/svg";
+  const add = (tag, attributes, text) => {
+    const node = document.createElementNS(ns, tag);
+    for (const [k, v] of Object.entries(attributes)) node.setAttribute(k, v);
+    if (text) node.textContent = text;
+    svg.append(node);
+    return node;
+  };
+  add("line", { x1: pad, y1: y(0), x2: width - pad, y2: y(0), stroke: "#b00020", "stroke-dasharray": "4 3" });
+  add("text", { x: width - pad - 90, y: y(0) - 4, "font-size": 11, fill: "#b00020" }, "safety distance");
+  add("text", { x: pad, y: height - 8, "font-size": 11 }, "evaluations");
+  add("text", { x: 4, y: 14, "font-size": 11 }, "best fitness so far (m)");
+  add("text", { x: 4, y: y(high) + 4, "font-size": 10 }, number(high, 1));
+  add("text", { x: 4, y: y(low) + 4, "font-size": 10 }, number(low, 1));
+  curves.forEach(([runId, curve], index) => {
+    const color = COLORS[index % COLORS.length];
+    add("polyline", { points: curve.map((p) => `${x(p[0])},${y(p[1])}`).join(" "), fill: "none", stroke: color, "stroke-width": 1.5 });
+    for (const p of curve) add("circle", { cx: x(p[0]), cy: y(p[1]), r: 2.5, fill: color, class: "point", "data-run": runId });
+  });
+}
+
+function showProgress(progress) {
+  $("campaign-state").textContent = progress.state;
+  $("campaign-state").className = `state ${progress.state}`;
+  $("overall-progress").textContent = `${progress.done}/${progress.total} evaluations`;
+  fill(document.querySelector("#progress-table tbody"), progress.runs, (r) => {
+    const row = element("tr");
+    row.append(element("td", r.scenario), element("td", r.algorithm), element("td", r.run),
+      element("td", `${r.done}/${r.total}`, { class: "number done" }), element("td", number(r.best_fitness), { class: "number" }),
+      element("td", r.violations, { class: "number" }), element("td", r.evaluations_per_hour ? Math.round(r.evaluations_per_hour) : "-", { class: "number" }),
+      element("td", r.finished ? "done" : duration(r.eta_s)));
+    return row;
+  });
+  drawChart(progress);
+}
+
+async function loadDetails(name) {
+  const details = await (await api(`/api/campaigns/${encodeURIComponent(name)}`)).json();
+  const rows = details.comparison ? [...details.comparison.scenarios, ...details.comparison.overall.map((r) => ({ ...r, scenario: "overall" }))] : [];
+  fill(document.querySelector("#comparison tbody"), rows, (r) => {
+    const row = element("tr");
+    row.append(element("td", r.scenario), element("td", r.algorithm), element("td", r.runs), element("td", number(r.median_best_fitness), { class: "number" }),
+      element("td", r.violations, { class: "number" }), element("td", number(r.relative_performance_pct, 0), { class: "number" }),
+      element("td", number(r.p_value, 2), { class: "number" }), element("td", number(r.a12, 2), { class: "number" }));
+    return row;
+  });
+  fill(document.querySelector("#evaluations tbody"), details.evaluations, (e) => {
+    const row = element("tr", null, { class: e.status });
+    const cell = element("td");
+    if (e.has_log) {
+      const link = element("a", "open", { href: "#", class: "open-evaluation", "data-id": e.id });
+      link.addEventListener("click", (event) => { event.preventDefault(); showEvaluation(name, e); });
+      cell.append(link);
+    }
+    row.append(element("td", e.ordinal), element("td", e.scenario), element("td", e.algorithm), element("td", e.run), element("td", e.status),
+      element("td", number(e.fitness), { class: "number" }), element("td", number(e.min_clearance_m), { class: "number" }), cell);
+    return row;
+  });
+}
+
+function showEvaluation(name, e) {
+  $("evaluation").hidden = false;
+  $("evaluation-title").textContent = `Evaluation ${e.ordinal} of ${e.algorithm} run ${e.run}: ${e.status}, fitness ${number(e.fitness)}`;
+  const base = `/api/campaigns/${encodeURIComponent(name)}/evaluations/${e.id}`;
+  $("mcap-link").href = `${base}/log.mcap`;
+  $("plot").src = `${base}/plot.png`;
+  $("concrete").textContent = JSON.stringify(e.concrete, null, 2);
+}
+
+function open(name) {
+  current = name;
+  $("campaign").hidden = false;
+  $("evaluation").hidden = true;
+  $("campaign-title").textContent = name;
+  $("report-link").href = `/api/campaigns/${encodeURIComponent(name)}/report.html`;
+  if (events) events.close();
+  events = new EventSource(`/api/campaigns/${encodeURIComponent(name)}/events`);
+  events.onmessage = (message) => {
+    const progress = JSON.parse(message.data);
+    if (progress.name !== current) return;
+    showProgress(progress);
+    if (progress.state !== "running") { events.close(); loadDetails(name); loadCampaigns(); }
+  };
+  loadDetails(name);
+}
+
+async function control(action) {
+  if (!current) return;
+  await api(`/api/campaigns/${encodeURIComponent(current)}/${action}`, { method: "POST" });
+  await loadCampaigns();
+  open(current);
+}
+
+async function start() {
+  try {
+    await loadSetup();
+  } catch (error) {
+    return;
+  }
+  $("login").hidden = true;
+  $("main").hidden = false;
+  await loadCampaigns();
+}
+
+$("login-button").addEventListener("click", async () => {
+  const response = await fetch("/api/login", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ token: $("token").value }) });
+  if (response.ok) start(); else $("login-error").textContent = "wrong token";
+});
+$("upload").addEventListener("change", upload);
+$("setup-form").addEventListener("submit", launch);
+$("cancel").addEventListener("click", () => control("cancel"));
+$("resume").addEventListener("click", () => control("resume"));
+start();
