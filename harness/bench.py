@@ -45,19 +45,18 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
             if result.real_time_factor is None:
                 raise RuntimeError(f"bench run {index} did not fly: {result.status} {result.why}")
             timings = result.timings
-            steps = result.sim_time_s * rate_hz
             in_run = timings["wall_in_run_s"]
-            run_steps = in_run and (result.real_time_factor * in_run * rate_hz)
+            run_steps = result.real_time_factor * in_run * rate_hz  # the bridge times the run's steps only
             rows.append(
                 {
                     "real_time_factor": result.real_time_factor,
                     "wall_time_s": result.wall_time_s,
                     "setup_s": timings.get("setup_s", 0.0),
                     "score_s": timings.get("score_s", 0.0),
-                    "sut_turn_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / steps,
-                    "sensors_us": 1e6 * timings["sensors_s"] / steps,
-                    "physics_us": 1e6 * timings["physics_s"] / steps,
-                    "world_us": 1e6 * timings["world_s"] / steps,
+                    "sut_turn_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / run_steps,
+                    "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
+                    "physics_us": 1e6 * timings["physics_s"] / run_steps,
+                    "world_us": 1e6 * timings["world_s"] / run_steps,
                     "step_us": 1e6 * in_run / run_steps if run_steps else None,
                     "fitness": result.fitness,
                 }

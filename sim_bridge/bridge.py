@@ -57,6 +57,7 @@ SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
 LANDED_HOLD_S = 1.0
 CRASH_SPEED_M_S = 4.0
+STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
@@ -541,6 +542,8 @@ class Bridge:
                     break
             if wall_run_started is None and hold_enabled and self._run_start_s is not None:
                 wall_run_started = perf()
+                # Step timers count the run only: before it the loop runs at real-time pace.
+                setup_timers = {name: getattr(summary, name) for name in STEP_TIMERS}
             ts = perf()
             frames_out = self._sensor_frames(step, time_us)
             t_send = perf()
@@ -627,6 +630,8 @@ class Bridge:
         summary.wall_time_s = time.perf_counter() - wall_start
         if wall_run_started is not None:
             summary.wall_in_run_s = time.perf_counter() - wall_run_started
+            for name, before in setup_timers.items():
+                setattr(summary, name, getattr(summary, name) - before)
         self._flush_link(int(summary.sim_time_s * 1e9))
         self._flush_clearance()
         self._event(summary.sim_time_s, "finished", reason=summary.end_reason)
