@@ -92,13 +92,22 @@ def _context() -> io.BytesIO:
 
 
 def build_image(base: str, tag: str = IMAGE) -> Iterator[str]:
-    """Build the worker image from base; yields the build's output lines."""
+    """Build the worker image from base; yields the build's output lines. The image the tag
+    named before is removed once nothing refers to it, so rebuilds do not pile up."""
+    import docker
+
     client = engine()
+    previous = client.images.get(tag).id if image_exists(tag) else None
     for chunk in client.api.build(fileobj=_context(), custom_context=True, tag=tag, buildargs={"BASE": base}, network_mode="host", rm=True, decode=True):
         if "error" in chunk:
             raise InfrastructureError(f"building {tag} failed: {chunk['error']}")
         if chunk.get("stream", "").strip():
             yield chunk["stream"].rstrip()
+    if previous is not None and client.images.get(tag).id != previous:
+        try:
+            client.images.remove(previous, noprune=False)
+        except docker.errors.APIError as error:  # still used by a container or another tag
+            log.info("kept the previous worker image %s: %s", previous, error)
 
 
 class DockerExecutor(Executor):
