@@ -27,7 +27,7 @@ browser:
 # built on a debootstrapped base, as no image registry is reachable (made once; later builds
 # reuse the cached dependency layer and only copy the project again).
 docker: setup
-	(command -v dockerd && command -v debootstrap) >/dev/null || ($(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq docker.io debootstrap)
+	(command -v dockerd && command -v debootstrap && command -v docker-compose) >/dev/null || ($(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq docker.io debootstrap docker-compose)
 	docker info >/dev/null 2>&1 || ($(SUDO) sh -c 'nohup dockerd >/tmp/stella-dockerd.log 2>&1 &'; \
 		for i in $$(seq 60); do docker info >/dev/null 2>&1 && break; sleep 1; done; docker info >/dev/null)
 	$(BIN)/stella docker build --make-base

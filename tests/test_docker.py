@@ -4,15 +4,17 @@ containers removed, a killed container retried, and the same campaign as everywh
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
 
 import pytest
 
-from conftest import FIG4_SEED1_FITNESS, fig4_job
+from conftest import FIG4_SEED1_FITNESS, ROOT, fig4_job
 from harness import logs
 from harness.errors import InfrastructureError
+from harness.store import Store
 from test_executors import SILENT_SUT, campaign_fitness
 
 pytestmark = pytest.mark.slow
@@ -98,3 +100,23 @@ def test_a_container_that_overruns_is_ended_as_a_timeout(executor, tmp_path, pro
 def test_the_same_seeded_campaign_gives_the_same_fitness_values_in_containers(engine, tmp_path, capsys):
     assert campaign_fitness(tmp_path, capsys, "docker", "--workers", "2") == campaign_fitness(tmp_path, capsys, "sequential")
     assert stella_containers(engine) == []
+
+
+def test_the_compose_file_runs_a_campaign_on_a_dask_cluster_of_worker_containers(engine, tmp_path, capsys):
+    import shutil
+    import subprocess
+
+    if shutil.which("docker-compose") is None:
+        pytest.skip("docker-compose is not installed (make docker installs it)")
+    compose = ["docker-compose", "-f", str(ROOT / "docker" / "compose.yaml"), "-p", f"stella-test-{os.getpid()}"]
+    env = {**os.environ, "STELLA_RUNS": str(tmp_path)}
+    try:
+        subprocess.run([*compose, "up", "-d", "--scale", "worker=2", "scheduler", "worker"], env=env, check=True, capture_output=True, timeout=120)
+        subprocess.run([*compose, "run", "--rm", "campaign", "stella", "campaign", "/src/scenarios/table3/scenario_02.json", "--algorithm", "RANDOM",
+                        "--evaluations", "4", "--seed", "5", "--executor", "dask", "--dask-scheduler", "tcp://scheduler:8786",
+                        "--store", "/runs/compose.db", "--json"], env=env, check=True, capture_output=True, timeout=300)
+    finally:
+        subprocess.run([*compose, "down"], env=env, capture_output=True, timeout=120)
+    with Store(tmp_path / "compose.db") as store:
+        in_compose = sorted(row[0] for row in store.db.execute("SELECT fitness FROM evaluations"))
+    assert in_compose == campaign_fitness(tmp_path, capsys, "sequential")
