@@ -83,7 +83,9 @@ def test_a_log_path_pointing_outside_the_store_directory_is_not_served(client, t
         time.sleep(0.5)
     with sqlite3.connect(tmp_path / "store" / "c1.db") as db:
         db.execute("UPDATE evaluations SET log_path = '/etc/passwd'")
-    [evaluation_id] = [e["id"] for e in client.get("/api/campaigns/c1").json()["evaluations"]][:1]
+    details = client.get("/api/campaigns/c1").json()
+    assert "Test Scenario #1 RANDOM run 0: best fitness" in details["console"]  # the campaign's own output, shown on the page
+    [evaluation_id] = [e["id"] for e in details["evaluations"]][:1]
     assert client.get(f"/api/campaigns/c1/evaluations/{evaluation_id}/log.mcap").status_code == 404
 
 

@@ -180,6 +180,15 @@ class Campaigns:
 
     # -- watching and browsing ----------------------------------------------------------------
 
+    def console_tail(self, name: str, lines: int = 15) -> str:
+        """The end of the campaign process's output: why it stopped, when it did."""
+        path = self.store_dir / f"{name}.log"
+        if not path.exists():
+            return ""
+        # tqdm redraws its bar with carriage returns: keep the last state of each line.
+        text = path.read_text(errors="replace").replace("\r\n", "\n")
+        return "\n".join(line.rsplit("\r", 1)[-1] for line in text.splitlines()[-lines:])
+
     def names(self) -> list[str]:
         return sorted(p.stem for p in self.store_dir.glob("*.json") if NAME.match(p.stem))
 

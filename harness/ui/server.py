@@ -141,8 +141,9 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
         from harness.statistics import compare
 
         store = campaigns.store(known(name))
+        console = campaigns.console_tail(name)
         if store is None:
-            return {"name": name, "comparison": None, "evaluations": []}
+            return {"name": name, "comparison": None, "evaluations": [], "console": console}
         with store:
             baseline = next(iter(json.loads((campaigns.store_dir / f"{name}.json").read_text())["algorithms"]))
             comparison = compare(store, baseline)
@@ -150,7 +151,8 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
                 "SELECT e.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.status, e.fitness, e.min_clearance_m, e.concrete, e.log_path IS NOT NULL"
                 " FROM evaluations e JOIN runs r ON r.id = e.run_id ORDER BY e.fitness LIMIT 200").fetchall()
         keys = ("id", "scenario", "algorithm", "run", "ordinal", "status", "fitness", "min_clearance_m", "concrete", "has_log")
-        return {"name": name, "comparison": comparison, "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
+        return {"name": name, "comparison": comparison, "console": console,
+                "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
 
     def log_of(name: str, evaluation: int) -> Path:
         store = campaigns.store(known(name))

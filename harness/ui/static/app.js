@@ -145,6 +145,8 @@ function showProgress(progress) {
 
 async function loadDetails(name) {
   const details = await (await api(`/api/campaigns/${encodeURIComponent(name)}`)).json();
+  $("console").textContent = details.console;
+  $("console-box").open = $("campaign-state").textContent === "stopped";
   const rows = details.comparison ? [...details.comparison.scenarios, ...details.comparison.overall.map((r) => ({ ...r, scenario: "overall" }))] : [];
   fill(document.querySelector("#comparison tbody"), rows, (r) => {
     const row = element("tr");
