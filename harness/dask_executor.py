@@ -76,6 +76,8 @@ class DaskExecutor(Executor):
         task = self._client.submit(fly_in_subprocess, job.to_json(), self.timeout_s, key=f"{job.name}-{uuid.uuid4().hex[:8]}", pure=False)
 
         def relay(done) -> None:
+            if outer.done():  # cancelled from this side
+                return
             if done.status == "finished":
                 outer.set_result(done.result())
             elif done.status == "cancelled":
@@ -85,6 +87,7 @@ class DaskExecutor(Executor):
                 outer.set_exception(WorkerLost(f"Dask lost the task's workers: {error}") if isinstance(error, KilledWorker) else error)
 
         task.add_done_callback(relay)
+        outer.add_done_callback(lambda done: task.cancel() if done.cancelled() else None)
         return outer
 
     def close(self) -> None:

@@ -9,7 +9,8 @@ The contract, the same for every executor:
   last try's result stands. A SUT that crashes in every try is then a finding, not bad luck.
 * Each try has a hard wall-clock limit, `timeout_s`: past it the try is ended and is a
   `timeout`.
-* `cancel()` drops what has not started; `close()` ends the workers.
+* `cancel()` drops what has not started (what runs finishes and is reported; on Dask it is
+  abandoned); `close()` ends the workers.
 
 `sequential` flies in this process; `local` in a pool of worker processes, each evaluation with
 its own port block, temp dir and core (see evaluation.py); `dask` (harness/dask_executor.py)
@@ -112,8 +113,12 @@ class Executor:
         self._cancelled = threading.Event()
 
     def submit(self, job: Job) -> concurrent.futures.Future:
-        """Start one try; the future holds its result dict, or raises WorkerLost."""
+        """Start one try; the future holds its result dict, or raises what lost_worker() knows."""
         raise NotImplementedError
+
+    def lost_worker(self, error: BaseException) -> bool:
+        """Whether a try's exception means its worker died (rather than a bug to raise)."""
+        return isinstance(error, WorkerLost)
 
     def recover(self) -> None:
         """Make the executor usable again after a worker died (a pool rebuilt, say)."""
@@ -123,17 +128,27 @@ class Executor:
         pending: dict[concurrent.futures.Future, tuple[Job, list[dict[str, Any]]]] = {self.submit(job): (job, []) for job in jobs}
         try:
             while pending:
-                done, _ = concurrent.futures.wait(pending, return_when=concurrent.futures.FIRST_COMPLETED)
+                if self._cancelled.is_set():
+                    # Tries not started are dropped; running ones finish and are reported.
+                    for future in [f for f in pending if f.cancel()]:
+                        del pending[future]
+                    if not pending:
+                        break
+                done, _ = concurrent.futures.wait(pending, timeout=0.2, return_when=concurrent.futures.FIRST_COMPLETED)
                 for future in done:
                     job, tries = pending.pop(future)
                     if future.cancelled():
                         continue
                     try:
                         result = future.result()
-                    except WorkerLost as lost:
-                        log.warning("%s: %s", job.name, lost)
+                    except Exception as error:
+                        if not self.lost_worker(error):
+                            raise
+                        if self._cancelled.is_set():  # ended by the cancellation itself: there is no result
+                            continue
+                        log.warning("%s: its worker died: %s", job.name, error)
                         self.recover()
-                        result = failed_try(job, "sim_crashed", f"the worker died: {lost}")
+                        result = failed_try(job, "sim_crashed", f"the worker died: {error}")
                     tries.append({"status": result["status"], "why": result["why"]})
                     if result["status"] in RETRIED_STATUSES and len(tries) < self.attempts and not self._cancelled.is_set():
                         log.warning("%s: try %d ended %s (%s); trying again", job.name, len(tries), result["status"], result["why"])
@@ -180,25 +195,14 @@ class LocalExecutor(Executor):
         return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
 
     def submit(self, job: Job) -> concurrent.futures.Future:
-        outer: concurrent.futures.Future = concurrent.futures.Future()
         try:
-            inner = self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
+            return self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
         except concurrent.futures.process.BrokenProcessPool:
             self.recover()
-            inner = self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
+            return self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
 
-        def relay(done: concurrent.futures.Future) -> None:
-            if done.cancelled():
-                outer.cancel()
-            elif isinstance(done.exception(), concurrent.futures.process.BrokenProcessPool):
-                outer.set_exception(WorkerLost(f"a worker process of the local pool died ({done.exception()})"))
-            elif done.exception() is not None:
-                outer.set_exception(done.exception())
-            else:
-                outer.set_result(done.result())
-
-        inner.add_done_callback(relay)
-        return outer
+    def lost_worker(self, error: BaseException) -> bool:
+        return isinstance(error, concurrent.futures.process.BrokenProcessPool)
 
     def recover(self) -> None:
         if getattr(self._pool, "_broken", False):

@@ -196,3 +196,24 @@ def test_a_malformed_upload_in_the_browser_shows_the_located_error_and_launches_
     page.wait_for_selector("#launch-problems li")
     assert "choose at least one logical scenario" in page.locator("#launch-problems").inner_text()
     assert page.locator("#campaign-list li").count() == 0
+
+
+@pytest.mark.slow
+def test_cancel_is_ctrl_c_and_resume_finishes_the_campaign_without_repeating_anything(client, tmp_path):
+    import sqlite3
+
+    assert client.post("/api/campaigns", json=launch_spec(evaluations=6, population=3)).status_code == 200
+    campaigns = client.app.state.campaigns
+    deadline = time.monotonic() + 120
+    while campaigns.progress("c1")["done"] < 1 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert client.post("/api/campaigns/c1/cancel").json() == {"state": "stopped"}
+    stopped_at = campaigns.progress("c1")["done"]
+    assert 1 <= stopped_at < 6
+    assert client.post("/api/campaigns/c1/resume").json() == {"state": "running"}
+    while campaigns.state("c1") == "running" and time.monotonic() < deadline + 120:
+        time.sleep(0.5)
+    assert campaigns.state("c1") == "finished"
+    with sqlite3.connect(tmp_path / "store" / "c1.db") as db:
+        ordinals = [row[0] for row in db.execute("SELECT ordinal FROM evaluations ORDER BY ordinal")]
+    assert ordinals == list(range(6))
