@@ -194,7 +194,8 @@ def simulation_stack(world: Mapping[str, Any], options: RunOptions, system: Syst
         world_path.write_text(json.dumps(world))
         bridge_log = workdir / "bridge.mcap"
         bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                       "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode]
+                       "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
+                       "--range-messages", ",".join(system.range_messages)]
         session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
         try:
             with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:

@@ -65,10 +65,26 @@ class ManagedProcess:
         return self.process.returncode
 
     def stderr_tail(self, lines: int = 20) -> str:
-        try:
-            return "\n".join(self.stderr_path.read_text(errors="replace").splitlines()[-lines:])
-        except OSError:
-            return ""
+        return _tail(self.stderr_path, lines)
+
+    def console_tail(self, lines: int = 20) -> str:
+        """The end of stderr, or of stdout for programs that report errors there (PX4)."""
+        return self.stderr_tail(lines) or _tail(self.stdout_path, lines)
+
+    def console_logs(self) -> list[Path]:
+        """stdout and stderr files that have something in them."""
+        return non_empty([self.stdout_path, self.stderr_path])
+
+
+def non_empty(paths: list[Path]) -> list[Path]:
+    return [p for p in paths if p.exists() and p.stat().st_size > 0]
+
+
+def _tail(path: Path, lines: int) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return ""
 
 
 _PR_SET_PDEATHSIG = 1

@@ -16,7 +16,7 @@ import socket
 import sys
 from pathlib import Path
 
-from sim_bridge.bridge import Bridge, BridgeConfig, ControlChannel
+from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
 
 NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed"}
@@ -34,6 +34,14 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _range_messages(text: str) -> tuple[str, ...]:
+    names = tuple(name for name in text.split(",") if name)
+    unknown = sorted(set(names) - set(RANGE_MESSAGES))
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown {', '.join(unknown)}; choose from {', '.join(RANGE_MESSAGES)}")
+    return names
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
     parser.add_argument("--world", required=True, help="world spec JSON (stella sample --json prints one)")
@@ -45,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
     parser.add_argument("--hold-mode", choices=["frozen", "paced"], default="frozen",
                         help="frozen: simulated time stops during the hold; paced: it runs on at real-time pace (for SUTs such as PX4 that follow the lockstep clock)")
+    parser.add_argument("--range-messages", default=",".join(RANGE_MESSAGES), type=_range_messages,
+                        help="comma-separated: OBSTACLE_DISTANCE (72 sectors, read by the bundled autopilot), DISTANCE_SENSOR (six wedges, read by PX4)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--stall-timeout-s", type=float, default=10.0)
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -56,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     world = json.loads(Path(args.world).read_text())
     if "world" in world:  # accept `stella sample --json` output as it is
         world = world["world"]
-    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s)
+    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
+                          range_messages=args.range_messages)
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     with open(args.mcap, "wb") as stream, Recorder(stream) as recorder:

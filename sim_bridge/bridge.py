@@ -57,6 +57,7 @@ SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
 LANDED_HOLD_S = 1.0
 CRASH_SPEED_M_S = 4.0
+RANGE_MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
@@ -71,6 +72,8 @@ class BridgeConfig:
     # their clock, like the bundled autopilot); "paced": it runs on at real-time pace with the
     # vehicle free to move (for SUTs whose every thread follows the lockstep clock, like PX4).
     hold_mode: str = "frozen"
+    # What carries the range sensor's reading to the SUT: only what it reads costs a step's time.
+    range_messages: tuple[str, ...] = RANGE_MESSAGES
     stall_timeout_s: float = 10.0
     hold_timeout_s: float = 120.0
     gps_rate_hz: float = 10.0
@@ -400,12 +403,14 @@ class Bridge:
                 distances[index] = reach_cm + 1
         self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": self._range_m, "distances_cm": distances})
         min_cm = int(self._min_range_m * 100)
-        messages = [self._mav.obstacle_distance_encode(
-            time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
-        )]
+        messages = []
+        if "OBSTACLE_DISTANCE" in self.config.range_messages:
+            messages.append(self._mav.obstacle_distance_encode(
+                time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
+            ))
         # The same reading as DISTANCE_SENSOR wedges: PX4's simulator link ignores OBSTACLE_DISTANCE
         # but turns DISTANCE_SENSOR into the distance_sensor topic its collision prevention reads.
-        for sensor_id, (quaternion, fov_rad, sectors) in enumerate(self._wedges):
+        for sensor_id, (quaternion, fov_rad, sectors) in enumerate(self._wedges if "DISTANCE_SENSOR" in self.config.range_messages else ()):
             nearest_cm = min(min(distances[i] for i in sectors), reach_cm)
             messages.append(self._mav.distance_sensor_encode(
                 time_us // 1000, min_cm, reach_cm, nearest_cm, mavlink.MAV_DISTANCE_SENSOR_LASER, sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0,

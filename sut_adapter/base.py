@@ -8,6 +8,8 @@ how to treat it without knowing which SUT it is:
 * `hold_mode`: "frozen" if it answers MAVLink while the simulation is held with simulated
   time stopped (the bundled autopilot), "paced" if its threads follow the lockstep clock and
   so need simulated time to pass, at real-time pace, while the harness sets up (PX4).
+* `range_messages`: how it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled
+  autopilot) and/or DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -17,6 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
+
+from harness.processes import ManagedProcess
 
 HOLD_MODES = ("frozen", "paced")
 
@@ -44,9 +48,20 @@ class SutHandle:
     mavlink_params: Mapping[str, int | float] = field(default_factory=dict)
 
 
+def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
+    """Start a SUT's process and wrap it in a handle; fields override the handle's defaults."""
+    try:
+        process.__enter__()
+    except OSError as error:
+        raise SutError(sut, f"cannot start {process.argv[0]}: {error}") from None
+    defaults = {"alive": lambda: process.poll() is None, "stop": process.stop, "stderr_tail": process.console_tail, "pids": [process.pid]}
+    return SutHandle(name=sut, **{**defaults, **fields})
+
+
 class SystemUnderTest(Protocol):
     name: str
     hold_mode: str
+    range_messages: tuple[str, ...]
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
         """Start the SUT so that it connects to the simulator on sim_port and sends its API link to api_port."""

@@ -8,12 +8,13 @@ from pathlib import Path
 from typing import Mapping
 
 from harness.processes import ManagedProcess
-from sut_adapter.base import SutHandle, SutError
+from sut_adapter.base import SutError, SutHandle, start_process
 
 
 class BundledAutopilot:
     name = "bundled"
     hold_mode = "frozen"
+    range_messages = ("OBSTACLE_DISTANCE",)
 
     def __init__(self, config: Mapping[str, str] | None = None):
         if config:
@@ -25,12 +26,4 @@ class BundledAutopilot:
             params_file = workdir / "autopilot_params.json"
             params_file.write_text(json.dumps(dict(params)))
             argv += ["--params", str(params_file)]
-        process = ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir)
-        process.__enter__()
-        return SutHandle(
-            name=self.name,
-            alive=lambda: process.poll() is None,
-            stop=process.stop,
-            stderr_tail=process.stderr_tail,
-            pids=[process.pid],
-        )
+        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Mapping
 
 from harness.processes import ManagedProcess
-from sut_adapter.base import HOLD_MODES, SutError, SutHandle
+from sut_adapter.base import HOLD_MODES, SutError, SutHandle, start_process
 
 PLACEHOLDERS = ("sim_port", "api_port", "instance", "workdir")
 
@@ -49,6 +49,7 @@ def parse_template(template: str) -> list[str]:
 
 class CommandSut:
     name = "command"
+    range_messages = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"command", "hold"})
@@ -65,16 +66,4 @@ class CommandSut:
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
         process = ManagedProcess("sut", self.argv(sim_port=sim_port, api_port=api_port, instance=instance, workdir=workdir), log_dir=workdir, cwd=workdir)
-        try:
-            process.__enter__()
-        except OSError as error:
-            raise SutError(self.name, f"cannot start {self.words[0]!r}: {error}") from None
-        return SutHandle(
-            name=self.name,
-            alive=lambda: process.poll() is None,
-            stop=process.stop,
-            artifacts=lambda: [p for p in (process.stdout_path, process.stderr_path) if p.exists() and p.stat().st_size > 0],
-            stderr_tail=process.stderr_tail,
-            pids=[process.pid],
-            mavlink_params=dict(params),
-        )
+        return start_process(self.name, process, artifacts=process.console_logs, mavlink_params=dict(params))

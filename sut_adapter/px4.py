@@ -19,8 +19,8 @@ import os
 from pathlib import Path
 from typing import Mapping
 
-from harness.processes import ManagedProcess
-from sut_adapter.base import SutError, SutHandle
+from harness.processes import ManagedProcess, non_empty
+from sut_adapter.base import SutError, SutHandle, start_process
 
 AIRFRAME = "10016"
 MODEL = "none_iris"
@@ -51,6 +51,7 @@ def resolve_binary(given: str | None) -> tuple[Path, Path]:
 class Px4Sitl:
     name = "px4"
     hold_mode = "paced"
+    range_messages = ("DISTANCE_SENSOR",)
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"px4_bin"})
@@ -71,28 +72,10 @@ class Px4Sitl:
         px4_dir.mkdir()
         argv, env = self.command(instance=instance, workdir=px4_dir)
         process = ManagedProcess("px4", argv, log_dir=workdir, cwd=px4_dir, env=env)
-        try:
-            process.__enter__()
-        except OSError as error:
-            raise SutError(self.name, f"cannot start {self.binary}: {error}") from None
-        return SutHandle(
-            name=self.name,
-            alive=lambda: process.poll() is None,
-            stop=process.stop,
-            artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
-            stderr_tail=lambda: process.stderr_tail() or tail(process.stdout_path),
-            pids=[process.pid],
-            mavlink_params={**DEFAULT_PARAMS, **params},
-        )
+        return start_process(self.name, process, artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
+                             mavlink_params={**DEFAULT_PARAMS, **params})
 
 
 def collect_artifacts(px4_dir: Path, console_logs: list[Path]) -> list[Path]:
-    """PX4's ULog files (log/DATE/TIME.ulg) and its console output."""
-    return sorted(px4_dir.glob("log/**/*.ulg")) + [p for p in console_logs if p.exists() and p.stat().st_size > 0]
-
-
-def tail(path: Path, lines: int = 20) -> str:
-    try:
-        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
-    except OSError:
-        return ""
+    """PX4's ULog files (log/DATE/TIME.ulg) and its non-empty console output."""
+    return sorted(px4_dir.glob("log/**/*.ulg")) + non_empty(console_logs)
