@@ -1,4 +1,4 @@
-"""`python -m autopilot --sim tcp:127.0.0.1:4560 --api udp:127.0.0.1:14540 [--params FILE]`"""
+"""`python -m autopilot --sim tcp:127.0.0.1:4560 --api udp:127.0.0.1:14540 [--params FILE] [--spin-us US]`"""
 
 from __future__ import annotations
 
@@ -25,6 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
     parser.add_argument("--params", help="JSON file of PX4-named parameter overrides")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
+    parser.add_argument("--spin-us", type=float, default=0.0,
+                        help="poll this long for the simulator's next message before sleeping; only worth it when the simulator runs on another core")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="autopilot %(levelname)s: %(message)s")
@@ -35,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.params}: {error}", file=sys.stderr)
         return 2
     try:
-        return Autopilot(params).serve(_address(args.sim, "tcp"), _address(args.api, "udp"), args.connect_timeout_s)
+        return Autopilot(params).serve(_address(args.sim, "tcp"), _address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)
     except OSError as error:
         print(f"autopilot: simulator at {args.sim} unreachable: {error}", file=sys.stderr)
         return 3

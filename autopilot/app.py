@@ -179,7 +179,7 @@ class Autopilot:
 
     # -- the process loop -----------------------------------------------------------------------
 
-    def serve(self, sim_address: tuple[str, int], api_address: tuple[str, int], connect_timeout_s: float) -> int:
+    def serve(self, sim_address: tuple[str, int], api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0) -> int:
         sim = _connect(sim_address, connect_timeout_s)
         sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.api = api = ApiLink(self, api_address)
@@ -189,15 +189,16 @@ class Autopilot:
         perf = time.perf_counter
         next_check = 0.0
         sim_lost_at: float | None = None
-        # Blocking reads on the simulator link (it drives the clock); the API link is polled
-        # between steps at most every TELEMETRY_CHECK_S of wall time, and on every timeout.
+        # Blocking reads on the simulator link (it drives the clock), polled for spin_s first when
+        # the simulator has a core of its own; the API link is served between steps at most
+        # every TELEMETRY_CHECK_S of wall time, and on every timeout.
         codec.set_receive_timeout(sim, TELEMETRY_CHECK_S)
         try:
             while True:
                 data = None
                 if sim_lost_at is None:
                     try:
-                        data = sim.recv(65536)
+                        data = codec.receive(sim, spin_s)
                     except BlockingIOError:
                         pass
                     else:

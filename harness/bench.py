@@ -1,11 +1,15 @@
 """`stella bench`: fly a standard scenario several times and report speed as medians and ratios.
 
+It flies the runs once per placement (see RunOptions.cores): the simulator and the SUT on a
+core each, polling for each other's messages (the fastest flight; two cores busy), and both on
+one core, sleeping while the other works (the most evaluations per hour: one worker per core).
 The real-time factor is simulated flight time over the wall time of the flight (after setup);
-evaluations per hour assume one worker per core, each evaluation pinned to its own core.
-Per-step figures come from the bridge's own timers: the SUT's turn (from sending HIL_SENSOR to
-receiving HIL_ACTUATOR_CONTROLS, which includes both socket hops and, with both processes on
-one core, the SUT's own computation), building the sensor messages, JSBSim, and the bridge's
-world work (obstacles, clearance, recording); the rest is the loop itself and its timers.
+evaluations per hour assume as many workers as the placement lets the machine's cores hold.
+Per-step figures come from the bridge's own timers: waiting for the SUT (from sending
+HIL_SENSOR to receiving HIL_ACTUATOR_CONTROLS, less the bridge's own work in between; it holds
+both socket hops and, on one core, the SUT's whole computation), building the sensor messages,
+JSBSim, and the bridge's world work (obstacles, clearance, recording, done while the SUT
+computes); the rest is the loop itself and its timers.
 """
 
 from __future__ import annotations
@@ -27,81 +31,89 @@ import numpy as np
 
 DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
+PLACEMENTS = (2, 1)  # cores per evaluation
+PLACEMENT_NAMES = {2: "a core each for the simulator and the SUT, polling", 1: "both on one core, sleeping while the other works"}
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
-              sut: RunOptions = RunOptions()) -> dict[str, Any]:
+              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS) -> dict[str, Any]:
     """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by default."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
-    rows = []
+    machine_cores = len(os.sched_getaffinity(0))
+    report_placements = []
+    autopilot = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
-        autopilot = None
-        for index in range(runs):
-            options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu)
-            result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{index}")
-            if result.real_time_factor is None:
-                raise RuntimeError(f"bench run {index} did not fly: {result.status} {result.why}")
-            timings = result.timings
-            in_run = timings["wall_in_run_s"]
-            run_steps = result.real_time_factor * in_run * rate_hz  # the bridge times the run's steps only
-            rows.append(
-                {
-                    "real_time_factor": result.real_time_factor,
-                    "wall_time_s": result.wall_time_s,
-                    "setup_s": timings.get("setup_s", 0.0),
-                    "score_s": timings.get("score_s", 0.0),
-                    "sut_turn_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / run_steps,
-                    "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
-                    "physics_us": 1e6 * timings["physics_s"] / run_steps,
-                    "world_us": 1e6 * timings["world_s"] / run_steps,
-                    "step_us": 1e6 * in_run / run_steps if run_steps else None,
-                    "fitness": result.fitness,
-                }
-            )
-            if autopilot is None and sut.sut == "bundled":
-                autopilot = autopilot_step_bench(Path(result.log_path))
-    median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
-    median["other_us"] = median["step_us"] - median["sut_turn_us"] - median["physics_us"] - median["world_us"] - median["sensors_us"]
-    median["bridge_side_us"] = median["step_us"] - median["sut_turn_us"]
-    cores = len(os.sched_getaffinity(0))
+        for cores in [c for c in placements if c <= machine_cores]:
+            rows = []
+            for index in range(runs):
+                options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores)
+                result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{cores}-{index}")
+                if result.real_time_factor is None:
+                    raise RuntimeError(f"bench run {index} on {cores} core(s) did not fly: {result.status} {result.why}")
+                rows.append(_run_figures(result, rate_hz))
+                if autopilot is None and sut.sut == "bundled":
+                    autopilot = autopilot_step_bench(Path(result.log_path))
+            median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
+            median["other_us"] = median["step_us"] - median["sut_wait_us"] - median["physics_us"] - median["world_us"] - median["sensors_us"]
+            workers = machine_cores // cores
+            report_placements.append({"cores_per_evaluation": cores, "workers": workers, "median": median,
+                                      "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows})
+    fitnesses = {r["fitness"] for p in report_placements for r in p["per_run"]}
     return {
         "scenario": str(path),
         "sut": sut.sut,
         "seed": seed,
         "rate_hz": rate_hz,
         "runs": runs,
-        "cores": cores,
-        "median": median,
-        "evaluations_per_hour": cores * 3600.0 / median["wall_time_s"],
-        "per_run": rows,
-        "deterministic": len({r["fitness"] for r in rows}) == 1,
+        "cores": machine_cores,
+        "placements": report_placements,
+        "deterministic": len(fitnesses) == 1,
         "autopilot_step": autopilot,
     }
 
 
+def _run_figures(result, rate_hz: float) -> dict[str, Any]:
+    timings = result.timings
+    in_run = timings["wall_in_run_s"]
+    run_steps = result.real_time_factor * in_run * rate_hz  # the bridge times the run's steps only
+    return {
+        "real_time_factor": result.real_time_factor,
+        "wall_time_s": result.wall_time_s,
+        "setup_s": timings.get("setup_s", 0.0),
+        "score_s": timings.get("score_s", 0.0),
+        "sut_wait_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / run_steps,
+        "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
+        "physics_us": 1e6 * timings["physics_s"] / run_steps,
+        "world_us": 1e6 * timings["world_s"] / run_steps,
+        "step_us": 1e6 * in_run / run_steps if run_steps else None,
+        "fitness": result.fitness,
+    }
+
+
 def bench_text(report: dict[str, Any]) -> str:
-    m = report["median"]
-    return "\n".join(
-        [
-            f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) against {report['sut']} at {report['rate_hz']:.0f} Hz lockstep, medians:",
-            f"  real-time factor (flight)   {m['real_time_factor']:.1f}x",
-            f"  wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s)",
-            f"  evaluations per hour        {report['evaluations_per_hour']:.0f} with {report['cores']} workers",
-            f"  one lockstep step           {m['step_us']:.0f} us:",
-            f"    SUT's turn incl. sockets  {m['sut_turn_us']:.0f} us",
-            f"    sensor messages           {m['sensors_us']:.0f} us",
-            f"    JSBSim                    {m['physics_us']:.0f} us",
-            f"    world and recording       {m['world_us']:.0f} us",
-            f"    loop and timers           {m['other_us']:.0f} us",
-            f"  the bridge's side of a step {m['bridge_side_us']:.0f} us",
-            *([f"  the autopilot's computation {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)"]
-              if report["autopilot_step"] else []),
-            f"  same fitness every run      {report['deterministic']}",
+    lines = [f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) against {report['sut']} at {report['rate_hz']:.0f} Hz lockstep, medians:"]
+    for placement in report["placements"]:
+        m = placement["median"]
+        workers = placement["workers"]
+        lines += [
+            f"  {PLACEMENT_NAMES[placement['cores_per_evaluation']]}:",
+            f"    real-time factor (flight)   {m['real_time_factor']:.1f}x",
+            f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s)",
+            f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
+            f"    one lockstep step           {m['step_us']:.0f} us:",
+            f"      waiting for the SUT       {m['sut_wait_us']:.0f} us",
+            f"      sensor messages           {m['sensors_us']:.0f} us",
+            f"      JSBSim                    {m['physics_us']:.0f} us",
+            f"      world and recording       {m['world_us']:.0f} us",
+            f"      loop and timers           {m['other_us']:.0f} us",
         ]
-    )
+    if report["autopilot_step"]:
+        lines.append(f"  the autopilot's computation   {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)")
+    lines.append(f"  same fitness every run        {report['deterministic']}")
+    return "\n".join(lines)
 
 
 def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50) -> dict[str, Any]:

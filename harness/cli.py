@@ -183,7 +183,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
-    options = RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params, rate_hz=args.rate_hz)
+    options = RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params, rate_hz=args.rate_hz, cores=args.cores)
     result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
     emit(args, result, _result_text(result))
     if result["status"] in ("sim_crashed", "sut_crashed", "timeout"):
@@ -257,7 +257,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
 
 @command("bench")
 def cmd_bench(args: argparse.Namespace) -> int:
-    from harness.bench import bench_text, run_bench
+    from harness.bench import PLACEMENTS, bench_text, run_bench
     from harness.evaluation import RunOptions
 
     if args.executor:
@@ -274,7 +274,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     sut, sut_config, sut_params = _sut_spec(args)
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
-                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params))
+                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), placements=(args.cores,) if args.cores else PLACEMENTS)
     emit(args, report, bench_text(report))
     return 0
 
@@ -437,6 +437,8 @@ def parser() -> argparse.ArgumentParser:
     add_sut(p)
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="lockstep rate")
+    p.add_argument("--cores", type=int, choices=(1, 2), default=2,
+                   help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
 
     p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
@@ -458,6 +460,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=4)
     p.add_argument("--rate-hz", type=float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
+    p.add_argument("--cores", type=int, choices=(1, 2), help="measure only this placement (cores per evaluation; default: both)")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")

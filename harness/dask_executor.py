@@ -69,6 +69,10 @@ class DaskExecutor(Executor):
     def client(self):
         return self._client
 
+    def cores_per_evaluation(self) -> int:
+        # A scheduler's workers run on machines whose cores this process cannot see.
+        return 1 if self._cluster is None else super().cores_per_evaluation()
+
     def submit(self, job: Job) -> concurrent.futures.Future:
         from distributed import KilledWorker
 

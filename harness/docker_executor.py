@@ -125,6 +125,9 @@ class DockerExecutor(Executor):
         self._lock = threading.Lock()
         self.running: dict[str, str] = {}  # job name -> container id, for fault tests and cancel
 
+    def cores_per_evaluation(self) -> int:
+        return 1  # a container gets one CPU (see _try)
+
     def submit(self, job: Job) -> concurrent.futures.Future:
         return self._threads.submit(self._try, job)
 

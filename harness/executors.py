@@ -26,7 +26,7 @@ import multiprocessing
 import os
 import signal
 import threading
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
@@ -123,8 +123,15 @@ class Executor:
     def recover(self) -> None:
         """Make the executor usable again after a worker died (a pool rebuilt, say)."""
 
+    def cores_per_evaluation(self) -> int:
+        """Two when every concurrent evaluation can have two of this machine's cores (see
+        RunOptions.cores), else one."""
+        return 2 if len(os.sched_getaffinity(0)) >= 2 * self.workers else 1
+
     def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, dict[str, Any]]]:
         self._cancelled.clear()
+        cores = self.cores_per_evaluation()
+        jobs = [replace(job, options=replace(job.options, cores=cores)) for job in jobs]
         pending: dict[concurrent.futures.Future, tuple[Job, list[dict[str, Any]]]] = {self.submit(job): (job, []) for job in jobs}
         try:
             while pending:

@@ -57,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated: OBSTACLE_DISTANCE (72 sectors, read by the bundled autopilot), DISTANCE_SENSOR (six wedges, read by PX4)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--stall-timeout-s", type=float, default=10.0)
+    parser.add_argument("--spin-us", type=float, default=0.0,
+                        help="poll this long for the SUT's answer before sleeping; only worth it when the SUT runs on another core")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     if "world" in world:  # accept `stella sample --json` output as it is
         world = world["world"]
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
-                          range_messages=args.range_messages)
+                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     with open(args.mcap, "wb") as stream, Recorder(stream) as recorder:

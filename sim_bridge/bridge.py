@@ -76,6 +76,8 @@ class BridgeConfig:
     range_messages: tuple[str, ...] = RANGE_MESSAGES
     stall_timeout_s: float = 10.0
     hold_timeout_s: float = 120.0
+    # Poll for the SUT's answer this long before sleeping: only when the SUT has a core of its own.
+    spin_s: float = 0.0
     gps_rate_hz: float = 10.0
     ground_truth_rate_hz: float = 50.0
 
@@ -532,6 +534,10 @@ class Bridge:
         terrain = self._terrain
         wind_n, wind_e = self._wind
         wall_run_started = None
+        spin_s = config.spin_s
+        # The step just simulated is scored and recorded after the next sensor messages went out,
+        # while the SUT computes its answer: on two cores this work costs the step nothing.
+        unobserved_step: int | None = None
         while summary.end_reason == "running":
             time_us = step * self._dt_us
             time_s = time_us / 1e6
@@ -559,8 +565,13 @@ class Bridge:
                 summary.end_reason = "sut_disconnected"
                 break
             self._link_out += frames_out
+            t_sent = perf()
+            summary.send_s += t_sent - t_send
+            if unobserved_step is not None:
+                self._observe(unobserved_step)
+                unobserved_step = None
             t0 = perf()
-            summary.send_s += t0 - t_send
+            summary.world_s += t0 - t_sent
             got_answer = False
             while not got_answer:
                 if not lockstep:
@@ -568,7 +579,7 @@ class Bridge:
                     if not readable:
                         break
                 try:
-                    data = sut.recv(65536)
+                    data = codec.receive(sut, spin_s if lockstep else 0.0)
                 except BlockingIOError:
                     summary.end_reason = "sut_stalled"
                     break
@@ -601,32 +612,15 @@ class Bridge:
             while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
                 self._apply_op(self._pending_ops.pop(0), time_s)
             field_.move_to(run_time)
-            field_.place_body(s.north_m, s.east_m, s.up_m, s.roll_rad, s.pitch_rad, s.yaw_rad)
-            clearances = field_.clearances()
-            time_ns = int(round(time_s * 1e9))
-            batch = self._clearance_batch
-            batch[0].append(time_s)
-            if clearances:
-                nearest = min(range(len(clearances)), key=clearances.__getitem__)
-                batch[1].append(clearances[nearest])
-                batch[2].append(field_.obstacles[nearest].id)
-            else:
-                batch[1].append(None)
-                batch[2].append(None)
-            batch[3].append(s.agl_m)
-            if step % every["record"] == 0:
-                self._record_pose(time_ns)
-            if step % every["scene"] == 0:
-                self._record_scene(time_ns, everything=False)
-            if step % every["flush"] == 0:
-                self._flush_link(time_ns)
-                self._flush_clearance()
             if step % every["control"] == 0:
                 self._handle_ops(control.poll(), time_s)
             self._check_end(time_s)
+            unobserved_step = step
             summary.world_s += perf() - t2
             if not lockstep or holding:
-                time.sleep(max(0.0, self._dt - (perf() - t0)))
+                time.sleep(max(0.0, self._dt - (perf() - t_sent)))
+        if unobserved_step is not None:
+            self._observe(unobserved_step)
         summary.steps = step
         summary.sim_time_s = step * self._dt
         summary.run_time_s = self._run_time(summary.sim_time_s)
@@ -641,6 +635,34 @@ class Bridge:
         self._flush_clearance()
         self._event(summary.sim_time_s, "finished", reason=summary.end_reason)
         return summary
+
+    def _observe(self, step: int) -> None:
+        """Score and record the state after `step` physics steps: the UAV's clearance to each
+        obstacle, and at their rates its pose, the moving obstacles and the link traffic."""
+        field_ = self.field
+        s = self.vehicle.state
+        every = self._every
+        time_s = step * self._dt
+        field_.place_body(s.north_m, s.east_m, s.up_m, s.roll_rad, s.pitch_rad, s.yaw_rad)
+        clearances = field_.clearances()
+        time_ns = int(round(time_s * 1e9))
+        batch = self._clearance_batch
+        batch[0].append(time_s)
+        if clearances:
+            nearest = min(range(len(clearances)), key=clearances.__getitem__)
+            batch[1].append(clearances[nearest])
+            batch[2].append(field_.obstacles[nearest].id)
+        else:
+            batch[1].append(None)
+            batch[2].append(None)
+        batch[3].append(s.agl_m)
+        if step % every["record"] == 0:
+            self._record_pose(time_ns)
+        if step % every["scene"] == 0:
+            self._record_scene(time_ns, everything=False)
+        if step % every["flush"] == 0:
+            self._flush_link(time_ns)
+            self._flush_clearance()
 
     def _paced_hold(self, control: ControlChannel, time_s: float) -> None:
         """One step of a paced hold: announce it once the harness listens, give up after the timeout."""

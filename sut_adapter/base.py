@@ -10,6 +10,9 @@ how to treat it without knowing which SUT it is:
   so need simulated time to pass, at real-time pace, while the harness sets up (PX4).
 * `range_messages`: how it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled
   autopilot) and/or DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
+* `spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it
+  may poll for the simulator's next message this long before sleeping. The bundled autopilot
+  does; PX4 and command SUTs wait their own way.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -63,7 +66,8 @@ class SystemUnderTest(Protocol):
     hold_mode: str
     range_messages: tuple[str, ...]
 
-    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
+              spin_s: float = 0.0) -> SutHandle:
         """Start the SUT so that it connects to the simulator on sim_port and sends its API link to api_port."""
 
 

@@ -20,10 +20,13 @@ class BundledAutopilot:
         if config:
             raise SutError(self.name, f"takes no configuration, got {sorted(config)}")
 
-    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
+              spin_s: float = 0.0) -> SutHandle:
         argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", "--api", f"udp:127.0.0.1:{api_port}"]
         if params:
             params_file = workdir / "autopilot_params.json"
             params_file.write_text(json.dumps(dict(params)))
             argv += ["--params", str(params_file)]
+        if spin_s > 0.0:
+            argv += ["--spin-us", str(spin_s * 1e6)]
         return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))

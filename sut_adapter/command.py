@@ -64,6 +64,7 @@ class CommandSut:
         values = {"sim_port": sim_port, "api_port": api_port, "instance": instance, "workdir": str(workdir)}
         return [word.format(**values) for word in self.words]
 
-    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
+              spin_s: float = 0.0) -> SutHandle:
         process = ManagedProcess("sut", self.argv(sim_port=sim_port, api_port=api_port, instance=instance, workdir=workdir), log_dir=workdir, cwd=workdir)
         return start_process(self.name, process, artifacts=process.console_logs, mavlink_params=dict(params))

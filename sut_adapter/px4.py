@@ -65,7 +65,8 @@ class Px4Sitl:
         env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": SPEED_FACTOR}
         return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
 
-    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float]) -> SutHandle:
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
+              spin_s: float = 0.0) -> SutHandle:
         if (sim_port, api_port) != (4560 + instance, 14540 + instance):
             raise SutError(self.name, f"PX4 instance {instance} uses simulator port {4560 + instance} and API port {14540 + instance}, not {sim_port} and {api_port}")
         px4_dir = workdir / "px4"

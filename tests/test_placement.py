@@ -1,0 +1,111 @@
+"""Where an evaluation's simulator and SUT run, and how they wait for each other (RunOptions.cores)."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import os
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import sut_adapter
+from conftest import FIG4, fig4_job
+from harness.evaluation import RunOptions, simulation_stack
+from harness.executors import Executor, LocalExecutor
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
+from simlink import codec
+
+MACHINE_CORES = len(os.sched_getaffinity(0))
+
+
+def test_a_polling_receive_returns_what_the_peer_sends_later():
+    a, b = socket.socketpair()
+    with a, b:
+        threading.Timer(0.001, lambda: b.sendall(b"answer")).start()
+        assert codec.receive(a, spin_s=0.5) == b"answer"
+
+
+def test_a_polling_receive_falls_back_to_the_sockets_own_timeout():
+    a, b = socket.socketpair()
+    with a, b:
+        codec.set_receive_timeout(a, 0.05)
+        started = time.perf_counter()
+        with pytest.raises(BlockingIOError):
+            codec.receive(a, spin_s=0.02)
+        assert 0.06 <= time.perf_counter() - started < 1.0  # polled 20 ms, then slept 50 ms
+
+
+class RecordingExecutor(Executor):
+    def __init__(self, workers: int):
+        super().__init__(workers)
+        self.submitted = []
+
+    def submit(self, job):
+        self.submitted.append(job)
+        future = concurrent.futures.Future()
+        future.set_result({"status": "ok", "why": None})
+        return future
+
+
+@pytest.mark.parametrize("workers", [1, 2, 4])
+def test_executors_give_an_evaluation_two_cores_only_when_every_worker_can_have_two(tmp_path, profile, workers):
+    executor = RecordingExecutor(workers)
+    list(executor.run([fig4_job(tmp_path, profile, key) for key in range(3)]))
+    expected = 2 if MACHINE_CORES >= 2 * workers else 1
+    assert {job.options.cores for job in executor.submitted} == {expected}
+
+
+def test_the_local_executor_with_one_worker_per_core_shares_a_core_per_evaluation():
+    executor = LocalExecutor()
+    try:
+        assert executor.cores_per_evaluation() == 1
+    finally:
+        executor.close()
+
+
+def _placement(tmp_path, profile, cores: int) -> tuple[set[int], set[int], list[str], list[str]]:
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    system = sut_adapter.get("bundled", {})
+    with simulation_stack(world_spec(space, x, 1), RunOptions(cores=cores), system, tmp_path) as stack:
+        sut_pid = stack.sut.pids[0]
+        with open(f"/proc/{sut_pid}/cmdline", "rb") as cmdline:
+            sut_argv = cmdline.read().decode().split("\0")
+        return os.sched_getaffinity(stack.bridge.pid), os.sched_getaffinity(sut_pid), list(stack.bridge.argv), sut_argv
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(MACHINE_CORES < 2, reason="needs two cores to place the simulator and the SUT apart")
+def test_two_cores_put_the_simulator_and_the_sut_apart_and_both_poll(tmp_path, profile):
+    bridge_cores, sut_cores, bridge_argv, sut_argv = _placement(tmp_path, profile, cores=2)
+    assert len(bridge_cores) == len(sut_cores) == 1 and bridge_cores != sut_cores
+    assert float(bridge_argv[bridge_argv.index("--spin-us") + 1]) > 0 and float(sut_argv[sut_argv.index("--spin-us") + 1]) > 0
+
+
+@pytest.mark.slow
+def test_one_core_puts_both_on_it_and_neither_polls(tmp_path, profile):
+    bridge_cores, sut_cores, bridge_argv, sut_argv = _placement(tmp_path, profile, cores=1)
+    assert len(bridge_cores) == 1 and bridge_cores == sut_cores
+    assert float(bridge_argv[bridge_argv.index("--spin-us") + 1]) == 0 and "--spin-us" not in sut_argv
+
+
+@pytest.mark.slow
+def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
+    import json
+
+    from harness.cli import main
+
+    assert main(["bench", "--runs", "1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    placements = {p["cores_per_evaluation"]: p for p in report["placements"]}
+    assert set(placements) == ({1, 2} if MACHINE_CORES >= 2 else {1})
+    assert report["deterministic"] and report["autopilot_step"]["flew_mission"]
+    for placement in placements.values():
+        median = placement["median"]
+        assert median["real_time_factor"] > 1.0 and median["step_us"] > 0
+        assert placement["workers"] == MACHINE_CORES // placement["cores_per_evaluation"]
