@@ -6,7 +6,10 @@ BIN := $(VENV)/bin
 .PHONY: setup demo test browser docker
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml constraints.txt
+# setup.py compiles these: an edit to one rebuilds it (the autopilot refuses stale builds).
+COMPILED := $(wildcard autopilot/*.py)
+
+$(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $@

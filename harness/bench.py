@@ -215,7 +215,9 @@ def executor_bench_text(report: dict[str, Any]) -> str:
 def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
     """The bundled autopilot's cost per lockstep step (parse, estimate, control, encode), replaying
     the simulator-to-SUT stream of a recorded flight into an in-process autopilot flying the same
-    mission. Its answers go nowhere; what is measured is its computation, without sockets."""
+    mission. What is measured is its computation, without sockets; its answers are kept only
+    as a digest, equal wherever the autopilot computes the same commands (compiled or not)."""
+    import hashlib
     import time
 
     from autopilot.app import Autopilot
@@ -228,9 +230,12 @@ def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
     world = logs.json_metadata(log_path, "world")
     stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
 
-    class NullSocket:
+    class DigestSocket:
+        def __init__(self):
+            self.digest = hashlib.sha256()
+
         def sendall(self, data: bytes) -> None:
-            pass
+            self.digest.update(data)
 
     autopilot = Autopilot(Params())
     crc_extras = {m: c.crc_extra for m, c in mavlink.mavlink_map.items()}
@@ -243,7 +248,7 @@ def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
     items.append(MissionItem(len(items), NAV_LAND, mission["waypoints"][-1]["north_m"], mission["waypoints"][-1]["east_m"], 0.0))
     durations = []
     armed = False
-    sock = NullSocket()
+    sock = DigestSocket()
     for msgid, _payload, frame in frames:
         started = time.perf_counter()
         autopilot._on_sim_data(sock, splitter, decoder, frame)
@@ -256,5 +261,5 @@ def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
             autopilot.commander.start_mission(autopilot.vehicle_estimate())
             armed = True
     durations.sort()
-    return {"log": str(log_path), "steps": len(durations), "median_step_us": 1e6 * durations[len(durations) // 2],
+    return {"log": str(log_path), "steps": len(durations), "median_step_us": 1e6 * durations[len(durations) // 2], "answers_sha256": sock.digest.hexdigest(),
             "p90_step_us": 1e6 * durations[int(0.9 * len(durations))], "flew_mission": armed}
