@@ -56,8 +56,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                 rows.append(_run_figures(result, rate_hz))
                 if autopilot is None and sut.sut == "bundled":
                     autopilot = autopilot_step_bench(Path(result.log_path))
-            median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if rows[0][key] is not None}
-            median["other_us"] = median["step_us"] - median["sut_wait_us"] - median["physics_us"] - median["world_us"] - median["sensors_us"]
+            median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
             workers = machine_cores // cores
             report_placements.append({"cores_per_evaluation": cores, "workers": workers, "median": median,
                                       "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows})
@@ -79,7 +78,7 @@ def _run_figures(result, rate_hz: float) -> dict[str, Any]:
     timings = result.timings
     in_run = timings["wall_in_run_s"]
     run_steps = result.real_time_factor * in_run * rate_hz  # the bridge times the run's steps only
-    return {
+    figures = {
         "real_time_factor": result.real_time_factor,
         "wall_time_s": result.wall_time_s,
         "setup_s": timings.get("setup_s", 0.0),
@@ -88,9 +87,11 @@ def _run_figures(result, rate_hz: float) -> dict[str, Any]:
         "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
         "physics_us": 1e6 * timings["physics_s"] / run_steps,
         "world_us": 1e6 * timings["world_s"] / run_steps,
-        "step_us": 1e6 * in_run / run_steps if run_steps else None,
+        "step_us": 1e6 * in_run / run_steps,
         "fitness": result.fitness,
     }
+    figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "world_us"))
+    return figures
 
 
 def bench_text(report: dict[str, Any]) -> str:
