@@ -1,4 +1,4 @@
-"""Compiles the per-step hot path of the bundled autopilot and the simulator link with Cython.
+"""Compiles the bundled autopilot, the per-step hot path on the SUT's side, with Cython.
 
 The modules stay plain Python (the source of truth; nothing in them is Cython-specific).
 Compiled, the autopilot's computation per lockstep step takes about half the time, with the

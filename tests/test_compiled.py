@@ -13,11 +13,11 @@ import sys
 import numpy as np
 import pytest
 
+from autopilot import check_compiled
 from conftest import FIG4, ROOT
 from harness.evaluation import evaluate
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
-from simlink import check_compiled
 
 
 def compiled_sources() -> list[str]:
