@@ -138,6 +138,7 @@ def test_the_executor_benchmark_reports_its_figures(capsys):
     assert (report["executor"], report["workers"], report["evaluations"], report["statuses"]) == ("local", 2, 2, ["ok"])
     assert report["evaluations_per_hour"] == pytest.approx(3600.0 * 2 / report["wall_time_s"])
     assert 0.0 < report["median_evaluation_wall_s"] < report["wall_time_s"]
+    assert 0.0 <= report["overhead_per_evaluation_s"] < report["median_evaluation_wall_s"]
 
 
 def test_cancel_drops_what_has_not_started_and_reports_what_ran(tmp_path, profile):
