@@ -17,6 +17,7 @@ COMPILED = [
     "autopilot/commander.py",
     "autopilot/control.py",
     "autopilot/estimator.py",
+    "autopilot/manual.py",
     "autopilot/params.py",
 ]
 

@@ -413,7 +413,7 @@ class ApiLink:
             self._ack(msg, accepted if ok else denied)
             self.heartbeat()
         elif command == mavlink.MAV_CMD_DO_SET_MODE:
-            ok = c.set_mode((int(msg.param2), int(msg.param3)), estimate)
+            ok = c.set_mode((int(msg.param2), int(msg.param3)), estimate, ap.now_s)
             self._ack(msg, accepted if ok else denied)
             self.heartbeat()
         elif command == mavlink.MAV_CMD_MISSION_START:

@@ -23,6 +23,7 @@ from autopilot.commander import (
 )
 from autopilot.control import (
     PositionControl,
+    Setpoint,
     RateControl,
     attitude_from_thrust,
     attitude_rate_setpoint,
@@ -30,6 +31,7 @@ from autopilot.control import (
     mix,
 )
 from autopilot.estimator import Estimator, GpsFix
+from autopilot.manual import PositionMode, sticks_from_rc
 from autopilot.params import Params
 from simlink import codec
 
@@ -56,6 +58,8 @@ class Autopilot:
         self.position_control = PositionControl(params)
         self.rate_control = RateControl(params)
         self.obstacles = ObstacleMap()
+        self.position_mode = PositionMode(params)
+        self._manual_active = False
         self.now_s = 0.0
         self.collective = 0.0
         self.lift = 0.0
@@ -65,7 +69,7 @@ class Autopilot:
         self._controlling = False
         self.api: ApiLink | None = None
         self._seq = 0
-        self._wanted_sim_messages = {mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE}
+        self._wanted_sim_messages = {mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, mavlink.MAVLINK_MSG_ID_RC_CHANNELS}
         if params["EKF2_GT_MODE"]:
             self._wanted_sim_messages.add(mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
 
@@ -133,6 +137,11 @@ class Autopilot:
         elif kind == "OBSTACLE_DISTANCE":
             increment = message.increment_f if message.increment_f > 0 else float(message.increment)
             self.obstacles.update(self.now_s, self.yaw_rad(), list(message.distances), increment, message.angle_offset, message.min_distance, message.max_distance)
+        elif kind == "RC_CHANNELS" and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
+            raw = [getattr(message, f"chan{n}_raw") for n in range(1, 9)]
+            sticks = sticks_from_rc(self.params, self.now_s, message.chancount, raw)
+            if sticks is not None:
+                self.commander.on_sticks(sticks, self.vehicle_estimate())
 
     def step(self, time_us: int, values: tuple) -> tuple[float, float, float, float]:
         dt = 0.004 if self._last_time_us is None else max(1e-4, (time_us - self._last_time_us) / 1e6)
@@ -156,7 +165,7 @@ class Autopilot:
         estimate = self.vehicle_estimate()
         sp = commander.update(self.now_s, estimate, self.lift)
         if sp.idle:
-            self._controlling = False
+            self._controlling = self._manual_active = False
             self.collective = self.lift = 0.0
             return (IDLE_THROTTLE,) * 4 if commander.armed else (0.0, 0.0, 0.0, 0.0)
         if not self._controlling:
@@ -164,10 +173,19 @@ class Autopilot:
             self.rate_control.reset()
             self._controlling = True
         params = self.params
+        manual = sp.manual
+        if manual:
+            if not self._manual_active:
+                self.position_mode.reset(est.vel[0], est.vel[1], est.pos, estimate.yaw_rad)
+            north, east, down, vn, ve, vd, yaw = self.position_mode.update(dt, commander.manual, est.pos, estimate.yaw_rad)
+            sp = Setpoint(north_m=north, east_m=east, down_m=down, v_north_m_s=vn, v_east_m_s=ve, v_down_m_s=vd, yaw_rad=yaw)
+        self._manual_active = manual
         vel_sp = self.position_control.velocity_setpoint(sp, est.pos, params["MPC_XY_VEL_MAX"])
         if not commander.landed:
             vn, ve = constrain_velocity(params, self.obstacles, self.now_s, (vel_sp[0], vel_sp[1]), (est.vel[0], est.vel[1]))
             vel_sp = (vn, ve, vel_sp[2])
+            if manual and self.position_mode.hold_ne is None:
+                self.position_mode.constrained(vn, ve)
         thrust = self.position_control.thrust(dt, vel_sp, est.vel, est.acc_ned)
         self.lift = -thrust[2]
         yaw_sp = sp.yaw_rad if sp.yaw_rad is not None else estimate.yaw_rad

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 
 from autopilot.control import Setpoint
+from autopilot.manual import FLIGHT_MODE_PARAM, Sticks
 
 # PX4 custom main modes and AUTO sub modes (px4_custom_mode.h).
 MAIN_POSCTL = 3
@@ -85,6 +86,24 @@ class Commander:
     _landed_at_s: float | None = None
     _phase: str = ""
     _yaw_sp: float = 0.0
+    manual: Sticks | None = None
+    _mode_slot: int | None = None
+
+    # -- manual control -------------------------------------------------------------------------
+
+    def manual_fresh(self, now_s: float) -> bool:
+        return self.manual is not None and now_s - self.manual.received_s <= self.params["COM_RC_LOSS_T"]
+
+    def on_sticks(self, sticks: Sticks, estimate: VehicleEstimate) -> None:
+        """A new RC frame. As PX4's manual_control: a mode-switch slot is applied when it changes,
+        and its first position is applied only before arming."""
+        self.manual = sticks
+        slot = sticks.mode_slot
+        if slot and (slot != self._mode_slot if self._mode_slot is not None else not self.armed):
+            wanted = FLIGHT_MODE_PARAM.get(int(self.params[f"COM_FLTMODE{slot}"]))
+            if wanted is not None and not self.set_mode(wanted, estimate, sticks.received_s):
+                self.events.append(("statustext", f"Switching to {MODE_NAMES[wanted]} is currently not possible"))
+        self._mode_slot = slot
 
     # -- commands -----------------------------------------------------------------------------
 
@@ -107,11 +126,13 @@ class Commander:
         self.events.append(("statustext", "Disarmed"))
         return True, "disarmed"
 
-    def set_mode(self, mode: tuple[int, int], estimate: VehicleEstimate) -> bool:
+    def set_mode(self, mode: tuple[int, int], estimate: VehicleEstimate, now_s: float | None = None) -> bool:
         if mode not in SUPPORTED_MODES:
             return False
         if mode == (MAIN_AUTO, SUB_AUTO_MISSION) and not self.mission:
             return False
+        if mode == (MAIN_POSCTL, 0) and not (now_s is not None and self.manual_fresh(now_s)):
+            return False  # PX4 too refuses Position mode without manual control
         previous = self.mode
         self.mode = mode
         if mode != previous:
@@ -290,7 +311,18 @@ class Commander:
             return sp
         return self._land(now_s, estimate, lift, home_n, home_e)
 
+    def _manual_control_lost(self, now_s: float, estimate: VehicleEstimate) -> None:
+        """PX4's manual-control-loss failsafe in Position mode, by NAV_RCL_ACT."""
+        action = int(self.params["NAV_RCL_ACT"])
+        if action == 0:
+            return
+        self.events.append(("statustext", "Manual control lost"))
+        target = {1: (MAIN_AUTO, SUB_AUTO_LOITER), 2: (MAIN_AUTO, SUB_AUTO_RTL)}.get(action, (MAIN_AUTO, SUB_AUTO_LAND))
+        self.set_mode(target, estimate, now_s)
+
     def update(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
+        if self.mode == (MAIN_POSCTL, 0) and self.armed and not self.manual_fresh(now_s):
+            self._manual_control_lost(now_s, estimate)
         if not self.armed:
             self.landed = True
             return Setpoint(idle=True)
@@ -323,4 +355,6 @@ class Commander:
             return self._land(now_s, estimate, lift, n, e)
         if mode == (MAIN_AUTO, SUB_AUTO_RTL):
             return self._rtl(now_s, estimate, lift)
+        if mode == (MAIN_POSCTL, 0):
+            return Setpoint(manual=True)
         return self._hold_setpoint()

@@ -101,6 +101,7 @@ class Setpoint:
     v_down_m_s: float = 0.0
     yaw_rad: float | None = None
     idle: bool = False  # armed on the ground: motors at idle, no control
+    manual: bool = False  # Position mode: the sticks make the setpoint (autopilot.manual)
 
 
 class PositionControl:

@@ -83,6 +83,37 @@ SPECS: tuple[ParamSpec, ...] = (
     _i("EKF2_GT_MODE", 0, 0, 1, "", "1: use the simulator's ground truth (HIL_STATE_QUATERNION) instead of estimating; for debugging only."),
     _i("SYS_AUTOSTART", 4001, 0, 9999999, "", "Airframe (4001: generic quadrotor X), reported for tools that read it."),
     _i("MAV_SYS_ID", 1, 1, 250, "", "MAVLink system id."),
+    _i("COM_RC_IN_MODE", 3, 0, 4, "", "Manual control source, as in PX4: 0 RC only, 1 MAVLink only, 2 or 3 RC or MAVLink, 4 none. The bundled autopilot reads RC (RC_CHANNELS on the simulator link) and has no MAVLink manual control, so 1 and 4 disable manual control."),
+    _f("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s", "Manual control counts as lost this long after the last RC frame."),
+    _i("NAV_RCL_ACT", 2, 0, 6, "", "What manual-control loss in Position mode does: 0 nothing, 1 Hold, 2 Return, 3 Land (5 and 6, terminate and disarm in PX4, land here: the bundled autopilot never cuts its motors in flight)."),
+    _i("RC_CHAN_CNT", 0, 0, 18, "", "RC channels calibrated; 0 (PX4's default) leaves the RC unused, as an uncalibrated RC in PX4."),
+    _i("RC_MAP_ROLL", 0, 0, 18, "", "RC channel of the roll stick (0: none)."),
+    _i("RC_MAP_PITCH", 0, 0, 18, "", "RC channel of the pitch stick (0: none)."),
+    _i("RC_MAP_YAW", 0, 0, 18, "", "RC channel of the yaw stick (0: none)."),
+    _i("RC_MAP_THROTTLE", 0, 0, 18, "", "RC channel of the throttle stick (0: none)."),
+    _i("RC_MAP_FLTMODE", 0, 0, 18, "", "RC channel of the six-position flight-mode switch (0: none)."),
+    *(
+        spec
+        for n in range(1, 9)
+        for spec in (
+            _f(f"RC{n}_MIN", 1000.0, 800.0, 1500.0, "us", f"RC channel {n}: lowest value."),
+            _f(f"RC{n}_TRIM", 1500.0, 800.0, 2200.0, "us", f"RC channel {n}: centre value."),
+            _f(f"RC{n}_MAX", 2000.0, 1500.0, 2200.0, "us", f"RC channel {n}: highest value."),
+            _f(f"RC{n}_REV", 1.0, -1.0, 1.0, "", f"RC channel {n}: -1 reverses it."),
+            _f(f"RC{n}_DZ", 10.0, 0.0, 100.0, "us", f"RC channel {n}: dead zone around the trim."),
+        )
+    ),
+    *(
+        _i(f"COM_FLTMODE{n}", -1, -1, 11, "", f"Flight mode of mode slot {n} (PX4's values: 2 Position, 3 Mission, 4 Hold, 5 Return, 10 Takeoff, 11 Land; -1 none)")
+        for n in range(1, 7)
+    ),
+    _f("MPC_VEL_MANUAL", 10.0, 1.0, 20.0, "m/s", "Position mode: horizontal speed at full stick."),
+    _f("MPC_JERK_MAX", 8.0, 0.5, 500.0, "m/s^3", "Position mode: jerk limit of the stick-commanded acceleration."),
+    _f("MPC_HOLD_DZ", 0.1, 0.0, 1.0, "", "Position mode: stick dead zone; within it the vehicle brakes and holds position and altitude."),
+    _f("MPC_XY_MAN_EXPO", 0.6, 0.0, 1.0, "", "Position mode: expo of the roll and pitch sticks (0 linear, 1 cubic)."),
+    _f("MPC_Z_MAN_EXPO", 0.6, 0.0, 1.0, "", "Position mode: expo of the throttle stick."),
+    _f("MPC_YAW_EXPO", 0.6, 0.0, 1.0, "", "Position mode: expo of the yaw stick."),
+    _f("MPC_MAN_Y_MAX", 150.0, 0.0, 400.0, "deg/s", "Position mode: yaw rate at full yaw stick."),
 )
 
 BY_NAME = {spec.name: spec for spec in SPECS}

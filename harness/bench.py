@@ -36,11 +36,12 @@ PLACEMENT_NAMES = {2: "a core each for the simulator and the SUT, polling", 1: "
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
-              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS) -> dict[str, Any]:
-    """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by default."""
+              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS, drive: str | None = None) -> dict[str, Any]:
+    """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by
+    default. `drive` overrides the scenario's drive."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
-    space = SearchSpace(load_logical(path, profile), profile)
+    space = SearchSpace(load_logical(path, profile, drive), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     machine_cores = len(os.sched_getaffinity(0))
     report_placements = []
@@ -64,6 +65,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     return {
         "scenario": str(path),
         "sut": sut.sut,
+        "drive": space.mission.drive,
         "seed": seed,
         "rate_hz": rate_hz,
         "runs": runs,
@@ -95,7 +97,8 @@ def _run_figures(result, rate_hz: float) -> dict[str, Any]:
 
 
 def bench_text(report: dict[str, Any]) -> str:
-    lines = [f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}) against {report['sut']} at {report['rate_hz']:.0f} Hz lockstep, medians:"]
+    lines = [f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}, {report['drive']} drive) against {report['sut']} "
+             f"at {report['rate_hz']:.0f} Hz lockstep, medians:"]
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]

@@ -47,9 +47,11 @@ class CampaignConfig:
     wall_time_s: float | None = None
     sut: str = "bundled"
     sut_params: Mapping[str, float] = field(default_factory=dict)
+    drive: str | None = None  # None: each scenario's own mission.drive
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
+        overrides = {"drive": self.drive} if self.drive else {}
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -61,6 +63,7 @@ class CampaignConfig:
             "stop_at_violation": self.stop_at_violation,
             "sut": self.sut,
             "sut_params": dict(self.sut_params),
+            **overrides,
         }
 
 
@@ -127,7 +130,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     profile = load_profile(config.profile)
     summary = CampaignSummary()
     for scenario_file in config.scenarios:
-        space = SearchSpace(load_logical(Path(scenario_file), profile), profile)
+        space = SearchSpace(load_logical(Path(scenario_file), profile, config.drive), profile)
         for algorithm, combination in zip(config.algorithms, combinations):
             for run_index in range(config.runs):
                 seed = config.seed + run_index

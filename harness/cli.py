@@ -17,8 +17,10 @@ import numpy as np
 
 from harness.errors import InputError, Problem, StellaError
 from harness.scenario.documents import load_json
-from harness.scenario.logical import load_logical, logical_problems
+from harness.scenario.logical import DRIVES, load_logical, logical_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
+from harness.scenario.space import CONCRETE_FORMAT
+from harness.scenario.world import space_from_concrete
 
 log = logging.getLogger("stella")
 
@@ -67,6 +69,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
             notes: list[str] = []
             if not found:
                 notes = [f"{name} not simulated" for name, p in document["parameters"].items() if not p["simulated"]]
+        elif isinstance(document, dict) and document.get("format") == CONCRETE_FORMAT:
+            kind, notes = "concrete scenario", []
+            try:
+                space = space_from_concrete(document, str(path))
+                space.from_concrete(document, str(path))
+                found = []
+            except InputError as error:
+                found = list(error.problems)
         else:
             found = logical_problems(document, profile, str(path))
             kind = "logical scenario"
@@ -92,7 +102,7 @@ def _space(args: argparse.Namespace):
     from harness.scenario.space import SearchSpace
 
     profile = load_profile(args.profile)
-    return SearchSpace(load_logical(Path(args.scenario), profile), profile)
+    return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None)), profile)
 
 
 @command("space")
@@ -177,7 +187,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     sut, sut_config, sut_params = _sut_spec(args)
     if args.concrete:
-        space, x = load_concrete(Path(args.concrete))
+        space, x = load_concrete(Path(args.concrete), args.drive)
     elif args.scenario:
         space = _space(args)
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
@@ -274,7 +284,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     sut, sut_config, sut_params = _sut_spec(args)
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
-                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), placements=(args.cores,) if args.cores else PLACEMENTS)
+                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), placements=(args.cores,) if args.cores else PLACEMENTS,
+                       drive=args.drive)
     emit(args, report, bench_text(report))
     return 0
 
@@ -294,10 +305,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         except ValueError as error:
             raise InputError([Problem("--algorithm", "", str(error))]) from None
     for scenario in args.scenarios:
-        load_logical(Path(scenario), load_profile(args.profile))
+        load_logical(Path(scenario), load_profile(args.profile), args.drive)
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -428,6 +439,8 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("--sut-command", help="with --sut command: the SUT's command line with {sim_port}, {api_port}, {instance}, {workdir}")
         p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
         p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable")
+        p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
+                                                       "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
 
     p = add("run", "fly one concrete scenario against the SUT and score it")
     p.add_argument("scenario", nargs="?", help="logical scenario JSON (a concrete one is sampled with --seed)")

@@ -33,6 +33,7 @@ from harness.ports import PortBlock, PortLease
 from harness.processes import ManagedProcess
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 from sut_adapter import SutHandle, SystemUnderTest
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,7 @@ def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any],
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
     if failure is None and clearance.samples:
         states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
-        why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary)
+        why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary, world.get("drive", "mission"))
         failure = ("mission_failed", why) if why else None
     status, value, why = scoring.judge(clearance, world["safety_distance_m"], failure)
     return status, value, why, clearance
@@ -274,8 +275,13 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         timings["hold_s"] = time.monotonic() - t0
         try:
             session.set_params(sut.mavlink_params)
+            if world.get("drive") == "pilot":
+                session.set_params(PILOT_SUT_PARAMS)
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
-            session.upload_and_start(mission_items(world))
+            if world.get("drive") == "pilot":
+                session.arm_and_take_off(world["mission"]["takeoff_altitude_m"])
+            else:
+                session.upload_and_start(mission_items(world))
         except InfrastructureError as error:  # not healthy in time, a parameter refused
             return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result

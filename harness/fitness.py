@@ -7,8 +7,10 @@ profile's safety distance. With no obstacle d is taken as CLEARANCE_CAP_M.
 Status policy (README: "Fitness and status"):
   violation       f < 0, whatever else happened: a violation is never hidden behind a penalty.
   ok              the mission was performed (every waypoint passed within the acceptance
-                  radius, landed within LANDING_TOLERANCE_M of the goal) and f >= 0.
-  mission_failed  not performed (why says which part); fitness = f + PENALTY.
+                  radius, landed within LANDING_TOLERANCE_M of the goal; with the pilot drive
+                  the goal reached and landed) and f >= 0.
+  mission_failed  not performed (why says which part, e.g. "blocked: no progress for 20 s" when
+                  collision prevention held the pilot back); fitness = f + PENALTY.
   timeout / sut_crashed / sim_crashed   the run could not finish; fitness = f + PENALTY, or
                   PENALTY when nothing was recorded.
   infeasible      never flown; fitness = PENALTY + the total constraint violation in metres,
@@ -20,6 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
+
+from sim_bridge.pilot import BLOCKED_AFTER_S
 
 CLEARANCE_CAP_M = 100.0
 PENALTY = 1000.0
@@ -52,10 +56,14 @@ def min_clearance(batches: Iterable[Mapping[str, Any]]) -> Clearance:
     return Clearance(best, at, which, count)
 
 
-def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any], acceptance_radius_m: float, summary: Mapping[str, Any]) -> str | None:
-    """None if the recorded flight performed the mission, else why not."""
+def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any], acceptance_radius_m: float, summary: Mapping[str, Any],
+                  drive: str = "mission") -> str | None:
+    """None if the recorded flight performed the mission, else why not. A pilot (drive "pilot")
+    steers its own line to the goal, so only the goal and the landing count for it."""
     reason = summary.get("end_reason")
-    for index, waypoint in enumerate(mission["waypoints"]):
+    if reason == "blocked":
+        return f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
+    for index, waypoint in enumerate(mission["waypoints"] if drive == "mission" else mission["waypoints"][-1:]):
         closest = min(
             (math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states),
             default=math.inf,

@@ -138,6 +138,12 @@ class MavsdkSession:
         self.action.arm()
         self.mission.start_mission()
 
+    def arm_and_take_off(self, altitude_m: float) -> None:
+        """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock."""
+        self.action.set_takeoff_altitude(float(altitude_m))
+        self.action.arm()
+        self.action.takeoff()
+
     def close(self) -> None:
         sdk = getattr(self, "sdk", None)
         if sdk is not None:

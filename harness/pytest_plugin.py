@@ -4,7 +4,7 @@ hand-written scenario tests.
 * Every `NAME.regression.json` file is collected as one item, `FILE::NAME`; it flies the case
   through the harness and fails with what happened (`harness.regression.verdict`). The MCAP
   log's path goes into the JUnit XML as the property `stella_log`.
-* `fly(scenario, seed=0, sut=None, sut_params=None, **values)` flies a logical scenario (a
+* `fly(scenario, seed=0, sut=None, sut_params=None, drive=None, **values)` flies a logical scenario (a
   concrete one sampled with the seed), a concrete scenario or a regression case and returns
   the `EvaluationResult`; `values` set search-space dimensions by name, `__` standing for `.`
   (`obstacle_1__north_m=30.0`).
@@ -27,7 +27,7 @@ from harness.evaluation import EvaluationResult, RunOptions, evaluate
 from harness.executors import Executor, Job, LocalExecutor, run_job
 from harness.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, slug, verdict
 from harness.scenario.documents import load_json
-from harness.scenario.logical import load_logical
+from harness.scenario.logical import DRIVES, load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
 from harness.scenario.world import load_concrete
@@ -38,6 +38,8 @@ FLIGHTS = pytest.StashKey["Flights"]()
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("stella", "Stella UAV scenario flights")
     group.addoption("--stella-sut", default=None, help="fly every regression case against this SUT instead of the one its file names")
+    group.addoption("--stella-drive", default=None, choices=DRIVES,
+                    help="fly every case and `fly` scenario with this drive (mission or pilot) instead of the one its scenario names")
     group.addoption("--stella-px4-bin", default=None, help="the px4 binary or its build folder, for cases flown against PX4 SITL (default: $STELLA_PX4_BIN)")
     group.addoption("--stella-workers", type=int, default=1, help="fly regression cases in parallel with this many local workers")
     group.addoption("--stella-repeat", type=int, default=1, help="fly each regression case N times and report the spread of its fitness")
@@ -80,7 +82,7 @@ class RegressionFailure(Exception):
 class RegressionFile(pytest.File):
     def collect(self) -> Iterator[pytest.Item]:
         try:
-            regression = load_regression(self.path)
+            regression = load_regression(self.path, self.config.getoption("stella_drive"))
         except InputError as error:
             raise self.CollectError(str(error)) from None
         yield RegressionItem.from_parent(self, name=regression.name, regression=regression)
@@ -133,6 +135,7 @@ class Flights:
         if self.workers < 1 or self.repeat < 1:
             raise pytest.UsageError("--stella-workers and --stella-repeat must be at least 1")
         self.sut_override: str | None = config.getoption("stella_sut")
+        self.drive: str | None = config.getoption("stella_drive")
         self.px4_bin: str | None = config.getoption("stella_px4_bin")
         out = config.getoption("stella_out")
         self.out_dir = Path(out) if out else config.rootpath / "stella-logs"
@@ -196,17 +199,17 @@ def _resolve(scenario: str | Path, request: pytest.FixtureRequest) -> Path:
     raise pytest.UsageError(f"scenario {scenario!r} not found (looked relative to {request.path.parent} and {request.config.rootpath})")
 
 
-def _space_and_vector(path: Path, seed: int) -> tuple[SearchSpace, np.ndarray, int]:
+def _space_and_vector(path: Path, seed: int, drive: str | None) -> tuple[SearchSpace, np.ndarray, int]:
     """(space, vector, flight seed) for a regression case, a concrete or a logical scenario."""
     if path.name.endswith(SUFFIX):
-        regression = load_regression(path)
+        regression = load_regression(path, drive)
         return regression.space, regression.x, regression.seed
     document = load_json(path)
     if isinstance(document, dict) and document.get("format") == CONCRETE_FORMAT:
-        space, x = load_concrete(path)
+        space, x = load_concrete(path, drive)
         return space, x, seed
     profile = load_profile("default")
-    space = SearchSpace(load_logical(path, profile), profile)
+    space = SearchSpace(load_logical(path, profile, drive), profile)
     return space, space.sample_feasible(np.random.default_rng(seed), 1)[0], seed
 
 
@@ -216,9 +219,10 @@ def fly(request: pytest.FixtureRequest) -> Callable[..., EvaluationResult]:
     flights: Flights = request.config.stash[FLIGHTS]
     count = 0
 
-    def fly(scenario: str | Path, *, seed: int = 0, sut: str | None = None, sut_params: dict[str, float] | None = None, **values: float) -> EvaluationResult:
+    def fly(scenario: str | Path, *, seed: int = 0, sut: str | None = None, sut_params: dict[str, float] | None = None, drive: str | None = None,
+            **values: float) -> EvaluationResult:
         nonlocal count
-        space, x, flight_seed = _space_and_vector(_resolve(scenario, request), seed)
+        space, x, flight_seed = _space_and_vector(_resolve(scenario, request), seed, drive or flights.drive)
         try:
             x = space.with_values(x, {name.replace("__", "."): value for name, value in values.items()})
         except KeyError as error:

@@ -49,15 +49,18 @@ class Regression:
         return self.space.profile.safety_distance_m
 
 
-def load_regression(path: Path) -> Regression:
+def load_regression(path: Path, drive: str | None = None) -> Regression:
+    """A regression case; `drive` flies it with another drive than it was found with."""
     document = load_json(path)
     problems = schema_problems(document, "regression", str(path))
     if problems:
         raise InputError(problems)
     concrete = document["concrete_scenario"]
     try:
-        space = space_from_concrete(concrete, str(path))
+        space = space_from_concrete(concrete, str(path), drive)
         x = space.from_concrete(concrete, str(path))
+        if drive is not None:
+            concrete = space.to_concrete(x)
     except InputError as error:
         raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
     return Regression(path, document["name"], document["expect"], document["seed"], document["sut"]["name"], dict(document["sut"].get("params", {})),

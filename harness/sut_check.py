@@ -2,8 +2,10 @@
 
 The stages are the ones an evaluation goes through before its flight: the SUT's process
 starts, connects to the simulator, the lockstep runs, its API heartbeat reaches MAVSDK, every
-health check passes, it is armable, and it accepts a mission. The first stage that fails ends
-the check and says why; nothing is armed or flown.
+health check passes, it is armable, and it accepts a mission (mission drive) or, on the
+ground, switches to Position mode when the simulated pilot's mode switch says so over the RC
+link (pilot drive). The first stage that fails ends the check and says why; nothing is armed
+or flown.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from mavsdk.plugins.telemetry import FlightMode
+
 import sut_adapter
 from harness.bridge_control import BridgeControl
 from harness.errors import InfrastructureError
@@ -22,8 +26,11 @@ from harness.evaluation import RunOptions, Stack, simulation_stack
 from harness.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.pilot import SLOT_POSITION
+from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 
-STAGES = ("process started", "simulator connected", "lockstep running", "API heartbeat", "health ok", "armable", "mission upload ok")
+STAGES = ("process started", "simulator connected", "lockstep running", "API heartbeat", "health ok", "armable")
+LAST_STAGE = {"mission": "mission upload ok", "pilot": "position mode with stick input accepted"}
 
 
 @dataclass
@@ -38,7 +45,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     system = sut_adapter.get(options.sut, options.sut_config)
     world = world_spec(space, x, 0)
     workdir = Path(tempfile.mkdtemp(prefix="stella-sut-check-"))
-    stages = [Stage(name, None) for name in STAGES]
+    stages = [Stage(name, None) for name in (*STAGES, LAST_STAGE[world["drive"]])]
     start = time.monotonic()
     try:
         with simulation_stack(world, options, system, workdir) as stack:
@@ -78,17 +85,34 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _armable(session)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))),
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world["drive"] == "mission" else
+            (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s)),
         ]
         for index, _name, action in steps:
             try:
                 action()
             except Exception as error:  # MAVSDK raises its own error type per plugin
                 return failed(index, str(error))
-            passed(index, _details(index, session, sut))
+            passed(index, _details(index, session, sut, world["drive"]))
     finally:
         control.send({"op": "stop"})
         control.close()
+
+
+def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float) -> None:
+    """With the pilot's RC layout set, the simulation running and the pilot's mode switch in its
+    Position slot, the SUT must report Position mode (nothing is armed)."""
+    session.set_params(PILOT_SUT_PARAMS)
+    control.send({"op": "run"})
+    control.send({"op": "rc_mode_slot", "slot": SLOT_POSITION})
+    deadline = time.monotonic() + timeout_s
+    mode = session.telemetry.flight_mode()
+    while mode != FlightMode.POSCTL:
+        if time.monotonic() > deadline:
+            raise InfrastructureError(f"the SUT stayed in {mode.name} instead of switching to Position mode within {timeout_s:.0f} s; "
+                                      f"status texts: {session.status_texts[-5:]}")
+        time.sleep(0.05)
+        mode = session.telemetry.flight_mode()
 
 
 def _armable(session) -> None:
@@ -96,11 +120,12 @@ def _armable(session) -> None:
         raise InfrastructureError(f"MAVSDK reports the vehicle not armable: {vars(session.telemetry.health())}; status texts: {session.status_texts[-5:]}")
 
 
-def _details(index: int, session, sut) -> str:
+def _details(index: int, session, sut, drive: str) -> str:
     if index == 4:
         return f"parameters set over MAVLink: {dict(sut.mavlink_params)}" if sut.mavlink_params else ""
     if index == 6:
-        return "mission with takeoff, speed, waypoints and land accepted"
+        return {"mission": "mission with takeoff, speed, waypoints and land accepted",
+                "pilot": f"RC on the simulator link with {PILOT_SUT_PARAMS}; Position mode reported"}[drive]
     return ""
 
 

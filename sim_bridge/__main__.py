@@ -19,7 +19,7 @@ from pathlib import Path
 from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
 
-NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed"}
+NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed", "blocked"}
 
 
 def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
@@ -72,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
-    with open(args.mcap, "wb") as stream, Recorder(stream) as recorder:
+    optional_topics = ("/pilot",) if world.get("drive") == "pilot" else ()
+    with open(args.mcap, "wb") as stream, Recorder(stream, optional_topics) as recorder:
         recorder.metadata("world", {"json": json.dumps(world)})
         recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})
         bridge = Bridge(world, config, recorder)

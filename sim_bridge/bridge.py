@@ -18,6 +18,12 @@ Control channel (newline-delimited JSON over TCP, one client, the harness):
       {"op": "move_obstacle", "id": ID, "a": {...}, "b": {...} | null, "speed_m_s": V, "at_s": T};
       {"op": "remove_obstacle", "id": ID, "at_s": T}. `at_s` is run time (simulation seconds
       since "run"); without it the change applies at the next step.
+      {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
+      slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
+
+With the pilot drive (world "drive": "pilot") a simulated pilot (sim_bridge/pilot.py) flies the
+route with RC_CHANNELS frames every 20 ms of simulated time, sent before HIL_SENSOR like the
+other messages of a step; a pilot that makes no progress for 20 s ends the run ("blocked").
 
 Run time t_run starts at "run" (or at the first step when there is no hold); dynamic obstacles
 move and the time limit counts in run time, so the flight is independent of how long the
@@ -40,6 +46,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.obstacles import Obstacle, ObstacleField
 from sim_bridge.physics import Multirotor
+from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S, Pilot
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, stamp, yaw_orientation
 from sim_bridge.sensors import FIELDS_ALL, SensorModel, quaternion_from_euler
 from sim_bridge.terrain import is_water, terrain_height_m
@@ -230,6 +237,12 @@ class Bridge:
         self._control: ControlChannel | None = None
         self._hold_announced = False
         self._water = world["surface"]["water"]
+        self.pilot: Pilot | None = None
+        self._forced_slot: int | None = None
+        if world.get("drive") == "pilot":
+            mission = world["mission"]
+            self.pilot = Pilot(start, mission["waypoints"], mission["takeoff_altitude_m"], world["pilot"]["max_stick"], world["pilot"]["aim_offset_m"])
+            self._every["rc"] = max(1, round(RC_PERIOD_S * config.rate_hz))
 
     # -- recording ---------------------------------------------------------------------------
 
@@ -386,6 +399,8 @@ class Bridge:
             )
         if step % every["sensor"] == 0:
             extra.extend(self._obstacle_distance(time_us))
+        if self.pilot is not None and step % every["rc"] == 0:
+            extra.append(self._pilot_rc(time_us))
         if not extra:
             return sensor
         # HIL_SENSOR goes last: a SUT that steps on it has then seen this step's other messages,
@@ -419,6 +434,18 @@ class Bridge:
                 fov_rad, fov_rad, quaternion,
             ))
         return messages
+
+    def _pilot_rc(self, time_us: int):
+        pilot = self.pilot
+        frame = pilot.update(time_us / 1e6, self.vehicle.state)
+        slot = self._forced_slot or frame.slot
+        channels = frame.channels() if slot == frame.slot else type(frame)(frame.roll, frame.pitch, frame.throttle, frame.yaw, slot).channels()
+        self.recorder.write("/pilot", time_ns=time_us * 1000, message={
+            "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
+            "mode_slot": slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
+        })
+        unused = [UINT16_MAX] * (18 - CHANNEL_COUNT)
+        return self._mav.rc_channels_encode(time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
 
     # -- obstacle injection ------------------------------------------------------------------
 
@@ -463,6 +490,8 @@ class Bridge:
                     self._event(time_s, "run")
             elif kind == "stop":
                 self.summary.end_reason = "stopped"
+            elif kind == "rc_mode_slot":
+                self._forced_slot = int(op["slot"])
             elif "at_s" in op:
                 self._pending_ops.append(op)
                 self._pending_ops.sort(key=lambda o: o["at_s"])
@@ -505,6 +534,10 @@ class Bridge:
             self._landed_since = None
             if not s.on_ground:
                 self.summary.touchdown = None
+        if self.pilot is not None and self.pilot.blocked:
+            self.summary.end_reason = "blocked"
+            self._event(time_s, "blocked", remaining_m=self.pilot.remaining_m, north_m=s.north_m, east_m=s.east_m)
+            return
         if self._run_start_s is not None and run_time >= self.world["time_limit_s"]:
             self.summary.end_reason = "time_limit"
 

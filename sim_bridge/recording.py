@@ -143,6 +143,24 @@ STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "properties": {"t": {"type": "number"}, "event": {"type": "string"}, "detail": {"type": "object"}},
     },
+    "stella.PilotSticks": {
+        "title": "stella.PilotSticks",
+        "description": "The simulated pilot's RC frame (sticks -1..1 in PX4's manual_control convention, mode-switch slot, raw channels) and where it aims.",
+        "type": "object",
+        "properties": {
+            "t": {"type": "number"},
+            "phase": {"type": "string"},
+            "roll": {"type": "number"},
+            "pitch": {"type": "number"},
+            "throttle": {"type": "number"},
+            "yaw": {"type": "number"},
+            "mode_slot": {"type": "integer"},
+            "channels_us": {"type": "array", "items": {"type": "integer"}},
+            "aim_north_m": {"type": "number"},
+            "aim_east_m": {"type": "number"},
+            "remaining_m": {"type": "number"},
+        },
+    },
     "stella.MavlinkBytes": {
         "title": "stella.MavlinkBytes",
         "description": "Raw MAVLink frames of one link in one direction, hex encoded, batched.",
@@ -165,6 +183,8 @@ TOPICS = {
     "/mavlink/sim": "stella.MavlinkBytes",
     "/mavlink/api": "stella.MavlinkBytes",
 }
+# Topics a log has only when the run needs them.
+OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks"}
 
 
 def stamp(time_ns: int) -> dict[str, int]:
@@ -208,8 +228,9 @@ def enu(north_m: float, east_m: float, up_m: float) -> dict[str, float]:
 class Recorder:
     """An MCAP writer with the project's channels; use as a context manager so the file is always finished."""
 
-    def __init__(self, stream: BinaryIO):
+    def __init__(self, stream: BinaryIO, optional_topics: tuple[str, ...] = ()):
         self._stream = stream
+        self._topics = {**TOPICS, **{topic: OPTIONAL_TOPICS[topic] for topic in optional_topics}}
         self._writer = Writer(stream, compression=CompressionType.ZSTD)
         self._channels: dict[str, int] = {}
 
@@ -219,7 +240,7 @@ class Recorder:
             name: self._writer.register_schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
             for name, schema in SCHEMAS.items()
         }
-        for topic, schema in TOPICS.items():
+        for topic, schema in self._topics.items():
             self._channels[topic] = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[schema])
         return self
 

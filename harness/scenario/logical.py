@@ -53,6 +53,24 @@ class LogicalScenario:
     def not_simulated(self) -> list[WeatherValue]:
         return [w for w in self.weather.values() if not w.simulated]
 
+    @property
+    def drive(self) -> str:
+        return (self.mission or {}).get("drive", "mission")
+
+
+DRIVES = ("mission", "pilot")
+
+
+def with_drive(document: Mapping[str, Any], drive: str | None) -> Mapping[str, Any]:
+    """The logical scenario document with its drive overridden (--drive); unchanged for None."""
+    if drive is None:
+        return document
+    if drive not in DRIVES:
+        raise ValueError(f"unknown drive {drive!r}: choose {' or '.join(DRIVES)}")
+    changed = dict(document)
+    changed["mission"] = {**document.get("mission", {}), "drive": drive}
+    return changed
+
 
 def _range(document: Mapping[str, Any] | None) -> Interval | None:
     return None if document is None else Interval.from_json(document)
@@ -88,9 +106,9 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             if obstacle["speed range"]["min"] < 0:
                 problems.append(Problem(file, f"{at}/speed range/min", "speeds cannot be negative"))
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
-    if "move to waypoint" not in maneuvers and "mission" not in document:
+    if "move to waypoint" not in maneuvers and "waypoints" not in document.get("mission", {}):
         problems.append(
-            Problem(file, "/system/UAVs/0/maneuvers", 'add "move to waypoint" or a "mission": the UAV has nowhere to fly')
+            Problem(file, "/system/UAVs/0/maneuvers", 'add "move to waypoint" or mission waypoints: the UAV has nowhere to fly')
         )
     return problems
 
@@ -143,8 +161,9 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
     )
 
 
-def load_logical(path: Path, profile: Profile) -> LogicalScenario:
-    document = load_json(path)
+def load_logical(path: Path, profile: Profile, drive: str | None = None) -> LogicalScenario:
+    """A logical scenario file; `drive` overrides its mission's drive (`--drive`)."""
+    document = with_drive(load_json(path), drive)
     problems = logical_problems(document, profile, str(path))
     if problems:
         raise InputError(problems)

@@ -53,6 +53,10 @@ class Landform:
     area: Mapping[str, float]
 
 
+# The pilot drive's ranges for a profile written before it existed (the default profile's values).
+PILOT_DEFAULTS = {"max_stick": {"min": 0.3, "max": 1.0}, "aim_offset": {"unit": "m", "min": -10.0, "max": 10.0}}
+
+
 @dataclass(frozen=True)
 class Profile:
     """A validated profile. `document` keeps the JSON for embedding in concrete scenarios."""
@@ -85,6 +89,14 @@ class Profile:
     @property
     def time_limit_s(self) -> float:
         return float(self.document["time_limit_s"])
+
+    @property
+    def pilot_max_stick(self) -> Interval:
+        return Interval.from_json(self.document.get("pilot", PILOT_DEFAULTS)["max_stick"])
+
+    @property
+    def pilot_aim_offset_m(self) -> Interval:
+        return Interval.from_json(self.document.get("pilot", PILOT_DEFAULTS)["aim_offset"])
 
 
 def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
@@ -147,6 +159,9 @@ def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
         for label, north, east in (("start (0, 0)", 0.0, 0.0), ("goal", landform["goal"]["north_m"], landform["goal"]["east_m"])):
             if not (area["north_min_m"] <= north <= area["north_max_m"] and area["east_min_m"] <= east <= area["east_max_m"]):
                 problems.append(Problem(file, f"/landforms/{name}/area", f"the {label} lies outside the flight area"))
+    for key in ("max_stick", "aim_offset"):
+        if "pilot" in document:
+            check_interval(f"/pilot/{key}", document["pilot"][key], f"the pilot's {key}")
     sensor = document["sensor"]
     if sensor["min_range_m"] >= sensor["max_range_m"]:
         problems.append(Problem(file, "/sensor/min_range_m", "must be below max_range_m"))

@@ -72,6 +72,7 @@ class Mission:
     waypoints: tuple[tuple[float, float, float], ...]  # north_m, east_m, altitude_m above start
     cruise_speed_m_s: float
     land: bool
+    drive: str = "mission"  # or "pilot": see README, Drives
 
     @property
     def landing_point(self) -> tuple[float, float]:
@@ -81,12 +82,14 @@ class Mission:
 def mission_for(logical: LogicalScenario, profile: Profile) -> Mission:
     """The scenario's mission override, or the landform's: take off, fly to the goal, land."""
     uav = profile.uav
-    if logical.mission is not None:
-        m = logical.mission
+    m = logical.mission or {}
+    cruise_speed_m_s = float(m.get("cruise_speed_m_s", uav["cruise_speed_m_s"]))
+    if "waypoints" in m:
         return Mission(
             waypoints=tuple((w["north_m"], w["east_m"], w["altitude_m"]) for w in m["waypoints"]),
-            cruise_speed_m_s=float(m.get("cruise_speed_m_s", uav["cruise_speed_m_s"])),
+            cruise_speed_m_s=cruise_speed_m_s,
             land=bool(m.get("land", True)),
+            drive=logical.drive,
         )
     landform = profile.landforms[logical.landform]
     goal = (landform.goal_north_m, landform.goal_east_m)
@@ -94,8 +97,9 @@ def mission_for(logical: LogicalScenario, profile: Profile) -> Mission:
     altitude_m = uav["cruise_altitude_agl_m"] + max(0.0, highest)
     return Mission(
         waypoints=((goal[0], goal[1], altitude_m),),
-        cruise_speed_m_s=float(uav["cruise_speed_m_s"]),
-        land=True,
+        cruise_speed_m_s=cruise_speed_m_s,
+        land=bool(m.get("land", True)),
+        drive=logical.drive,
     )
 
 
@@ -167,6 +171,17 @@ class SearchSpace:
                 quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
                 quantity(f"{prefix}.speed_m_s", speed, "m/s", motion + ("speed_m_s",))
                 quantity(f"{prefix}.travel_m", profile.obstacle_travel_m, "m", motion + ("travel_m",))
+
+        self._template["drive"] = self.mission.drive
+        # Pilot values a concrete scenario made for the mission drive lacks, when it is flown by
+        # the pilot (`--drive pilot`): full stick, aiming along the route.
+        self.pilot_defaults: dict[str, float] = {}
+        if self.mission.drive == "pilot":
+            self._template["pilot"] = {}
+            stick, offset = profile.pilot_max_stick, profile.pilot_aim_offset_m
+            quantity("pilot.max_stick", stick, "", ("pilot", "max_stick"))
+            quantity("pilot.aim_offset_m", offset, "m", ("pilot", "aim_offset_m"))
+            self.pilot_defaults = {"pilot.max_stick": stick.max, "pilot.aim_offset_m": min(max(0.0, offset.min), offset.max)}
 
         self.dimensions = tuple(dimensions)
         self.fixed = tuple(fixed)
@@ -293,6 +308,9 @@ class SearchSpace:
             try:
                 value = _get(document, dimension.path)
             except (KeyError, IndexError, TypeError):
+                if dimension.name in self.pilot_defaults and "pilot" not in document:
+                    values.append(self.pilot_defaults[dimension.name])
+                    continue
                 problems.append(Problem(file, at, f"missing value for `{dimension.name}` ({dimension.unit})"))
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):

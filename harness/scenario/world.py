@@ -10,7 +10,7 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
-from harness.scenario.logical import logical_from_document, logical_problems
+from harness.scenario.logical import logical_from_document, logical_problems, with_drive
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
 from sim_bridge.terrain import terrain_height_m
@@ -94,11 +94,14 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
         "safety_distance_m": profile.safety_distance_m,
         "time_limit_s": profile.time_limit_s,
         "not_simulated": concrete["not_simulated"],
+        "drive": mission.drive,
+        **({"pilot": dict(concrete["pilot"])} if mission.drive == "pilot" else {}),
     }
 
 
-def space_from_concrete(document: Any, file: str) -> SearchSpace:
-    """Rebuild the search space from the logical scenario and profile a concrete file embeds."""
+def space_from_concrete(document: Any, file: str, drive: str | None = None) -> SearchSpace:
+    """Rebuild the search space from the logical scenario and profile a concrete file embeds;
+    `drive` overrides the logical scenario's drive (`--drive`)."""
     if not isinstance(document, dict) or document.get("format") != CONCRETE_FORMAT:
         raise InputError([Problem(file, "/format", f'not a concrete scenario: expected "format": "{CONCRETE_FORMAT}"')])
     for key in ("logical_scenario", "profile_document"):
@@ -108,13 +111,14 @@ def space_from_concrete(document: Any, file: str) -> SearchSpace:
     if problems:
         raise InputError([Problem(p.file, "/profile_document" + p.pointer, p.message) for p in problems])
     profile = profile_from_document(document["profile_document"])
-    problems = logical_problems(document["logical_scenario"], profile, file)
+    logical = with_drive(document["logical_scenario"], drive)
+    problems = logical_problems(logical, profile, file)
     if problems:
         raise InputError([Problem(p.file, "/logical_scenario" + p.pointer, p.message) for p in problems])
-    return SearchSpace(logical_from_document(document["logical_scenario"], profile, file), profile)
+    return SearchSpace(logical_from_document(logical, profile, file), profile)
 
 
-def load_concrete(path: Path) -> tuple[SearchSpace, np.ndarray]:
+def load_concrete(path: Path, drive: str | None = None) -> tuple[SearchSpace, np.ndarray]:
     document = load_json(path)
-    space = space_from_concrete(document, str(path))
+    space = space_from_concrete(document, str(path), drive)
     return space, space.from_concrete(document, str(path))

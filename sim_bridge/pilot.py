@@ -1,0 +1,181 @@
+"""The simulated pilot of the `pilot` drive: a person with a remote control flying the route in
+Position mode, as in fog, relying on the autopilot's collision prevention instead of steering
+around what is in the way.
+
+The harness arms the vehicle and commands a takeoff; once the vehicle has climbed to the
+takeoff altitude the pilot flips the mode switch to Position and pushes the sticks towards
+the route, facing where it flies; near the goal it slows down, and over the goal it flips the
+switch to Land. Its aim is a line parallel to the route, `aim_offset_m` to the right of it
+(negative: left), which fades into the route over the last CONVERGE_M before the goal; its
+aggressiveness is the largest stick deflection it uses, `max_stick` (0..1).
+
+The pilot acts at the simulation's clock: every RC_PERIOD_S of simulated time it reads the
+vehicle's true state (a pilot sees the vehicle) and the bridge sends its sticks as an
+RC_CHANNELS frame on the simulator link, which PX4's simulator_mavlink publishes as input_rc
+(SimulatorMavlink::handle_message_rc_channels) and the bundled autopilot reads the same way.
+So a pilot-driven flight is as deterministic as the simulation, whatever the real-time factor.
+SUT_PARAMS maps this transmitter's channels in the SUT (PX4's parameter names).
+
+Pure logic; the bridge calls `update` and encodes the result.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+RC_PERIOD_S = 0.02
+CHANNEL_COUNT = 8
+ROLL, PITCH, THROTTLE, YAW, MODE_SWITCH = 1, 2, 3, 4, 5
+SLOT_HOLD, SLOT_POSITION, SLOT_LAND = 1, 2, 3
+# The SUT's RC set-up for this transmitter: RC only, its channels, and its mode-switch slots
+# (COM_FLTMODE values: 4 Hold, 2 Position, 11 Land). Channel calibration stays at PX4's
+# defaults (1000..1500..2000 us, dead zone 10 us), which the pilot's PWM values assume.
+SUT_PARAMS = {
+    "COM_RC_IN_MODE": 0,
+    "RC_CHAN_CNT": CHANNEL_COUNT,
+    "RC_MAP_ROLL": ROLL,
+    "RC_MAP_PITCH": PITCH,
+    "RC_MAP_THROTTLE": THROTTLE,
+    "RC_MAP_YAW": YAW,
+    "RC_MAP_FLTMODE": MODE_SWITCH,
+    f"COM_FLTMODE{SLOT_HOLD}": 4,
+    f"COM_FLTMODE{SLOT_POSITION}": 2,
+    f"COM_FLTMODE{SLOT_LAND}": 11,
+}
+PWM_MIN, PWM_TRIM, PWM_MAX, PWM_DEADZONE = 1000.0, 1500.0, 2000.0, 10.0
+MODE_SLOTS = 6
+
+LOOKAHEAD_M = 8.0
+CONVERGE_M = 15.0
+SLOWDOWN_M = 10.0
+MIN_STICK = 0.2  # above PX4's 0.1 stick dead zone (MPC_HOLD_DZ), so the last metres are flown
+GOAL_RADIUS_M = 1.0
+SETTLED_SPEED_M_S = 0.5
+CLIMBED_TOLERANCE_M = 1.0
+ALTITUDE_GAIN = 0.3  # throttle stick per metre below the route's altitude
+YAW_GAIN = 1.0  # yaw stick per radian of heading error
+FACE_BEYOND_M = 3.0  # closer to the aim point than this the pilot stops turning
+BLOCKED_AFTER_S = 20.0
+PROGRESS_M = 0.5
+
+
+def pwm(value: float) -> int:
+    """A normalised stick value (-1..1) as the pulse width that PX4's default calibration reads back as it."""
+    if value > 0.0:
+        return int(round(PWM_TRIM + PWM_DEADZONE + value * (PWM_MAX - PWM_TRIM - PWM_DEADZONE)))
+    if value < 0.0:
+        return int(round(PWM_TRIM - PWM_DEADZONE + value * (PWM_TRIM - PWM_MIN - PWM_DEADZONE)))
+    return int(PWM_TRIM)
+
+
+def slot_value(slot: int) -> float:
+    """The mode-switch value in the middle of a slot, by inverting rc_update's slot formula."""
+    return ((slot - 0.5 - 1.0 / MODE_SLOTS) * 2.1 - 1.0 / MODE_SLOTS) / MODE_SLOTS - 1.05
+
+
+@dataclass(frozen=True)
+class RcFrame:
+    roll: float
+    pitch: float
+    throttle: float
+    yaw: float
+    slot: int
+
+    def channels(self) -> list[int]:
+        """Raw channel values 1..CHANNEL_COUNT (microseconds)."""
+        values = [pwm(0.0)] * CHANNEL_COUNT
+        for channel, value in ((ROLL, self.roll), (PITCH, self.pitch), (THROTTLE, self.throttle), (YAW, self.yaw), (MODE_SWITCH, slot_value(self.slot))):
+            values[channel - 1] = pwm(value)
+        return values
+
+
+def _clip(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))
+
+
+class Pilot:
+    def __init__(self, start: Mapping[str, float], route: Sequence[Mapping[str, float]], takeoff_altitude_m: float, max_stick: float, aim_offset_m: float):
+        """start: the take-off point (north_m, east_m, up_m); route: waypoints with north_m,
+        east_m and altitude_m above the start, the last one the goal."""
+        self.start_up_m = start["up_m"]
+        self.points = [(start["north_m"], start["east_m"])] + [(w["north_m"], w["east_m"]) for w in route]
+        self.altitudes = [takeoff_altitude_m] + [w["altitude_m"] for w in route]
+        self.takeoff_altitude_m = takeoff_altitude_m
+        self.max_stick = max_stick
+        self.aim_offset_m = aim_offset_m
+        self.leg = 0
+        self.phase = "takeoff"
+        self.blocked = False
+        self.aim = self.points[1]
+        self.remaining_m = self._remaining(*self.points[0])
+        self._best_remaining_m = math.inf
+        self._progress_at_s = 0.0
+
+    def _leg_geometry(self, leg: int) -> tuple[float, float, float, float, float, float]:
+        (n0, e0), (n1, e1) = self.points[leg], self.points[leg + 1]
+        length = math.hypot(n1 - n0, e1 - e0)
+        if length < 1e-9:
+            return n0, e0, 1.0, 0.0, 0.0, length
+        un, ue = (n1 - n0) / length, (e1 - e0) / length
+        return n0, e0, un, ue, -ue, length  # right of the direction (un, ue) is (-ue, un)
+
+    def _remaining(self, north: float, east: float) -> float:
+        """Distance along the route from the vehicle's projection on its leg to the goal."""
+        n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
+        along = min(max((north - n0) * un + (east - e0) * ue, 0.0), length)
+        rest = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(self.points[self.leg + 1 :], self.points[self.leg + 2 :]))
+        return length - along + rest
+
+    def _aim_point(self, north: float, east: float) -> tuple[float, float]:
+        n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
+        along = (north - n0) * un + (east - e0) * ue
+        while along >= length - GOAL_RADIUS_M and self.leg < len(self.points) - 2:
+            self.leg += 1
+            n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
+            along = (north - n0) * un + (east - e0) * ue
+        target = min(max(along, 0.0) + LOOKAHEAD_M, length)
+        last_leg = self.leg == len(self.points) - 2
+        offset = self.aim_offset_m
+        if last_leg:
+            offset *= min(1.0, max(0.0, (length - target) / CONVERGE_M))
+        return n0 + target * un - offset * ue, e0 + target * ue + offset * un
+
+    def update(self, time_s: float, state: Any) -> RcFrame:
+        """The sticks for the vehicle's true state (north_m, east_m, up_m, v_*_m_s, yaw_rad)."""
+        altitude = state.up_m - self.start_up_m
+        north, east = state.north_m, state.east_m
+        if self.phase == "takeoff":
+            climbed = altitude >= self.takeoff_altitude_m - CLIMBED_TOLERANCE_M and abs(state.v_down_m_s) < SETTLED_SPEED_M_S
+            if not climbed:
+                return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_HOLD)
+            self.phase = "cruise"
+            self._progress_at_s = time_s
+        if self.phase == "land":
+            return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND)
+        self.aim = self._aim_point(north, east)
+        self.remaining_m = self._remaining(north, east)
+        if self.remaining_m < self._best_remaining_m - PROGRESS_M:
+            self._best_remaining_m = self.remaining_m
+            self._progress_at_s = time_s
+        elif time_s - self._progress_at_s >= BLOCKED_AFTER_S:
+            self.blocked = True
+        goal_n, goal_e = self.points[-1]
+        to_goal = math.hypot(goal_n - north, goal_e - east)
+        speed = math.hypot(state.v_north_m_s, state.v_east_m_s)
+        if to_goal <= GOAL_RADIUS_M and speed < SETTLED_SPEED_M_S:
+            self.phase = "land"
+            return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND)
+        d_n, d_e = self.aim[0] - north, self.aim[1] - east
+        distance = math.hypot(d_n, d_e)
+        stick = min(self.max_stick, max(MIN_STICK, self.max_stick * min(1.0, to_goal / SLOWDOWN_M)))
+        cos_y, sin_y = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
+        forward, right = (d_n * cos_y + d_e * sin_y, -d_n * sin_y + d_e * cos_y) if distance > 1e-9 else (0.0, 0.0)
+        scale = stick / distance if distance > 1e-9 else 0.0
+        yaw = 0.0
+        if distance > FACE_BEYOND_M:
+            error = math.atan2(right, forward)
+            yaw = _clip(YAW_GAIN * error, self.max_stick)
+        throttle = _clip(ALTITUDE_GAIN * (self.altitudes[self.leg + 1] - altitude), self.max_stick)
+        return RcFrame(right * scale, forward * scale, throttle, yaw, SLOT_POSITION)
