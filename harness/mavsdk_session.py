@@ -139,8 +139,10 @@ class MavsdkSession:
         self.mission.start_mission()
 
     def arm_and_take_off(self, altitude_m: float) -> None:
-        """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock."""
-        self.action.set_takeoff_altitude(float(altitude_m))
+        """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock.
+        The altitude goes in MIS_TAKEOFF_ALT, which both SUTs read for a takeoff without one
+        (MAVSDK's set_takeoff_altitude did not reach PX4 v1.16 here)."""
+        self.set_params({"MIS_TAKEOFF_ALT": float(altitude_m)})
         self.action.arm()
         self.action.takeoff()
 

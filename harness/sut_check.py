@@ -134,7 +134,7 @@ def report_text(sut: str, stages: list[Stage]) -> str:
     for stage in stages:
         mark = {True: "ok  ", False: "FAIL", None: "-   "}[stage.ok]
         when = f"{stage.after_s:7.2f} s" if stage.after_s is not None else "      -  "
-        lines.append(f"  {mark} {stage.name:<20} {when}" + (f"  {stage.detail}" if stage.detail else ""))
+        lines.append(f"  {mark} {stage.name:<40} {when}" + (f"  {stage.detail}" if stage.detail else ""))
     verdict = "every stage passed" if all(stage.ok for stage in stages) else "failed at " + next(s.name for s in stages if not s.ok)
     lines.append(verdict)
     return "\n".join(lines)

@@ -2,9 +2,9 @@
 Position mode, as in fog, relying on the autopilot's collision prevention instead of steering
 around what is in the way.
 
-The harness arms the vehicle and commands a takeoff; once the vehicle has climbed to the
-takeoff altitude the pilot flips the mode switch to Position and pushes the sticks towards
-the route, facing where it flies; near the goal it slows down, and over the goal it flips the
+The harness arms the vehicle and commands a takeoff; once the vehicle is airborne and has
+stopped climbing the pilot flips the mode switch to Position and pushes the sticks towards
+the route, facing where it flies and holding the route's altitude with the throttle stick; near the goal it slows down, and over the goal it flips the
 switch to Land. Its aim is a line parallel to the route, `aim_offset_m` to the right of it
 (negative: left), which fades into the route over the last CONVERGE_M before the goal; its
 aggressiveness is the largest stick deflection it uses, `max_stick` (0..1).
@@ -49,14 +49,15 @@ MODE_SLOTS = 6
 
 LOOKAHEAD_M = 8.0
 CONVERGE_M = 15.0
-SLOWDOWN_M = 10.0
-MIN_STICK = 0.2  # above PX4's 0.1 stick dead zone (MPC_HOLD_DZ), so the last metres are flown
+SLOWDOWN_M = 20.0
+MIN_STICK = 0.3  # well above PX4's 0.1 stick dead zone (MPC_HOLD_DZ), so the last metres are flown
 GOAL_RADIUS_M = 1.0
 SETTLED_SPEED_M_S = 0.5
-CLIMBED_TOLERANCE_M = 1.0
+AIRBORNE_M = 1.0
 ALTITUDE_GAIN = 0.3  # throttle stick per metre below the route's altitude
 YAW_GAIN = 1.0  # yaw stick per radian of heading error
 FACE_BEYOND_M = 3.0  # closer to the aim point than this the pilot stops turning
+SETTLE_S = 1.0
 BLOCKED_AFTER_S = 20.0
 PROGRESS_M = 0.5
 
@@ -102,7 +103,6 @@ class Pilot:
         self.start_up_m = start["up_m"]
         self.points = [(start["north_m"], start["east_m"])] + [(w["north_m"], w["east_m"]) for w in route]
         self.altitudes = [takeoff_altitude_m] + [w["altitude_m"] for w in route]
-        self.takeoff_altitude_m = takeoff_altitude_m
         self.max_stick = max_stick
         self.aim_offset_m = aim_offset_m
         self.leg = 0
@@ -112,6 +112,7 @@ class Pilot:
         self.remaining_m = self._remaining(*self.points[0])
         self._best_remaining_m = math.inf
         self._progress_at_s = 0.0
+        self._settled_at_s = 0.0
 
     def _leg_geometry(self, leg: int) -> tuple[float, float, float, float, float, float]:
         (n0, e0), (n1, e1) = self.points[leg], self.points[leg + 1]
@@ -122,11 +123,10 @@ class Pilot:
         return n0, e0, un, ue, -ue, length  # right of the direction (un, ue) is (-ue, un)
 
     def _remaining(self, north: float, east: float) -> float:
-        """Distance along the route from the vehicle's projection on its leg to the goal."""
-        n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
-        along = min(max((north - n0) * un + (east - e0) * ue, 0.0), length)
+        """How far the pilot still has to go: to the end of its leg, then along the route."""
+        leg_end = self.points[self.leg + 1]
         rest = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(self.points[self.leg + 1 :], self.points[self.leg + 2 :]))
-        return length - along + rest
+        return math.hypot(leg_end[0] - north, leg_end[1] - east) + rest
 
     def _aim_point(self, north: float, east: float) -> tuple[float, float]:
         n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
@@ -147,11 +147,15 @@ class Pilot:
         altitude = state.up_m - self.start_up_m
         north, east = state.north_m, state.east_m
         if self.phase == "takeoff":
-            climbed = altitude >= self.takeoff_altitude_m - CLIMBED_TOLERANCE_M and abs(state.v_down_m_s) < SETTLED_SPEED_M_S
+            climbed = altitude >= AIRBORNE_M and abs(state.v_down_m_s) < SETTLED_SPEED_M_S
             if not climbed:
                 return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_HOLD)
             self.phase = "cruise"
             self._progress_at_s = time_s
+        if self.phase == "settle" and time_s - self._settled_at_s >= SETTLE_S:
+            self.phase = "land"
+        if self.phase == "settle":
+            return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_POSITION)
         if self.phase == "land":
             return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND)
         self.aim = self._aim_point(north, east)
@@ -165,8 +169,8 @@ class Pilot:
         to_goal = math.hypot(goal_n - north, goal_e - east)
         speed = math.hypot(state.v_north_m_s, state.v_east_m_s)
         if to_goal <= GOAL_RADIUS_M and speed < SETTLED_SPEED_M_S:
-            self.phase = "land"
-            return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND)
+            self.phase, self._settled_at_s = "settle", time_s
+            return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_POSITION)
         d_n, d_e = self.aim[0] - north, self.aim[1] - east
         distance = math.hypot(d_n, d_e)
         stick = min(self.max_stick, max(MIN_STICK, self.max_stick * min(1.0, to_goal / SLOWDOWN_M)))
