@@ -54,3 +54,27 @@ def test_a_small_campaign_completes_against_px4_with_two_instances(tmp_path):
         statuses = [row[0] for row in opened.db.execute("SELECT status FROM evaluations")]
     assert run["evaluations"] == 4 and run["finished"] is not None
     assert not set(statuses) & {"sut_crashed", "sim_crashed", "timeout"}, statuses
+
+
+WALL = str(ROOT / "scenarios" / "examples" / "wall_concrete.json")
+
+
+def run_wall(capsys, tmp_path, drive: str) -> dict:
+    assert main(["run", "--concrete", WALL, "--sut", "px4", "--drive", drive, "--out", str(tmp_path / drive), "--json"]) in (0, 1)
+    return json.loads(capsys.readouterr().out)
+
+
+def test_px4_flies_into_a_wall_on_a_mission_and_its_collision_prevention_stops_the_pilot(capsys, tmp_path):
+    """The evidence that the pilot drive tests PX4's own collision prevention: it acts in Position
+    mode with stick input only."""
+    mission = run_wall(capsys, tmp_path, "mission")
+    assert mission["min_clearance_m"] <= 0.0 and mission["status"] == "violation"
+    pilot = run_wall(capsys, tmp_path, "pilot")
+    assert pilot["min_clearance_m"] > 0.0 and pilot["status"] != "violation", pilot["why"]
+    assert pilot["status"] in ("ok", "mission_failed"), pilot["why"]
+
+
+def test_sut_check_with_the_pilot_drive_sees_px4_accept_position_mode_from_the_rc_link(capsys):
+    assert main(["sut", "check", "--sut", "px4", "--drive", "pilot", "--json"]) == 0
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    assert stages[-1]["name"] == "position mode with stick input accepted" and stages[-1]["ok"], stages

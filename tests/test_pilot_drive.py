@@ -1,0 +1,81 @@
+"""The pilot drive end to end against the bundled autopilot: the bridge's simulated pilot, the
+autopilot and MAVSDK as real processes, flying a wall across the route in Position mode."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from pymavlink.dialects.v20 import common as mavlink
+
+from conftest import ROOT
+from harness import logs
+from harness.cli import main
+from harness.evaluation import RunOptions, evaluate
+from harness.fitness import PENALTY
+from harness.scenario.world import load_concrete
+from sim_bridge.pilot import BLOCKED_AFTER_S, RC_PERIOD_S
+
+pytestmark = pytest.mark.slow
+EXAMPLES = ROOT / "scenarios" / "examples"
+MAIN_POSCTL = 3
+
+
+def fly(tmp_path: Path, concrete: str, name: str, drive: str = "pilot"):
+    space, x = load_concrete(EXAMPLES / concrete, drive)
+    return evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2), name=name)
+
+
+def frames(log: Path, topic: str, direction: str) -> list:
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    return [(t, message) for t, _ns, record in logs.messages(log, [topic]) if record["direction"] == direction
+            for message in parser.parse_buffer(bytes.fromhex(record["hex"])) or []]
+
+
+def test_the_pilot_relies_on_collision_prevention_at_a_wall_and_the_flight_repeats_bit_for_bit(tmp_path):
+    first = fly(tmp_path, "wall_concrete.json", "wall-1")
+    assert first.status != "violation" and first.min_clearance_m > 0.0, first.why
+    assert first.status == "ok", first.why  # guided past the wall's end, landed on the goal
+    second = fly(tmp_path, "wall_concrete.json", "wall-2")
+    assert second.fitness == first.fitness
+    traces = [[batch["d"] for _t, _ns, batch in logs.messages(Path(r.log_path), ["/clearance"])] for r in (first, second)]
+    assert traces[0] == traces[1]
+
+
+def test_the_sticks_reach_the_sut_on_the_simulator_link_and_put_it_in_position_mode(tmp_path):
+    result = fly(tmp_path, "wall_concrete.json", "sticks")
+    log = Path(result.log_path)
+    rc = [message for _t, message in frames(log, "/mavlink/sim", "to_sut") if message.get_type() == "RC_CHANNELS"]
+    # an RC frame every 20 ms of simulated time, from the first step to the last
+    assert len(rc) == pytest.approx(result.sim_time_s / RC_PERIOD_S, abs=2)
+    pushed = [m for m in rc if m.chan2_raw > 1900]
+    assert pushed, "the pilot never pushed the pitch stick forward"
+    modes = [(m.custom_mode >> 16) & 0xFF for _t, m in frames(log, "/mavlink/api", "from_sut") if m.get_type() == "HEARTBEAT"]
+    assert MAIN_POSCTL in modes
+    pilot = [record for _t, _ns, record in logs.messages(log, ["/pilot"])]
+    assert [p["phase"] for p in pilot][0] == "takeoff" and pilot[-1]["phase"] == "land"
+
+
+def test_a_wall_too_wide_to_pass_holds_the_pilot_back_until_the_flight_ends_blocked(tmp_path):
+    result = fly(tmp_path, "wide_wall_concrete.json", "wide")
+    assert result.status == "mission_failed" and result.why == f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
+    assert 0.0 < result.min_clearance_m and result.fitness == pytest.approx(result.min_clearance_m - 1.0 + PENALTY)
+    assert logs.json_metadata(Path(result.log_path), "bridge_summary")["end_reason"] == "blocked"
+
+
+def test_the_same_wall_in_a_mission_is_no_pilot_flight(tmp_path):
+    result = fly(tmp_path, "wall_concrete.json", "mission", drive="mission")
+    with open(result.log_path, "rb") as stream:
+        assert "/pilot" not in {channel.topic for channel in make_reader(stream).get_summary().channels.values()}
+    assert not [m for _t, m in frames(Path(result.log_path), "/mavlink/sim", "to_sut") if m.get_type() == "RC_CHANNELS"]
+
+
+def test_sut_check_with_the_pilot_drive_switches_the_bundled_autopilot_to_position_mode(capsys):
+    assert main(["sut", "check", "--drive", "pilot", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [stage["name"] for stage in report["stages"]][-1] == "position mode with stick input accepted"
+    assert all(stage["ok"] for stage in report["stages"]), report["stages"]
+
