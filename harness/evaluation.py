@@ -275,10 +275,10 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         timings["hold_s"] = time.monotonic() - t0
         try:
             session.set_params(sut.mavlink_params)
-            if world.get("drive") == "pilot":
+            if world["drive"] == "pilot":
                 session.set_params(PILOT_SUT_PARAMS)
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
-            if world.get("drive") == "pilot":
+            if world["drive"] == "pilot":
                 session.arm_and_take_off(world["mission"]["takeoff_altitude_m"])
             else:
                 session.upload_and_start(mission_items(world))

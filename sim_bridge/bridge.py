@@ -38,7 +38,7 @@ import math
 import select
 import socket
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -438,8 +438,10 @@ class Bridge:
     def _pilot_rc(self, time_us: int):
         pilot = self.pilot
         frame = pilot.update(time_us / 1e6, self.vehicle.state)
-        slot = self._forced_slot or frame.slot
-        channels = frame.channels() if slot == frame.slot else type(frame)(frame.roll, frame.pitch, frame.throttle, frame.yaw, slot).channels()
+        if self._forced_slot is not None:
+            frame = replace(frame, slot=self._forced_slot)
+        slot = frame.slot
+        channels = frame.channels()
         self.recorder.write("/pilot", time_ns=time_us * 1000, message={
             "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
             "mode_slot": slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,

@@ -114,13 +114,13 @@ class Pilot:
         self._progress_at_s = 0.0
         self._settled_at_s = 0.0
 
-    def _leg_geometry(self, leg: int) -> tuple[float, float, float, float, float, float]:
+    def _leg_geometry(self, leg: int) -> tuple[float, float, float, float, float]:
+        """The leg's start, unit direction and length; right of a direction (un, ue) is (-ue, un)."""
         (n0, e0), (n1, e1) = self.points[leg], self.points[leg + 1]
         length = math.hypot(n1 - n0, e1 - e0)
         if length < 1e-9:
-            return n0, e0, 1.0, 0.0, 0.0, length
-        un, ue = (n1 - n0) / length, (e1 - e0) / length
-        return n0, e0, un, ue, -ue, length  # right of the direction (un, ue) is (-ue, un)
+            return n0, e0, 1.0, 0.0, length
+        return n0, e0, (n1 - n0) / length, (e1 - e0) / length, length
 
     def _remaining(self, north: float, east: float) -> float:
         """How far the pilot still has to go: to the end of its leg, then along the route."""
@@ -129,11 +129,11 @@ class Pilot:
         return math.hypot(leg_end[0] - north, leg_end[1] - east) + rest
 
     def _aim_point(self, north: float, east: float) -> tuple[float, float]:
-        n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
+        n0, e0, un, ue, length = self._leg_geometry(self.leg)
         along = (north - n0) * un + (east - e0) * ue
         while along >= length - GOAL_RADIUS_M and self.leg < len(self.points) - 2:
             self.leg += 1
-            n0, e0, un, ue, _, length = self._leg_geometry(self.leg)
+            n0, e0, un, ue, length = self._leg_geometry(self.leg)
             along = (north - n0) * un + (east - e0) * ue
         target = min(max(along, 0.0) + LOOKAHEAD_M, length)
         last_leg = self.leg == len(self.points) - 2
