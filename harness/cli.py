@@ -429,6 +429,7 @@ def parser() -> argparse.ArgumentParser:
         p = add(name, help_text)
         p.add_argument("scenario", help="logical scenario JSON")
         p.add_argument("--profile", default="default")
+        p.add_argument("--drive", choices=DRIVES, help="override the scenario's mission.drive (pilot adds the pilot's dimensions)")
         if name == "sample":
             p.add_argument("--seed", type=int, default=0)
             p.add_argument("--out", help="also write the concrete scenario to this file")
