@@ -113,7 +113,7 @@ def rescore(log_path: Path) -> dict[str, Any]:
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
     """Fly the concrete scenario x; never raises for a failed run, only reports it."""
     wall_start = time.monotonic()
-    stem = name or f"{space.logical.name.replace(' ', '_').replace('#', '')}-seed{seed}"
+    stem = logs.slug(name or f"{space.logical.name}-seed{seed}")
     violations = space.violations(x)
     if violations:
         total = -sum(min(0.0, float(m[0])) for m in space.constraint_margins(np.asarray(x)[None, :]).values())

@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+
+
+def slug(text: str) -> str:
+    """A file-name and test-id safe form of text: a scenario's name may hold anything, but a
+    path with ':' or a space breaks PX4's start-up script (it sources files by path)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "scenario"
 
 
 def messages(path: Path, topics: Sequence[str] | None = None) -> Iterator[tuple[str, int, Any]]:

@@ -25,7 +25,8 @@ import pytest
 from harness.errors import InputError
 from harness.evaluation import EvaluationResult, RunOptions, evaluate
 from harness.executors import Executor, Job, LocalExecutor, run_job
-from harness.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, slug, verdict
+from harness.logs import slug
+from harness.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, verdict
 from harness.scenario.documents import load_json
 from harness.scenario.logical import DRIVES, load_logical
 from harness.scenario.profile import load_profile

@@ -18,6 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from harness.errors import InputError, Problem
+from harness.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete
@@ -94,11 +95,6 @@ def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) ->
     if result["status"] == "violation":
         return None
     return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
-
-
-def slug(text: str) -> str:
-    """A file-name and test-id safe form of text."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "scenario"
 
 
 def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe") -> list[Path]:

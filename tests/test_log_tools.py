@@ -95,3 +95,11 @@ def test_the_foxglove_layout_refers_to_what_the_logs_hold(runs):
         return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
 
     assert sorted(leaves(layout["layout"])) == sorted(panels)
+
+
+def test_names_on_disk_are_slugs_of_whatever_a_scenario_is_called():
+    from harness.logs import slug
+
+    assert slug("Holdout 2: three static obstacles") == "Holdout_2_three_static_obstacles"
+    assert slug("Test Scenario #1-seed0") == "Test_Scenario_1-seed0"  # the names logs had before
+    assert slug("::") == "scenario"

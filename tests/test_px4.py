@@ -78,3 +78,15 @@ def test_sut_check_with_the_pilot_drive_sees_px4_accept_position_mode_from_the_r
     assert main(["sut", "check", "--sut", "px4", "--drive", "pilot", "--json"]) == 0
     stages = json.loads(capsys.readouterr().out)["stages"]
     assert stages[-1]["name"] == "position mode with stick input accepted" and stages[-1]["ok"], stages
+
+
+def test_a_scenario_whose_name_has_a_colon_and_spaces_is_flown_by_px4(capsys, tmp_path):
+    """PX4's start-up script cannot run in a working directory whose path holds ':' or a space."""
+    document = json.loads((ROOT / "scenarios" / "table3" / "scenario_05.json").read_text())
+    document["name"] = "Holdout 2: three static obstacles"
+    scenario = tmp_path / "holdout.json"
+    scenario.write_text(json.dumps(document))
+    assert main(["run", str(scenario), "--sut", "px4", "--seed", "3", "--out", str(tmp_path), "--json"]) in (0, 1)
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] in ("ok", "violation", "mission_failed"), result["why"]
+    assert Path(result["log_path"]).name == "Holdout_2_three_static_obstacles-seed3.mcap"
