@@ -314,15 +314,16 @@ class Commander:
     def _manual_control_lost(self, now_s: float, estimate: VehicleEstimate) -> None:
         """PX4's manual-control-loss failsafe in Position mode, by NAV_RCL_ACT."""
         action = int(self.params["NAV_RCL_ACT"])
-        if action == 0:
-            return
         self.events.append(("statustext", "Manual control lost"))
         target = {1: (MAIN_AUTO, SUB_AUTO_LOITER), 2: (MAIN_AUTO, SUB_AUTO_RTL)}.get(action, (MAIN_AUTO, SUB_AUTO_LAND))
         self.set_mode(target, estimate, now_s)
 
     def update(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
-        if self.mode == (MAIN_POSCTL, 0) and self.armed and not self.manual_fresh(now_s):
-            self._manual_control_lost(now_s, estimate)
+        if self.manual is not None and not self.manual_fresh(now_s):
+            # As PX4's manual_control: switch positions seen before the loss count for nothing.
+            self._mode_slot = None
+            if self.mode == (MAIN_POSCTL, 0) and self.armed:
+                self._manual_control_lost(now_s, estimate)
         if not self.armed:
             self.landed = True
             return Setpoint(idle=True)

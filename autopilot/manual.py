@@ -114,7 +114,6 @@ class PositionMode:
 
     def reset(self, v_north: float, v_east: float, position: tuple[float, float, float], yaw: float) -> None:
         self.v_north, self.v_east = v_north, v_east
-        self.a_north = self.a_east = 0.0
         self._a_prev = (0.0, 0.0)
         self._brake_boost = 1.0
         self.hold_ne: tuple[float, float] | None = None
@@ -166,7 +165,6 @@ class PositionMode:
         self.v_north += a_n * dt
         self.v_east += a_e * dt
         self._a_prev = (a_n, a_e)
-        self.a_north, self.a_east = a_n, a_e
         moving = self.v_north != 0.0 or self.v_east != 0.0
         if not moving and self.hold_ne is None:
             self.hold_ne = (position[0], position[1])

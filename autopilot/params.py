@@ -85,7 +85,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _i("MAV_SYS_ID", 1, 1, 250, "", "MAVLink system id."),
     _i("COM_RC_IN_MODE", 3, 0, 4, "", "Manual control source, as in PX4: 0 RC only, 1 MAVLink only, 2 or 3 RC or MAVLink, 4 none. The bundled autopilot reads RC (RC_CHANNELS on the simulator link) and has no MAVLink manual control, so 1 and 4 disable manual control."),
     _f("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s", "Manual control counts as lost this long after the last RC frame."),
-    _i("NAV_RCL_ACT", 2, 0, 6, "", "What manual-control loss in Position mode does: 0 nothing, 1 Hold, 2 Return, 3 Land (5 and 6, terminate and disarm in PX4, land here: the bundled autopilot never cuts its motors in flight)."),
+    _i("NAV_RCL_ACT", 2, 1, 6, "", "What manual-control loss in Position mode does: 1 Hold, 2 Return, 3 Land (5 and 6, terminate and disarm in PX4, land here: the bundled autopilot never cuts its motors in flight)."),
     _i("RC_CHAN_CNT", 0, 0, 18, "", "RC channels calibrated; 0 (PX4's default) leaves the RC unused, as an uncalibrated RC in PX4."),
     _i("RC_MAP_ROLL", 0, 0, 18, "", "RC channel of the roll stick (0: none)."),
     _i("RC_MAP_PITCH", 0, 0, 18, "", "RC channel of the pitch stick (0: none)."),

@@ -270,6 +270,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from harness.bench import PLACEMENTS, bench_text, run_bench
     from harness.evaluation import RunOptions
 
+    if args.drive and (args.executor or args.campaign):
+        raise InputError([Problem("--drive", "", "the executor and campaign benchmarks fly the standard scenario's own drive; leave --drive out")])
     if args.executor:
         from harness.bench import executor_bench_text, run_executor_bench
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 import sut_adapter
 from harness import fitness as scoring
@@ -38,6 +39,7 @@ from sut_adapter import SutHandle, SystemUnderTest
 
 log = logging.getLogger(__name__)
 
+PX4_MAIN_MODE_POSCTL = 3
 CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
 # With a core each, the simulator and the SUT poll this long for each other's next message
 # before sleeping: far longer than a lockstep turn, short enough to idle during setup.
@@ -88,7 +90,22 @@ class EvaluationResult:
         return asdict(self)
 
 
+def _reported_position_mode(log_path: Path) -> bool:
+    """Whether the SUT's heartbeats on the API link ever said Position mode (PX4 custom main mode 3)."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    for _t, _ns, record in logs.messages(log_path, ["/mavlink/api"]):
+        if record["direction"] == "from_sut":
+            for message in parser.parse_buffer(bytes.fromhex(record["hex"])) or []:
+                if message.get_type() == "HEARTBEAT" and (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
+                    return True
+    return False
+
+
 def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None) -> tuple[str, float, str | None, scoring.Clearance]:
+    if failure is None and summary.get("end_reason") == "blocked" and not _reported_position_mode(log_path):
+        # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
+        failure = ("mission_failed", "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
     if failure is None and clearance.samples:
         states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
@@ -276,7 +293,8 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         try:
             session.set_params(sut.mavlink_params)
             if world["drive"] == "pilot":
-                session.set_params(PILOT_SUT_PARAMS)
+                # A parameter the user set (--sut-param) is the user's to decide.
+                session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut_params})
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             if world["drive"] == "pilot":
                 session.arm_and_take_off(world["mission"]["takeoff_altitude_m"])

@@ -63,13 +63,15 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any
     reason = summary.get("end_reason")
     if reason == "blocked":
         return f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
-    for index, waypoint in enumerate(mission["waypoints"] if drive == "mission" else mission["waypoints"][-1:]):
+    waypoints = list(enumerate(mission["waypoints"], 1))
+    for number, waypoint in waypoints if drive == "mission" else waypoints[-1:]:
         closest = min(
             (math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states),
             default=math.inf,
         )
         if closest > acceptance_radius_m:
-            return f"waypoint {index + 1} missed by {closest:.1f} m (acceptance radius {acceptance_radius_m} m); run ended: {reason}"
+            what = f"waypoint {number}" if drive == "mission" else "the goal"
+            return f"{what} missed by {closest:.1f} m (acceptance radius {acceptance_radius_m} m); run ended: {reason}"
     if not mission.get("land", True):
         return None
     if reason == "crashed":

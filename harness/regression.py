@@ -21,7 +21,7 @@ from harness.errors import InputError, Problem
 from harness.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
-from harness.scenario.world import space_from_concrete
+from harness.scenario.world import space_from_concrete, with_drive_recorded
 from harness.store import Store
 
 FORMAT = "stella.regression/1"
@@ -56,7 +56,7 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
     problems = schema_problems(document, "regression", str(path))
     if problems:
         raise InputError(problems)
-    concrete = document["concrete_scenario"]
+    concrete = with_drive_recorded(document["concrete_scenario"], drive)
     try:
         space = space_from_concrete(concrete, str(path), drive)
         x = space.from_concrete(concrete, str(path))

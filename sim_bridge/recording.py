@@ -143,6 +143,16 @@ STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "properties": {"t": {"type": "number"}, "event": {"type": "string"}, "detail": {"type": "object"}},
     },
+    "stella.MavlinkBytes": {
+        "title": "stella.MavlinkBytes",
+        "description": "Raw MAVLink frames of one link in one direction, hex encoded, batched.",
+        "type": "object",
+        "properties": {"link": {"type": "string"}, "direction": {"type": "string"}, "hex": {"type": "string"}},
+    },
+}
+
+# Schemas of topics a log has only when the run needs them.
+OPTIONAL_SCHEMAS: dict[str, dict[str, Any]] = {
     "stella.PilotSticks": {
         "title": "stella.PilotSticks",
         "description": "The simulated pilot's RC frame (sticks -1..1 in PX4's manual_control convention, mode-switch slot, raw channels) and where it aims.",
@@ -160,12 +170,6 @@ STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
             "aim_east_m": {"type": "number"},
             "remaining_m": {"type": "number"},
         },
-    },
-    "stella.MavlinkBytes": {
-        "title": "stella.MavlinkBytes",
-        "description": "Raw MAVLink frames of one link in one direction, hex encoded, batched.",
-        "type": "object",
-        "properties": {"link": {"type": "string"}, "direction": {"type": "string"}, "hex": {"type": "string"}},
     },
 }
 
@@ -236,9 +240,10 @@ class Recorder:
 
     def __enter__(self) -> "Recorder":
         self._writer.start(profile="", library="stella-uav")
+        wanted = set(self._topics.values())
         schema_ids = {
             name: self._writer.register_schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
-            for name, schema in SCHEMAS.items()
+            for name, schema in {**SCHEMAS, **OPTIONAL_SCHEMAS}.items() if name in SCHEMAS or name in wanted
         }
         for topic, schema in self._topics.items():
             self._channels[topic] = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[schema])

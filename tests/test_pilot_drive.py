@@ -79,3 +79,12 @@ def test_sut_check_with_the_pilot_drive_switches_the_bundled_autopilot_to_positi
     assert [stage["name"] for stage in report["stages"]][-1] == "position mode with stick input accepted"
     assert all(stage["ok"] for stage in report["stages"]), report["stages"]
 
+
+
+def test_a_sut_that_ignores_the_rc_is_not_reported_as_held_back_by_collision_prevention(tmp_path):
+    """COM_RC_IN_MODE 1 (MAVLink only): the bundled autopilot ignores the pilot's RC frames, so
+    the vehicle hovers where the takeoff left it; the user's parameter wins over the pilot's."""
+    space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
+    result = evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2, sut_params={"COM_RC_IN_MODE": 1}), name="ignored")
+    assert result.status == "mission_failed"
+    assert result.why.startswith("the SUT never reported Position mode"), result.why

@@ -242,3 +242,45 @@ def test_a_regression_case_flies_with_the_drive_the_plugin_asks_for():
     assert case.space.mission.drive == "pilot" and case.concrete["drive"] == "pilot"
     assert case.concrete["pilot"] == {"max_stick": 1.0, "aim_offset_m": 0.0}
     assert load_regression(ROOT / "tests" / "data" / "regressions" / "safe_fig4.json").space.mission.drive == "mission"
+
+
+def test_one_seed_samples_the_same_world_with_either_drive(profile):
+    import numpy as np
+
+    scenario = ROOT / "scenarios" / "table3" / "scenario_09.json"
+    mission = SearchSpace(load_logical(scenario, profile), profile)
+    piloted = SearchSpace(load_logical(scenario, profile, "pilot"), profile)
+    for seed in range(5):
+        a = mission.sample_feasible(np.random.default_rng(seed), 3)
+        b = piloted.sample_feasible(np.random.default_rng(seed), 3)
+        assert (b[:, : mission.n_dimensions] == a).all()
+
+
+def test_a_concrete_scenario_whose_recorded_drive_contradicts_its_logical_scenario_is_refused():
+    import json
+
+    from harness.errors import InputError
+
+    document = json.loads(WALL_CONCRETE.read_text())
+    document["drive"] = "pilot"
+    space, _x = load_concrete(WALL_CONCRETE)
+    with pytest.raises(InputError) as error:
+        space.from_concrete(document, "wall.json")
+    assert error.value.problems[0].pointer == "/drive"
+
+
+@pytest.mark.parametrize("text", ['"not an object"', '{"name": "x", "mission": "pilot"}'])
+def test_a_malformed_scenario_with_drive_override_gets_a_located_error_not_a_traceback(tmp_path, capsys, text):
+    from harness.cli import main
+
+    bad = tmp_path / "bad.json"
+    bad.write_text(text)
+    assert main(["space", str(bad), "--drive", "pilot"]) == 2
+    assert str(bad) in capsys.readouterr().err
+
+
+def test_bench_refuses_a_drive_it_would_not_use(capsys):
+    from harness.cli import main
+
+    assert main(["bench", "--executor", "local", "--drive", "pilot"]) == 2
+    assert "--drive" in capsys.readouterr().err

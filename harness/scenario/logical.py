@@ -66,7 +66,9 @@ def with_drive(document: Mapping[str, Any], drive: str | None) -> Mapping[str, A
     if drive is None:
         return document
     if drive not in DRIVES:
-        raise ValueError(f"unknown drive {drive!r}: choose {' or '.join(DRIVES)}")
+        raise InputError([Problem("--drive", "", f"unknown drive {drive!r}: choose {' or '.join(DRIVES)}")])
+    if not isinstance(document, Mapping) or not isinstance(document.get("mission", {}), Mapping):
+        return document  # not a scenario: validation names what is wrong with it
     changed = dict(document)
     changed["mission"] = {**document.get("mission", {}), "drive": drive}
     return changed

@@ -197,8 +197,15 @@ class SearchSpace:
     # -- sampling and constraints -------------------------------------------------------------
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """n uniform points in the box, feasible or not."""
-        return self.lower + (self.upper - self.lower) * rng.random((n, self.n_dimensions))
+        """n uniform points in the box, feasible or not. The pilot's dimensions come from a
+        generator of their own, so one seed gives the same world with either drive."""
+        pilot = [i for i, d in enumerate(self.dimensions) if d.path[0] == "pilot"]
+        world = [i for i in range(self.n_dimensions) if i not in pilot]
+        unit = np.empty((n, self.n_dimensions))
+        unit[:, world] = rng.random((n, len(world)))
+        if pilot:
+            unit[:, pilot] = rng.spawn(1)[0].random((n, len(pilot)))
+        return self.lower + (self.upper - self.lower) * unit
 
     def sample_feasible(self, rng: np.random.Generator, n: int, max_rounds: int = 1000) -> np.ndarray:
         """n uniform points that satisfy every realism constraint (rejection sampling)."""
@@ -303,6 +310,9 @@ class SearchSpace:
         """The vector of a concrete scenario document; every value is checked against its bounds."""
         problems = []
         values = []
+        if document.get("drive", self.mission.drive) != self.mission.drive:
+            problems.append(Problem(file, "/drive", f'"{document["drive"]}" but its logical scenario is flown with the {self.mission.drive} drive '
+                                                    f'(/logical_scenario/mission/drive, or --drive): make them agree'))
         for dimension in self.dimensions:
             at = pointer(dimension.path)
             try:

@@ -99,6 +99,11 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
     }
 
 
+def with_drive_recorded(document: Any, drive: str | None) -> Any:
+    """A concrete scenario document whose recorded drive is `drive` (unchanged for None)."""
+    return {**document, "drive": drive} if drive is not None and isinstance(document, dict) else document
+
+
 def space_from_concrete(document: Any, file: str, drive: str | None = None) -> SearchSpace:
     """Rebuild the search space from the logical scenario and profile a concrete file embeds;
     `drive` overrides the logical scenario's drive (`--drive`)."""
@@ -119,6 +124,7 @@ def space_from_concrete(document: Any, file: str, drive: str | None = None) -> S
 
 
 def load_concrete(path: Path, drive: str | None = None) -> tuple[SearchSpace, np.ndarray]:
-    document = load_json(path)
+    """A concrete scenario file; `drive` flies it with another drive than it was made for."""
+    document = with_drive_recorded(load_json(path), drive)
     space = space_from_concrete(document, str(path), drive)
     return space, space.from_concrete(document, str(path))
