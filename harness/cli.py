@@ -137,8 +137,17 @@ def cmd_sample(args: argparse.Namespace) -> int:
 
 @command("generate")
 def cmd_generate(args: argparse.Namespace) -> int:
-    from harness.scenario.generate import generate
+    from harness.scenario.generate import fewest_rows, generate, paper_factors
 
+    factors = len(paper_factors())
+    if not 1 <= args.strength <= factors:
+        raise InputError([Problem("--strength", "", f"{args.strength} is not a strength for {factors} value sets: choose 1 to {factors} (2, pairwise, is usual)")])
+    bound = fewest_rows(args.strength)
+    if bound > args.max_scenarios:
+        raise InputError([Problem("--strength", "", f"strength {args.strength} gives at least {bound:,} logical scenarios, more than --max-scenarios "
+                                                    f"{args.max_scenarios:,}: choose a lower strength, or raise --max-scenarios")])
+    print(f"strength {args.strength}: at least {bound:,} logical scenarios (the product of the {args.strength} largest value sets); "
+          f"covering arrays of strength 3 and more take minutes", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -344,9 +353,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from harness.statistics import compare, table
     from harness.store import Store
 
-    if not Path(args.store).exists():
-        raise InputError([Problem(args.store, "", "no such campaign store")])
-    with Store(Path(args.store)) as store:
+    with Store.existing(Path(args.store)) as store:
         report = compare(store, args.baseline)
     emit(args, report, table(report))
     return 0
@@ -357,9 +364,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from harness.report import write_report
     from harness.store import Store
 
-    if not Path(args.store).exists():
-        raise InputError([Problem(args.store, "", "no such campaign store")])
-    with Store(Path(args.store)) as store:
+    with Store.existing(Path(args.store)) as store:
         write_report(store, Path(args.out), args.worst, args.baseline)
     emit(args, {"report": args.out}, f"wrote {args.out}")
     return 0
@@ -413,6 +418,20 @@ def cmd_export_regressions(args: argparse.Namespace) -> int:
     return 0
 
 
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not a positive whole number")
+    return value
+
+
+def positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} is not a positive number")
+    return value
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
@@ -452,7 +471,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", default="default")
     add_sut(p)
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
-    p.add_argument("--rate-hz", type=float, default=250.0, help="lockstep rate")
+    p.add_argument("--rate-hz", type=positive_float, default=250.0, help="lockstep rate")
     p.add_argument("--cores", type=int, choices=(1, 2), default=2,
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
@@ -471,37 +490,37 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=0.0, help="metres of difference still counted as equal (default 0: bit-identical)")
 
     p = add("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes")
-    p.add_argument("--runs", type=int, default=5)
+    p.add_argument("--runs", type=positive_int, default=5)
     p.add_argument("--scenario", help="logical scenario (default: Table III scenario 31)")
     p.add_argument("--seed", type=int, default=4)
-    p.add_argument("--rate-hz", type=float, default=250.0)
+    p.add_argument("--rate-hz", type=positive_float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only this placement (cores per evaluation; default: both)")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
-    p.add_argument("--evaluations", type=int, help="with --campaign (default 500) or --executor (default 10)")
-    p.add_argument("--workers", type=int, help="with --campaign (default: cores) or --executor (default 1)")
+    p.add_argument("--evaluations", type=positive_int, help="with --campaign (default 500) or --executor (default 10)")
+    p.add_argument("--workers", type=positive_int, help="with --campaign (default: cores) or --executor (default 1)")
 
     p = add("campaign", "search logical scenarios for worst cases; resumable from its store")
     p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
     p.add_argument("--algorithm", action="append", required=True, help="NSGAII, SMPSO, BO, RANDOM or a combination of N P B R such as NPB; repeatable")
-    p.add_argument("--evaluations", type=int, required=True, help="budget per run (split evenly over a combination's steps)")
-    p.add_argument("--runs", type=int, default=1)
+    p.add_argument("--evaluations", type=positive_int, required=True, help="budget per run (split evenly over a combination's steps)")
+    p.add_argument("--runs", type=positive_int, default=1)
     p.add_argument("--seed", type=int, default=0, help="run r uses seed + r")
-    p.add_argument("--population", type=int, default=50, help="population, swarm size and BO initial set")
+    p.add_argument("--population", type=positive_int, default=50, help="population, swarm size and BO initial set")
     p.add_argument("--profile", default="default")
     add_sut(p)
     p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
                    help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
-    p.add_argument("--workers", type=int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
-    p.add_argument("--attempts", type=int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
-    p.add_argument("--eval-timeout-s", type=float, default=600.0, help="hard wall-clock limit of one try (default 600)")
+    p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
+    p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
+    p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
     p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")
     p.add_argument("--docker-image", help="with --executor docker: the worker image (default: stella-worker:latest)")
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
-    p.add_argument("--wall-time-s", type=float, help="end each run after this much wall time")
+    p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
     p = add("compare", "the algorithm comparison table (median best fitness, relative performance, p-value, A12)")
     p.add_argument("store")
@@ -519,7 +538,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=str(Path(__file__).resolve().parent.parent / "scenarios" / "examples" / "fig4.json"),
                    help="logical scenario whose world the check starts (default: Fig. 4)")
     p.add_argument("--profile", default="default")
-    p.add_argument("--timeout-s", type=float, default=60.0, help="per stage")
+    p.add_argument("--timeout-s", type=positive_float, default=60.0, help="per stage")
 
     p = add("docker", "build the worker image for --executor docker and docker/compose.yaml")
     p.add_argument("action", choices=["build"])
@@ -543,6 +562,7 @@ def parser() -> argparse.ArgumentParser:
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)
+    p.add_argument("--max-scenarios", type=positive_int, default=10_000, help="refuse a strength that gives more logical scenarios than this (default 10,000)")
     p.add_argument("--out", required=True)
     return root
 

@@ -100,15 +100,13 @@ def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) ->
 def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe") -> list[Path]:
     """One case file per distinct concrete scenario with fitness below `threshold`, plus the
     `worst` lowest-fitness ones of each run; identical scenarios found twice are written once."""
-    if not store_path.exists():
-        raise InputError([Problem(str(store_path), "", "no such campaign store")])
     if expect not in EXPECTATIONS:
         raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-    with Store(store_path) as store:
+    with Store.existing(store_path) as store:
         sut = store.campaign_sut()
         chosen = store.worst_cases(threshold, worst)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
     seen: set[str] = set()
     for case in chosen:
         if case["concrete"] is None or case["vector_key"] in seen:

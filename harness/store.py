@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import time
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -82,6 +83,22 @@ class StoredEvaluation:
 
 
 class Store:
+    @classmethod
+    def existing(cls, path: Path) -> "Store":
+        """A store to read (compare, report, export): the file must be a campaign store, and is
+        never turned into one."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError([Problem(str(path), "", "no such campaign store: give the --store file of a `stella campaign`")])
+        try:
+            with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as probe:
+                tables = {row[0] for row in probe.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        except sqlite3.DatabaseError as error:
+            raise InputError([Problem(str(path), "", f"not a campaign store ({error}): give the --store file of a `stella campaign`")]) from None
+        if not {"campaigns", "runs", "evaluations"} <= tables:
+            raise InputError([Problem(str(path), "", "an SQLite file, but not a campaign store (no campaigns, runs and evaluations tables)")])
+        return cls(path)
+
     def __init__(self, path: Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)

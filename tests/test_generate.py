@@ -77,3 +77,14 @@ def test_generate_command_writes_valid_scenarios_that_round_trip(tmp_path, profi
         assert logical_problems(document, profile, str(path)) == []
         assert scenario_to_row(document) == row
         assert 1 <= len(document["environment"]["obstacles"]) <= MAX_OBSTACLES
+
+
+@pytest.mark.parametrize("strength", [0, 9, 17])
+def test_a_strength_the_value_sets_do_not_allow_is_refused_at_once_saying_why(tmp_path, capsys, strength):
+    assert main(["generate", "--strength", str(strength), "--out", str(tmp_path)]) == 2
+    assert "--strength" in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+def test_generate_says_how_many_scenarios_at_least_before_it_starts(tmp_path, capsys):
+    assert main(["generate", "--strength", "1", "--out", str(tmp_path)]) == 0
+    assert "strength 1: at least 4 logical scenarios" in capsys.readouterr().err

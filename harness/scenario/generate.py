@@ -7,6 +7,8 @@ visibility, and up to four obstacle slots of kind, size and form. Slots 2-4 may 
 
 from __future__ import annotations
 
+import math
+
 from itertools import combinations
 from typing import Any, Iterable, Mapping
 
@@ -62,6 +64,13 @@ def slot_constraints() -> list[dict]:
                 {"operator": "or", "conditions": [_is_empty(f"obstacle {slot} kind"), _not_empty(f"obstacle {slot - 1} kind")]}
             )
     return constraints
+
+
+def fewest_rows(strength: int) -> int:
+    """A lower bound on the scenarios a strength gives: every combination of the `strength`
+    largest value sets must appear in some row (the slot constraints only add rows)."""
+    sizes = sorted((len(values) for values in paper_factors().values()), reverse=True)
+    return math.prod(sizes[:strength])
 
 
 def covering_rows(strength: int) -> list[dict[str, str]]:
