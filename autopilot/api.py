@@ -249,8 +249,13 @@ class ApiLink:
                 return
             except OSError:
                 return
-            self.remote = address
-            for message in self.mav.parse_buffer(data) or []:
+            # A datagram holds whole frames: what a bad one left half-parsed must not swallow the next.
+            self.mav.buf, self.mav.buf_index, self.mav.expected_length = bytearray(), 0, mavlink.HEADER_LEN_V1 + 2
+            messages = [m for m in self.mav.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
+            if messages:
+                # Only a MAVLink peer becomes the partner: a stray datagram must not divert the telemetry.
+                self.remote = address
+            for message in messages:
                 self.handle(message)
 
     def handle(self, msg) -> None:

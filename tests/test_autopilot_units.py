@@ -239,3 +239,34 @@ def test_parameters_are_validated_and_ints_travel_bytewise():
 
 def test_the_parameter_documentation_is_generated_from_the_declarations():
     assert (ROOT / "docs" / "autopilot_parameters.md").read_text() == markdown_table(), "run: python -m autopilot.params > docs/autopilot_parameters.md"
+
+
+def test_garbage_datagrams_from_another_port_do_not_divert_the_telemetry():
+    """Issue 18, defect 1: the API link took the sender of any datagram as its ground station."""
+    import socket
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from autopilot.api import ApiLink
+    from autopilot.app import Autopilot
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        gcs.bind(("127.0.0.1", 0))
+        stranger.bind(("127.0.0.1", 0))
+        gcs.settimeout(2.0)
+        link = ApiLink(Autopilot(Params()), gcs.getsockname())
+        target = link.sock.getsockname()
+        for garbage in (b"\x00" * 40, b"\xfd\x09garbage-not-mavlink", bytes(range(256))):
+            stranger.sendto(garbage, target)
+        time.sleep(0.05)
+        link.receive()
+        assert link.remote == gcs.getsockname()
+        link.heartbeat()
+        assert mavlink.MAVLink(None).parse_buffer(gcs.recv(2048))[0].get_type() == "HEARTBEAT"
+        peer = mavlink.MAVLink(None, srcSystem=255)
+        stranger.sendto(peer.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(peer), target)
+        time.sleep(0.05)
+        link.receive()
+        assert link.remote == stranger.getsockname()  # a real MAVLink peer is answered, as PX4 answers it
+        link.sock.close()
