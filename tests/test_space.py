@@ -159,3 +159,45 @@ def test_space_command_lists_dimensions_and_not_simulated_parameters(capsys):
     description = json.loads(capsys.readouterr().out)
     assert [n["parameter"] for n in description["not_simulated"]] == ["lighting", "precipitation", "lightning", "cloud cover"]
     assert description["constraint_policy"] == "infeasible"
+
+
+def _changed_profile_document(profile, change):
+    import copy
+
+    document = copy.deepcopy(dict(profile.document))
+    change(document)
+    return document
+
+
+def test_units_come_from_what_the_profile_declares_not_from_the_parameter_name(profile):
+    """Issue 18, defect 8: a profile giving wind in m/s was divided by 3.6 all the same."""
+    from harness.scenario.documents import load_json
+    from harness.scenario.logical import logical_from_document
+    from harness.scenario.profile import profile_from_document
+
+    def wind_in(unit, low, high):
+        def change(document):
+            document["parameters"]["wind force"]["unit"] = unit
+            document["parameters"]["wind force"]["categories"]["moderate"] = {"min": low, "max": high}
+        return change
+
+    fig4 = load_json(ROOT / "scenarios" / "examples" / "fig4.json")
+    bounds = {}
+    for unit, low, high in (("km/h", 3.6, 7.2), ("m/s", 1.0, 2.0), ("kn", 1.0, 2.0)):
+        changed = profile_from_document(_changed_profile_document(profile, wind_in(unit, low, high)))
+        space = SearchSpace(logical_from_document(fig4, changed, "fig4.json"), changed)
+        dimension = next(d for d in space.dimensions if d.name == "wind_speed_m_s")
+        bounds[unit] = (dimension.lower, dimension.upper, dimension.unit)
+    assert {unit for *_bounds, unit in bounds.values()} == {"m/s"}
+    assert bounds["km/h"][:2] == pytest.approx((1.0, 2.0)) and bounds["m/s"][:2] == (1.0, 2.0)
+    assert bounds["kn"][:2] == pytest.approx((0.514444, 1.028889), rel=1e-5)
+
+
+def test_a_unit_that_does_not_measure_the_quantity_is_a_located_profile_error(profile):
+    from harness.scenario.profile import profile_problems
+
+    document = _changed_profile_document(profile, lambda d: d["parameters"]["wind force"].update(unit="m"))
+    [problem] = profile_problems(document, "p.json")
+    assert problem.pointer == "/parameters/wind force/unit" and "m/s" in problem.message and "km/h" in problem.message
+    document = _changed_profile_document(profile, lambda d: d["parameters"]["wind force"].update(unit="furlongs/fortnight"))
+    assert profile_problems(document, "p.json")[0].pointer == "/parameters/wind force/unit"

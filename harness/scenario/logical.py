@@ -104,7 +104,7 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
                 problems.append(
                     Problem(file, f"{at}/speed range", 'only a "dynamic" obstacle has a speed; remove it or make the obstacle dynamic')
                 )
-            problems += _range_problems(file, f"{at}/speed range", obstacle["speed range"], "m/s")
+            problems += _range_problems(file, f"{at}/speed range", obstacle["speed range"], profile.document["obstacles"]["speed"]["unit"])
             if obstacle["speed range"]["min"] < 0:
                 problems.append(Problem(file, f"{at}/speed range/min", "speeds cannot be negative"))
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]

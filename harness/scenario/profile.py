@@ -9,6 +9,7 @@ from typing import Any, Mapping
 
 from harness.errors import InputError, Problem
 from harness.paths import profile_path
+from harness.scenario import units
 from harness.scenario.documents import load_json, schema, schema_problems
 
 WEATHER_PARAMETERS = (
@@ -30,6 +31,9 @@ class Interval:
     @classmethod
     def from_json(cls, document: Mapping[str, Any]) -> "Interval":
         return cls(float(document["min"]), float(document["max"]))
+
+    def scaled(self, factor: float) -> "Interval":
+        return Interval(self.min * factor, self.max * factor)
 
     @property
     def degenerate(self) -> bool:
@@ -53,6 +57,14 @@ class Landform:
     area: Mapping[str, float]
 
 
+# Weather parameters the simulation represents, with the name and unit of their quantity; the
+# profile's unit is converted into it (harness/scenario/units.py).
+SIMULATED_WEATHER = {
+    "wind force": ("wind_speed_m_s", "m/s"),
+    "reduced visibility": ("visibility_m", "m"),
+    "temperature": ("temperature_c", "degC"),
+}
+
 # The pilot drive's ranges for a profile written before it existed (the default profile's values).
 PILOT_DEFAULTS = {"max_stick": {"min": 0.3, "max": 1.0}, "aim_offset": {"unit": "m", "min": -10.0, "max": 10.0}}
 
@@ -67,6 +79,7 @@ class Profile:
     weather_defaults: Mapping[str, str]
     obstacle_sizes: Mapping[str, Interval]
     obstacle_speed_m_s: Interval
+    obstacle_speed_factor: float  # a speed in the profile's unit times this is in m/s
     obstacle_travel_m: Interval
     obstacle_altitude_m: Interval
     keep_out_radius_m: float
@@ -159,6 +172,13 @@ def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
         for label, north, east in (("start (0, 0)", 0.0, 0.0), ("goal", landform["goal"]["north_m"], landform["goal"]["east_m"])):
             if not (area["north_min_m"] <= north <= area["north_max_m"] and area["east_min_m"] <= east <= area["east_max_m"]):
                 problems.append(Problem(file, f"/landforms/{name}/area", f"the {label} lies outside the flight area"))
+    quantities = [(f"/parameters/{name}/unit", document["parameters"][name]["unit"], unit) for name, (_n, unit) in SIMULATED_WEATHER.items()]
+    quantities += [(f"/obstacles/{key}/unit", document["obstacles"][key]["unit"], unit) for key, unit in (("speed", "m/s"), ("travel", "m"), ("altitude", "m"))]
+    for pointer, unit, simulation_unit in quantities:
+        try:
+            units.factor(unit, simulation_unit)
+        except ValueError as error:
+            problems.append(Problem(file, pointer, str(error)))
     for key in ("max_stick", "aim_offset"):
         if "pilot" in document:
             check_interval(f"/pilot/{key}", document["pilot"][key], f"the pilot's {key}")
@@ -202,9 +222,10 @@ def profile_from_document(document: Mapping[str, Any]) -> Profile:
         parameters=MappingProxyType(parameters),
         weather_defaults=MappingProxyType({k: v for k, v in document["weather_defaults"].items() if k != "description"}),
         obstacle_sizes=MappingProxyType({k: Interval.from_json(v) for k, v in obstacles["size"]["categories"].items()}),
-        obstacle_speed_m_s=Interval.from_json(obstacles["speed"]),
-        obstacle_travel_m=Interval.from_json(obstacles["travel"]),
-        obstacle_altitude_m=Interval.from_json(obstacles["altitude"]),
+        obstacle_speed_m_s=Interval.from_json(obstacles["speed"]).scaled(units.factor(obstacles["speed"]["unit"], "m/s")),
+        obstacle_speed_factor=units.factor(obstacles["speed"]["unit"], "m/s"),
+        obstacle_travel_m=Interval.from_json(obstacles["travel"]).scaled(units.factor(obstacles["travel"]["unit"], "m")),
+        obstacle_altitude_m=Interval.from_json(obstacles["altitude"]).scaled(units.factor(obstacles["altitude"]["unit"], "m")),
         keep_out_radius_m=float(obstacles["keep_out_radius_m"]),
         min_separation_m=float(obstacles["min_separation_m"]),
         landforms=MappingProxyType(landforms),

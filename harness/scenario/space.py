@@ -17,18 +17,11 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario.documents import pointer
 from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
-from harness.scenario.profile import Interval, Profile
+from harness.scenario import units
+from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from sim_bridge.terrain import max_height_on_segment_m
 
 CONCRETE_FORMAT = "stella.concrete/1"
-KMH_TO_M_S = 1.0 / 3.6
-
-# Weather parameters the simulation represents, with the name and unit conversion of their quantity.
-SIMULATED_WEATHER = {
-    "wind force": ("wind_speed_m_s", "m/s", KMH_TO_M_S),
-    "reduced visibility": ("visibility_m", "m", 1.0),
-    "temperature": ("temperature_c", "degC", 1.0),
-}
 
 
 @dataclass(frozen=True)
@@ -134,8 +127,9 @@ class SearchSpace:
                 dimensions.append(Dimension(name, interval.min, interval.max, unit, path))
                 _set(self._template, path, None)
 
-        for parameter, (name, unit, scale) in SIMULATED_WEATHER.items():
+        for parameter, (name, unit) in SIMULATED_WEATHER.items():
             weather = logical.weather[parameter]
+            scale = units.factor(weather.unit, unit)
             quantity(name, Interval(weather.interval.min * scale, weather.interval.max * scale), unit, ("environment", name))
             if parameter == "wind force":
                 calm = weather.interval.max == 0.0
@@ -165,7 +159,7 @@ class SearchSpace:
                 quantity(f"{prefix}.yaw_deg", Interval(0.0, 180.0), "deg", ("obstacles", index, "position", "yaw_deg"))
             if obstacle.kind == "dynamic":
                 entry["motion"] = {}
-                speed = obstacle.speed_range or profile.obstacle_speed_m_s
+                speed = obstacle.speed_range.scaled(profile.obstacle_speed_factor) if obstacle.speed_range else profile.obstacle_speed_m_s
                 motion = ("obstacles", index, "motion")
                 quantity(f"{prefix}.altitude_m", profile.obstacle_altitude_m, "m", motion + ("altitude_m",))
                 quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
