@@ -32,6 +32,7 @@ from typing import Any, Iterable, Iterator, Mapping
 
 from harness.evaluation import EvaluationResult, RunOptions, evaluate
 from harness.fitness import PENALTY
+from harness.processes import die_with_parent
 from harness.scenario.world import space_from_concrete
 
 log = logging.getLogger(__name__)
@@ -199,7 +200,10 @@ class LocalExecutor(Executor):
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         # spawn, not fork: the parent may hold threads (MAVSDK, progress) that fork would copy half-way.
-        return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        # A worker is killed with the campaign, however the campaign ends (even kill -9); its
+        # evaluation's processes follow it the same way (processes.die_with_parent).
+        return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                                      initializer=die_with_parent, initargs=(signal.SIGKILL,))
 
     def submit(self, job: Job) -> concurrent.futures.Future:
         try:

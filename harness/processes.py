@@ -90,10 +90,10 @@ def _tail(path: Path, lines: int) -> str:
 _PR_SET_PDEATHSIG = 1
 
 
-def die_with_parent() -> None:
-    """In the child: get SIGTERM when the harness dies, even by SIGKILL, so nothing is orphaned."""
+def die_with_parent(sig: int = signal.SIGTERM) -> None:
+    """In the child: get `sig` when the harness dies, even by SIGKILL, so nothing is orphaned."""
     libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    libc.prctl(_PR_SET_PDEATHSIG, sig)
 
 
 def _signal_group(group: int, sig: int) -> None:
