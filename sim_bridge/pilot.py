@@ -23,7 +23,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
+
+if TYPE_CHECKING:  # the harness imports this module for its constants; no JSBSim for that
+    from sim_bridge.physics import VehicleState
 
 RC_PERIOD_S = 0.02
 CHANNEL_COUNT = 8
@@ -142,7 +145,7 @@ class Pilot:
             offset *= min(1.0, max(0.0, (length - target) / CONVERGE_M))
         return n0 + target * un - offset * ue, e0 + target * ue + offset * un
 
-    def update(self, time_s: float, state: Any) -> RcFrame:
+    def update(self, time_s: float, state: VehicleState) -> RcFrame:
         """The sticks for the vehicle's true state (north_m, east_m, up_m, v_*_m_s, yaw_rad)."""
         altitude = state.up_m - self.start_up_m
         north, east = state.north_m, state.east_m

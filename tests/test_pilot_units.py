@@ -4,7 +4,7 @@ input and Position mode, and the pilot dimensions of the search space."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -18,21 +18,11 @@ from harness.regression import load_regression
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, world_spec
+from sim_bridge.physics import VehicleState as State
 from sim_bridge.pilot import BLOCKED_AFTER_S, SETTLE_S, SLOT_HOLD, SLOT_LAND, SLOT_POSITION, SUT_PARAMS, Pilot, RcFrame, pwm, slot_value
 
 WALL = ROOT / "scenarios" / "examples" / "wall.json"
 WALL_CONCRETE = ROOT / "scenarios" / "examples" / "wall_concrete.json"
-
-
-@dataclass
-class State:
-    north_m: float = 0.0
-    east_m: float = 0.0
-    up_m: float = 0.0
-    v_north_m_s: float = 0.0
-    v_east_m_s: float = 0.0
-    v_down_m_s: float = 0.0
-    yaw_rad: float = 0.0
 
 
 def pilot(**overrides) -> Pilot:
