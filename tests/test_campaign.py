@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import random
 import signal
 import sqlite3
 import subprocess
@@ -31,8 +32,14 @@ class AnalyticExecutor:
 
     name = "analytic"
 
+    def __init__(self, draws_from_global_streams: bool = False):
+        self.draws_from_global_streams = draws_from_global_streams
+
     def run(self, jobs):
         for job in jobs:
+            if self.draws_from_global_streams:  # as a Dask client or a process pool may, between generations
+                random.random()
+                np.random.random(3)
             position = job.concrete["obstacles"][0]["position"]
             d = float(np.hypot(position["north_m"] - 30.0, position["east_m"] - 3.0)) - 2.0
             yield job, {"fitness": d, "status": "violation" if d < 0 else "ok", "seed": job.seed, "why": None}
@@ -46,11 +53,11 @@ def space(profile):
     return SearchSpace(load_logical(SCENARIO, profile), profile)
 
 
-def candidates(space, tmp_path, combination, seed, budget=20, name="store.db"):
+def candidates(space, tmp_path, combination, seed, budget=20, name="store.db", executor=None):
     with Store(tmp_path / name) as store:
         campaign = store.campaign({"test": combination, "seed": seed, "name": name})
         run_id, _ = store.run(campaign, str(SCENARIO), "s", combination, 0, seed)
-        problem = CampaignProblem(space, store, run_id, AnalyticExecutor(), seed, EvaluationBudget(budget), tmp_path)
+        problem = CampaignProblem(space, store, run_id, executor or AnalyticExecutor(), seed, EvaluationBudget(budget), tmp_path)
         run_sequence(combination, problem, budget=budget, seed=seed, population=6, batch=2)
         rows = store.db.execute("SELECT ordinal, vector, fitness FROM evaluations WHERE run_id = ? ORDER BY ordinal", (run_id,)).fetchall()
     return rows, problem
@@ -66,6 +73,16 @@ def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combina
     assert [r[1] for r in first] != [r[1] for r in other]
     assert len(first) == 20 and [r[0] for r in first] == list(range(20))
     assert problem.best[1] == min(r[2] for r in first)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("combination", ["N", "P", "B", "PNP"])
+def test_draws_from_the_global_random_streams_between_generations_do_not_change_the_candidates(space, tmp_path, combination):
+    quiet, _ = candidates(space, tmp_path, combination, seed=3, budget=14, name="quiet.db")
+    random.seed(99)
+    np.random.seed(99)
+    stirred, _ = candidates(space, tmp_path, combination, seed=3, budget=14, name="stirred.db", executor=AnalyticExecutor(draws_from_global_streams=True))
+    assert stirred == quiet
 
 
 @pytest.mark.slow

@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import logging
 import random
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -60,12 +61,49 @@ class _JMetalProblem(FloatProblem):
         return "stella-uav"
 
 
+class _OwnStreams:
+    """jMetalPy's operators draw from the global `random` stream (SMPSO from numpy's as well), and so
+    may whatever runs between two generations: a Dask client, a process pool, a library. So an
+    optimizer keeps its own seeded copy of both streams, installed while jMetalPy runs and put aside
+    while the harness evaluates; one seed then gives the same candidates on every executor, and the
+    rest of the program's streams are left as they were."""
+
+    def __init__(self, seed: int):
+        self._random = random.Random(seed).getstate()
+        self._numpy = np.random.RandomState(seed % 2**32).get_state()
+        self._outside: tuple | None = None
+
+    def _swap(self, state: tuple) -> tuple:
+        mine = (random.getstate(), np.random.get_state())
+        random.setstate(state[0])
+        np.random.set_state(state[1])
+        return mine
+
+    @contextmanager
+    def installed(self):
+        self._outside = self._swap((self._random, self._numpy))
+        try:
+            yield
+        finally:
+            self._random, self._numpy = self._swap(self._outside)
+
+    @contextmanager
+    def put_aside(self):
+        mine = self._swap(self._outside)
+        try:
+            yield
+        finally:
+            self._outside = self._swap(mine)
+
+
 class _BatchEvaluator(Evaluator):
-    def __init__(self, evaluate: Callable[[list[np.ndarray]], list[float]]):
+    def __init__(self, evaluate: Callable[[list[np.ndarray]], list[float]], streams: _OwnStreams):
         self._evaluate = evaluate
+        self._streams = streams
 
     def evaluate(self, solution_list, problem):
-        values = self._evaluate([np.array(s.variables, dtype=float) for s in solution_list])
+        with self._streams.put_aside():
+            values = self._evaluate([np.array(s.variables, dtype=float) for s in solution_list])
         for solution, value in zip(solution_list, values):
             solution.objectives[0] = value
         return solution_list
@@ -91,7 +129,7 @@ class NSGAIIOptimizer:
     name: str = "NSGAII"
 
     def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        random.seed(seed)  # jMetalPy draws from the random module
+        streams = _OwnStreams(seed)
         jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
         algorithm = NSGAII(
             problem=jproblem,
@@ -102,9 +140,10 @@ class NSGAIIOptimizer:
             selection=BinaryTournamentSelection(),
             termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
             population_generator=_injected(jproblem, initial),
-            population_evaluator=_BatchEvaluator(problem.evaluate),
+            population_evaluator=_BatchEvaluator(problem.evaluate, streams),
         )
-        algorithm.run()
+        with streams.installed():
+            algorithm.run()
 
 
 @dataclass(frozen=True)
@@ -113,8 +152,7 @@ class SMPSOOptimizer:
     name: str = "SMPSO"
 
     def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        random.seed(seed)
-        np.random.seed(seed % 2**32)  # SMPSO's velocity update draws from numpy as well
+        streams = _OwnStreams(seed)
         jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
         algorithm = SMPSO(
             problem=jproblem,
@@ -123,9 +161,10 @@ class SMPSOOptimizer:
             leaders=CrowdingDistanceArchive(100),
             termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
             swarm_generator=_injected(jproblem, initial),
-            swarm_evaluator=_BatchEvaluator(problem.evaluate),
+            swarm_evaluator=_BatchEvaluator(problem.evaluate, streams),
         )
-        algorithm.run()
+        with streams.installed():
+            algorithm.run()
 
 
 @dataclass(frozen=True)
