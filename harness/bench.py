@@ -129,13 +129,13 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
     from harness.store import Store
 
     path = scenario or scenarios_dir() / "table3" / "scenario_09.json"
-    config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population)
     executor = LocalExecutor(workers)
+    config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population, batch=executor.workers)
     with tempfile.TemporaryDirectory(prefix="stella-bench-campaign-") as folder:
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
             try:
-                run_campaign(config, store, executor, Path(folder) / "logs", batch=executor.workers)
+                run_campaign(config, store, executor, Path(folder) / "logs")
             finally:
                 executor.close()
             wall = time.monotonic() - started

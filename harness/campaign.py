@@ -23,6 +23,7 @@ from harness.executors import Executor
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
+from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
 from harness.search.problem import CampaignProblem, StopSearch
 from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
@@ -48,10 +49,13 @@ class CampaignConfig:
     sut: str = "bundled"
     sut_params: Mapping[str, float] = field(default_factory=dict)
     drive: str | None = None  # None: each scenario's own mission.drive
+    batch: int = DEFAULT_BATCH
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
-        overrides = {"drive": self.drive} if self.drive else {}
+        overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}
+        if self.batch != DEFAULT_BATCH:  # stores made before the batch was a setting resume as they were
+            overrides["batch"] = self.batch
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -123,7 +127,7 @@ def termination_for(config: CampaignConfig) -> Termination:
     return AnyOf(tuple(parts))
 
 
-def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, batch: int, options: RunOptions = RunOptions(),
+def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
                  on_result: Callable[[dict[str, Any]], None] = lambda r: None) -> CampaignSummary:
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity())
@@ -138,7 +142,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result)
-                run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=batch)
+                run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best
                 summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,

@@ -21,6 +21,7 @@ from harness.scenario.logical import DRIVES, load_logical, logical_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT
 from harness.scenario.world import space_from_concrete
+from harness.search import DEFAULT_BATCH
 
 log = logging.getLogger("stella")
 
@@ -319,13 +320,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         load_logical(Path(scenario), load_profile(args.profile), args.drive)
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
     except ValueError as error:
         raise InputError([Problem("--executor", "", str(error))]) from None
-    batch = executor.workers
     total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
     # A bar on stderr for people; nothing with --json, where a script reads stdout.
     bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
@@ -337,7 +337,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     store_path = Path(args.store)
     try:
         with Store(store_path) as store:
-            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", batch=batch,
+            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs",
                                    options=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), on_result=progress)
     finally:
         bar.close()
@@ -509,6 +509,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=positive_int, default=1)
     p.add_argument("--seed", type=int, default=0, help="run r uses seed + r")
     p.add_argument("--population", type=positive_int, default=50, help="population, swarm size and BO initial set")
+    p.add_argument("--batch", type=positive_int, default=DEFAULT_BATCH,
+                   help=f"candidates BO and RANDOM ask for at once (default {DEFAULT_BATCH}); part of the campaign, so a seed flies the same "
+                        "candidates on every executor; raise it to the number of workers on a big machine")
     p.add_argument("--profile", default="default")
     add_sut(p)
     p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",

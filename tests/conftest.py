@@ -30,6 +30,36 @@ def profile() -> Profile:
     return load_profile("default")
 
 
+# One seeded campaign of every optimizer and a sequential combination, with populations small
+# enough that each run reaches its second generation (or step) within its budget.
+SEEDED_CAMPAIGN = ("--algorithm", "NSGAII", "--algorithm", "SMPSO", "--algorithm", "BO", "--algorithm", "PNP",
+                   "--evaluations", "4", "--population", "2", "--seed", "3")
+
+
+def campaign_candidates(store_path) -> list[tuple]:
+    """What a campaign flew, in the order each run asked for it: the candidate sequences."""
+    import sqlite3
+
+    with sqlite3.connect(store_path) as db:
+        return db.execute("SELECT r.algorithm, e.ordinal, e.vector_key, e.status, e.fitness FROM evaluations e JOIN runs r ON r.id = e.run_id"
+                          " ORDER BY r.algorithm, e.ordinal").fetchall()
+
+
+def run_seeded_campaign(store_path, executor: str, *extra: str) -> list[tuple]:
+    from harness.cli import main
+
+    scenario = ROOT / "scenarios" / "table3" / "scenario_02.json"
+    argv = ["campaign", str(scenario), *SEEDED_CAMPAIGN, "--executor", executor, "--store", str(store_path), "--json", *extra]
+    assert main(argv) == 0
+    return campaign_candidates(store_path)
+
+
+@pytest.fixture(scope="session")
+def sequential_candidates(tmp_path_factory) -> list[tuple]:
+    """The seeded campaign flown one evaluation at a time: what every executor must reproduce."""
+    return run_seeded_campaign(tmp_path_factory.mktemp("sequential") / "sequential.db", "sequential")
+
+
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
 FIG4_SEED1_FITNESS = 9.882575416238263  # the bundled autopilot's fitness on Fig. 4 sampled with seed 1
 

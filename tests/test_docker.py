@@ -11,11 +11,10 @@ import time
 
 import pytest
 
-from conftest import FIG4_SEED1_FITNESS, ROOT, fig4_job
+from conftest import FIG4_SEED1_FITNESS, ROOT, SEEDED_CAMPAIGN, campaign_candidates, fig4_job, run_seeded_campaign
 from harness import logs
 from harness.errors import InfrastructureError
-from harness.store import Store
-from test_executors import SILENT_SUT, campaign_fitness
+from test_executors import SILENT_SUT
 
 pytestmark = pytest.mark.slow
 
@@ -97,12 +96,12 @@ def test_a_container_that_overruns_is_ended_as_a_timeout(executor, tmp_path, pro
     assert result["status"] == "timeout" and "the executor's limit per try" in result["why"]
 
 
-def test_the_same_seeded_campaign_gives_the_same_fitness_values_in_containers(engine, tmp_path, capsys):
-    assert campaign_fitness(tmp_path, capsys, "docker", "--workers", "2") == campaign_fitness(tmp_path, capsys, "sequential")
+def test_the_same_seeded_campaign_flies_the_same_candidates_in_containers(engine, tmp_path, sequential_candidates):
+    assert run_seeded_campaign(tmp_path / "docker.db", "docker", "--workers", "2") == sequential_candidates
     assert stella_containers(engine) == []
 
 
-def test_the_compose_file_runs_a_campaign_on_a_dask_cluster_of_worker_containers(engine, tmp_path, capsys):
+def test_the_compose_file_runs_a_campaign_on_a_dask_cluster_of_worker_containers(engine, tmp_path, sequential_candidates):
     import shutil
     import subprocess
 
@@ -112,11 +111,9 @@ def test_the_compose_file_runs_a_campaign_on_a_dask_cluster_of_worker_containers
     env = {**os.environ, "STELLA_RUNS": str(tmp_path)}
     try:
         subprocess.run([*compose, "up", "-d", "--scale", "worker=2", "scheduler", "worker"], env=env, check=True, capture_output=True, timeout=120)
-        subprocess.run([*compose, "run", "--rm", "campaign", "stella", "campaign", "/src/scenarios/table3/scenario_02.json", "--algorithm", "RANDOM",
-                        "--evaluations", "4", "--seed", "5", "--executor", "dask", "--dask-scheduler", "tcp://scheduler:8786",
-                        "--store", "/runs/compose.db", "--json"], env=env, check=True, capture_output=True, timeout=300)
+        subprocess.run([*compose, "run", "--rm", "campaign", "stella", "campaign", "/src/scenarios/table3/scenario_02.json", *SEEDED_CAMPAIGN,
+                        "--executor", "dask", "--dask-scheduler", "tcp://scheduler:8786", "--store", "/runs/compose.db", "--json"],
+                       env=env, check=True, capture_output=True, timeout=600)
     finally:
         subprocess.run([*compose, "down"], env=env, capture_output=True, timeout=120)
-    with Store(tmp_path / "compose.db") as store:
-        in_compose = sorted(row[0] for row in store.db.execute("SELECT fitness FROM evaluations"))
-    assert in_compose == campaign_fitness(tmp_path, capsys, "sequential")
+    assert campaign_candidates(tmp_path / "compose.db") == sequential_candidates

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound
+from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign
 from harness.campaign import CampaignConfig, run_campaign
 from harness.cli import main
 from harness.evaluation import RunOptions
@@ -86,12 +86,12 @@ def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_aga
 
 
 def test_a_campaign_with_a_broken_sut_finishes_with_every_evaluation_accounted_for(tmp_path):
-    config = CampaignConfig((str(FIG4),), ("RANDOM",), 3, population=3, sut="command")
+    config = CampaignConfig((str(FIG4),), ("RANDOM",), 3, population=3, sut="command", batch=2)
     executor = make_executor("local", 2, attempts=2)
     options = RunOptions(sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)
     try:
         with Store(tmp_path / "c.db") as store:
-            run_campaign(config, store, executor, tmp_path / "logs", batch=2, options=options)
+            run_campaign(config, store, executor, tmp_path / "logs", options=options)
             rows = store.db.execute("SELECT status, attempts FROM evaluations").fetchall()
     finally:
         executor.close()
@@ -99,20 +99,10 @@ def test_a_campaign_with_a_broken_sut_finishes_with_every_evaluation_accounted_f
     assert all(status == "timeout" and len(json.loads(attempts)) == 2 for status, attempts in rows)
 
 
-def campaign_fitness(tmp_path, capsys, executor: str, *extra: str) -> list[float]:
-    store = tmp_path / f"{executor}.db"
-    argv = ["campaign", str(ROOT / "scenarios" / "table3" / "scenario_02.json"), "--algorithm", "RANDOM", "--evaluations", "4", "--seed", "5",
-            "--executor", executor, "--store", str(store), "--json", *extra]
-    assert main(argv) == 0, capsys.readouterr().err
-    capsys.readouterr()
-    with Store(store) as opened:
-        return sorted(row[0] for row in opened.db.execute("SELECT fitness FROM evaluations"))
-
-
-def test_the_same_seeded_campaign_gives_the_same_fitness_values_sequentially_locally_and_on_dask(tmp_path, capsys):
-    sequential = campaign_fitness(tmp_path, capsys, "sequential")
-    assert campaign_fitness(tmp_path, capsys, "local", "--workers", "2") == sequential
-    assert campaign_fitness(tmp_path, capsys, "dask", "--workers", "2") == sequential
+def test_the_same_seeded_campaign_flies_the_same_candidates_sequentially_locally_and_on_dask(tmp_path, sequential_candidates):
+    assert {row[0] for row in sequential_candidates} == {"NSGAII", "SMPSO", "BO", "PNP"} and len(sequential_candidates) == 16
+    assert run_seeded_campaign(tmp_path / "local.db", "local", "--workers", "2") == sequential_candidates
+    assert run_seeded_campaign(tmp_path / "dask.db", "dask", "--workers", "2") == sequential_candidates
 
 
 def test_dask_retries_the_task_of_a_lost_worker(tmp_path, profile):
