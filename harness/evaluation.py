@@ -28,7 +28,7 @@ from harness import fitness as scoring
 from harness import logs
 from harness.api_tap import ApiTap
 from harness.bridge_control import BridgeControl
-from harness.errors import InfrastructureError
+from harness.errors import InfrastructureError, InputError, Problem
 from harness.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
 from harness.ports import PortBlock, PortLease
 from harness.processes import ManagedProcess
@@ -102,12 +102,15 @@ def _reported_position_mode(log_path: Path) -> bool:
     return False
 
 
-def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None) -> tuple[str, float, str | None, scoring.Clearance]:
-    if failure is None and summary.get("end_reason") == "blocked" and not _reported_position_mode(log_path):
+def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None,
+           partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
+    """Status and fitness of a flight from its log; of a partial (truncated) log, the clearance of
+    what was recorded, as whether the mission was flown cannot be told from part of it."""
+    if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(log_path):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
         failure = ("mission_failed", "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
-    if failure is None and clearance.samples:
+    if failure is None and clearance.samples and not partial:
         states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
         why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary, world.get("drive", "mission"))
         failure = ("mission_failed", why) if why else None
@@ -116,15 +119,21 @@ def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any],
 
 
 def rescore(log_path: Path) -> dict[str, Any]:
-    """Recompute status and fitness from a log alone (what `stella inspect` does)."""
+    """Recompute status and fitness from a log alone (what `stella inspect` does); a truncated log
+    is scored on what precedes the damage, and says where that is."""
+    cut = logs.truncation(log_path)
     world = logs.json_metadata(log_path, "world")
+    if world is None:
+        where = f"; the file is {cut.describe()}" if cut else ""
+        raise InputError([Problem(str(log_path), "", f"no world metadata: not an evaluation log of this tool, or cut before the simulator wrote it{where}")])
     summary = logs.json_metadata(log_path, "bridge_summary") or {}
     recorded = logs.json_metadata(log_path, "result") or {}
     failure = None
     if recorded.get("status") in ("timeout", "sut_crashed", "sim_crashed"):
         failure = (recorded["status"], recorded.get("why") or "")
-    status, value, why, clearance = _score(log_path, world, summary, failure)
-    return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded}
+    status, value, why, clearance = _score(log_path, world, summary, failure, partial=cut is not None)
+    return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
+            "truncation": cut}
 
 
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:

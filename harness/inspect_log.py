@@ -11,33 +11,37 @@ import math
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
-
 from harness import logs
 from harness.errors import InputError, Problem
 from harness.evaluation import rescore
 
 
 def summarize(path: Path) -> dict[str, Any]:
+    """What a log says of its flight, with the fitness recomputed from it alone; of a truncated
+    log, from what precedes the damage (`partial`)."""
     scored = rescore(path)
+    cut = scored["truncation"]
     clearance = scored["clearance"]
     recorded = scored["recorded"]
     summary = scored["summary"]
     return {
         "log": str(path),
         "scenario": scored["world"].get("scenario"),
-        "duration_s": summary.get("sim_time_s"),
+        "duration_s": summary.get("sim_time_s", cut.last_time_s if cut else None),
         "end_reason": summary.get("end_reason"),
         "status": scored["status"],
         "why": scored["why"],
         "fitness": scored["fitness"],
         "recorded_fitness": recorded.get("fitness"),
-        "fitness_reproduced": recorded.get("fitness") == scored["fitness"],
+        "fitness_reproduced": None if cut else recorded.get("fitness") == scored["fitness"],
         "min_clearance_m": clearance.min_clearance_m,
         "min_clearance_at_s": clearance.at_s,
         "min_clearance_obstacle": clearance.obstacle,
         "safety_distance_m": scored["world"]["safety_distance_m"],
         "touchdown": summary.get("touchdown"),
+        "partial": cut is not None,
+        "truncation": None if cut is None else {"readable_bytes": cut.readable_bytes, "size_bytes": cut.size_bytes, "last_time_s": cut.last_time_s},
+        "truncation_text": None if cut is None else cut.describe(),
     }
 
 
@@ -91,26 +95,18 @@ def plot(path: Path, out: Path) -> None:
 
 def topics(path: Path) -> list[dict[str, Any]]:
     """Each channel: topic, schema, message count, first and last log time (simulation seconds)."""
-    with open(path, "rb") as stream:
-        reader = make_reader(stream)
-        summary = reader.get_summary()
-        if summary is None:
-            raise InputError([Problem(str(path), "", "the MCAP file has no summary section (was it cut short?)")])
-        counts: dict[int, int] = {}
-        first: dict[int, int] = {}
-        last: dict[int, int] = {}
-        for _schema, channel, message in reader.iter_messages():
-            counts[channel.id] = counts.get(channel.id, 0) + 1
-            first[channel.id] = min(first.get(channel.id, message.log_time), message.log_time)
-            last[channel.id] = max(last.get(channel.id, message.log_time), message.log_time)
-    rows = []
-    for channel_id, channel in sorted(summary.channels.items(), key=lambda item: item[1].topic):
-        schema = summary.schemas.get(channel.schema_id)
-        rows.append({
-            "topic": channel.topic, "schema": schema.name if schema else None, "encoding": channel.message_encoding, "messages": counts.get(channel_id, 0),
-            "first_s": first[channel_id] / 1e9 if channel_id in first else None, "last_s": last[channel_id] / 1e9 if channel_id in last else None,
-        })
-    return rows
+    counts: dict[str, int] = {}
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for topic, time_ns, _message in logs.messages(path):
+        counts[topic] = counts.get(topic, 0) + 1
+        first.setdefault(topic, time_ns)
+        last[topic] = time_ns
+    return [
+        {"topic": topic, "schema": schema, "encoding": encoding, "messages": counts.get(topic, 0),
+         "first_s": first[topic] / 1e9 if topic in first else None, "last_s": last[topic] / 1e9 if topic in last else None}
+        for _cid, topic, schema, encoding in sorted(logs.channels(path), key=lambda entry: entry[1])
+    ]
 
 
 def _flatten(value: Any, prefix: str, row: dict[str, Any]) -> None:
@@ -195,10 +191,12 @@ def diff(a: Path, b: Path, tolerance: float = 0.0) -> dict[str, Any]:
             path_divergence = {"t_s": t, "distance_m": gap, "a": positions_a[t], "b": positions_b[t]}
             break
     lengths_differ = set(trace_a) != set(trace_b)
-    identical = clearance_divergence is None and path_divergence is None and not lengths_differ and first["fitness"] == second["fitness"]
+    identical = (clearance_divergence is None and path_divergence is None and not lengths_differ and first["fitness"] == second["fitness"]
+                 and not first["partial"] and not second["partial"])
     return {
         "a": {key: first[key] for key in ("log", "status", "fitness", "min_clearance_m", "min_clearance_at_s", "min_clearance_obstacle", "duration_s")},
         "b": {key: second[key] for key in ("log", "status", "fitness", "min_clearance_m", "min_clearance_at_s", "min_clearance_obstacle", "duration_s")},
+        "truncated": {side: report["truncation_text"] for side, report in (("a", first), ("b", second)) if report["partial"]},
         "same_inputs": inputs,
         "tolerance_m": tolerance,
         "common_steps": len(common),

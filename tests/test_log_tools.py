@@ -80,6 +80,48 @@ def test_diff_finds_where_two_sensor_seeds_part(runs, capsys):
     assert loose["identical"] == (runs["first"].fitness == runs["other_seed"].fitness) and code == (0 if loose["identical"] else 1)
 
 
+@pytest.fixture
+def truncated(runs, tmp_path):
+    """The first run's log cut at 60 % of its bytes, as a flight killed mid-way or a full disk leaves it."""
+    whole = runs["first"].log_path
+    cut = tmp_path / "cut.mcap"
+    data = open(whole, "rb").read()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    return cut
+
+
+def csv_rows(path) -> list[dict]:
+    with open(path) as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_a_truncated_log_is_read_up_to_the_damage_and_scored_on_what_it_holds(runs, truncated, capsys, tmp_path):
+    code, report = run_cli(capsys, "inspect", str(truncated), "--export", "csv", "--topic", "/clearance", "--topic", "/uav/state", "--out", str(tmp_path / "csv"))
+    assert code == 0 and report["partial"]
+    size = truncated.stat().st_size
+    assert 0 < report["truncation"]["readable_bytes"] <= size == report["truncation"]["size_bytes"]
+    assert 0 < report["truncation"]["last_time_s"] < runs["first"].sim_time_s
+    recorded = [(t, d, o) for _topic, _ns, batch in logs.messages(runs["first"].log_path, ["/clearance"])
+                for t, d, o in zip(batch["t"], batch["d"], batch["o"]) if t <= report["truncation"]["last_time_s"] and d is not None]
+    nearest = min(recorded, key=lambda entry: entry[1])
+    assert (report["min_clearance_at_s"], report["min_clearance_m"]) == (nearest[0], nearest[1])
+    assert report["fitness"] == nearest[1] - report["safety_distance_m"] and report["fitness_reproduced"] is None
+    # what was read is exactly the beginning of the whole log
+    main(["inspect", runs["first"].log_path, "--export", "csv", "--topic", "/uav/state", "--out", str(tmp_path / "whole"), "--json"])
+    capsys.readouterr()
+    partial_states, whole_states = csv_rows(tmp_path / "csv" / "uav_state.csv"), csv_rows(tmp_path / "whole" / "uav_state.csv")
+    assert 0 < len(partial_states) < len(whole_states) and partial_states == whole_states[: len(partial_states)]
+    assert main(["inspect", str(truncated)]) == 0
+    assert "log truncated: readable up to byte" in capsys.readouterr().out
+
+
+def test_diff_compares_a_truncated_log_up_to_its_damage(runs, truncated, capsys):
+    code, report = run_cli(capsys, "diff", str(truncated), runs["first"].log_path)
+    assert code == 1 and not report["identical"] and set(report["truncated"]) == {"a"}
+    assert report["common_steps"] > 0 and report["steps_only_in_a"] == 0 and report["steps_only_in_b"] > 0
+    assert report["clearance_divergence"] is None and report["path_divergence"] is None
+
+
 def test_the_foxglove_layout_refers_to_what_the_logs_hold(runs):
     layout = json.loads((ROOT / "docs" / "foxglove_layout.json").read_text())
     panels = layout["configById"]
