@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -48,7 +49,10 @@ def _expand(paths: Sequence[str]) -> list[Path]:
     files: list[Path] = []
     for raw in paths:
         path = Path(raw)
-        files.extend(sorted(path.glob("*.json")) if path.is_dir() else [path])
+        found = sorted(path.glob("*.json")) if path.is_dir() else [path]
+        if not found:
+            raise InputError([Problem(str(path), "", "a folder without *.json files: give scenario or profile files, or a folder of them")])
+        files.extend(found)
     return files
 
 
@@ -183,6 +187,8 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
             params[name] = int(value) if value.lstrip("-").isdigit() else float(value)
         except ValueError:
             raise InputError([Problem("--sut-param", "", f"{item!r} is not NAME=NUMBER (e.g. CP_DIST=2.5)")]) from None
+        if not math.isfinite(params[name]):
+            raise InputError([Problem("--sut-param", "", f"{item!r}: a parameter's value must be a finite number")])
     try:
         sut_adapter.get(args.sut, config)
     except sut_adapter.SutError as error:
@@ -216,8 +222,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     from harness.inspect_log import export_csv, plot, summarize, topics
 
     path = Path(args.log)
-    if not path.exists():
-        raise InputError([Problem(str(path), "", "no such file")])
+    if not path.is_file():
+        raise InputError([Problem(str(path), "", "no such file" if not path.exists() else "not a file: give an evaluation log (*.mcap)")])
     if args.topic and not args.export:
         raise InputError([Problem("--topic", "", "only means something with --export csv")])
     if args.topics:
@@ -230,11 +236,15 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if args.plot:
         plot(path, Path(args.plot))
         summary["plot"] = args.plot
-    lines = [f"{summary['log']}: {summary['scenario']}", f"duration: {summary['duration_s']:.2f} s simulated, ended: {summary['end_reason']}"]
+    lines = [f"{summary['log']}: {summary['scenario']}"]
+    if summary["partial"]:
+        lines.append(f"log {summary['truncation_text']}; everything below is of what was recorded before it (partial)")
+    else:
+        lines.append(f"duration: {summary['duration_s']:.2f} s simulated, ended: {summary['end_reason']}")
     lines.append(f"status: {summary['status']}" + (f" ({summary['why']})" if summary["why"] else ""))
     if summary["min_clearance_at_s"] is not None:
         lines.append(f"min clearance: {summary['min_clearance_m']:.3f} m at t={summary['min_clearance_at_s']:.3f} s to {summary['min_clearance_obstacle']}")
-    lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {summary['fitness_reproduced']}")
+    lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {'not checked (partial log)' if summary['partial'] else summary['fitness_reproduced']}")
     if args.export:
         out = Path(args.out) if args.out else path.with_name(f"{path.stem}-csv")
         written = export_csv(path, out, args.topic)
@@ -253,13 +263,14 @@ def cmd_diff(args: argparse.Namespace) -> int:
     from harness.inspect_log import diff
 
     for name in (args.a, args.b):
-        if not Path(name).exists():
-            raise InputError([Problem(name, "", "no such file")])
+        if not Path(name).is_file():
+            raise InputError([Problem(name, "", "no such file" if not Path(name).exists() else "not a file: give an evaluation log (*.mcap)")])
     report = diff(Path(args.a), Path(args.b), args.tolerance)
     lines = []
     for side in ("a", "b"):
         r = report[side]
-        lines.append(f"{side}: {r['log']}: {r['status']}, fitness {r['fitness']:.6f}, {r['duration_s']:.3f} s simulated")
+        lines.append(f"{side}: {r['log']}: {r['status']}, fitness {r['fitness']:.6f}, {_seconds(r['duration_s'])} s simulated")
+    lines += [f"log {side} is {text}; compared up to it" for side, text in report["truncated"].items()]
     different_inputs = [name for name, same in report["same_inputs"].items() if not same]
     lines.append("inputs: " + (f"differ in {', '.join(different_inputs)}" if different_inputs else "same concrete scenario, world and SUT"))
     lines.append(f"clearance: {report['common_steps']} common steps, largest difference {report['max_clearance_difference_m']:.6g} m"
@@ -326,6 +337,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
     except ValueError as error:
         raise InputError([Problem("--executor", "", str(error))]) from None
+    store_path = Path(args.store)
+    try:
+        store = Store.for_campaign(store_path)
+    except InputError:
+        executor.close()
+        raise
     total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
     # A bar on stderr for people; nothing with --json, where a script reads stdout.
     bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
@@ -334,9 +351,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         bar.update(1)
         bar.set_postfix_str(f"last {result['status']} f={result['fitness']:.2f}", refresh=False)
 
-    store_path = Path(args.store)
     try:
-        with Store(store_path) as store:
+        with store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs",
                                    options=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), on_result=progress)
     finally:
@@ -425,6 +441,27 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    value = float(text)
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} is not a number of zero or more")
+    return value
+
+
+def seed_int(text: str) -> int:
+    value = int(text)
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"{value} is not a seed: give a whole number from 0 to 4294967295")
+    return value
+
+
+def port_int(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value} is not a TCP port: give 1 to 65535")
+    return value
+
+
 def positive_float(text: str) -> float:
     value = float(text)
     if not value > 0 or value == float("inf"):
@@ -452,7 +489,7 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("--profile", default="default")
         p.add_argument("--drive", choices=DRIVES, help="override the scenario's mission.drive (pilot adds the pilot's dimensions)")
         if name == "sample":
-            p.add_argument("--seed", type=int, default=0)
+            p.add_argument("--seed", type=seed_int, default=0)
             p.add_argument("--out", help="also write the concrete scenario to this file")
 
     def add_sut(p: argparse.ArgumentParser) -> None:
@@ -467,7 +504,7 @@ def parser() -> argparse.ArgumentParser:
     p = add("run", "fly one concrete scenario against the SUT and score it")
     p.add_argument("scenario", nargs="?", help="logical scenario JSON (a concrete one is sampled with --seed)")
     p.add_argument("--concrete", help="concrete scenario JSON (from `stella sample --out`) instead of sampling")
-    p.add_argument("--seed", type=int, default=0, help="sampling and sensor-noise seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="sampling and sensor-noise seed")
     p.add_argument("--profile", default="default")
     add_sut(p)
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
@@ -487,12 +524,12 @@ def parser() -> argparse.ArgumentParser:
     p = add("diff", "compare two logs of one scenario: inputs, results, first divergence of clearance and trajectory; exit 1 if they differ")
     p.add_argument("a", help="first .mcap")
     p.add_argument("b", help="second .mcap")
-    p.add_argument("--tolerance", type=float, default=0.0, help="metres of difference still counted as equal (default 0: bit-identical)")
+    p.add_argument("--tolerance", type=non_negative_float, default=0.0, help="metres of difference still counted as equal (default 0: bit-identical)")
 
     p = add("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes")
     p.add_argument("--runs", type=positive_int, default=5)
     p.add_argument("--scenario", help="logical scenario (default: Table III scenario 31)")
-    p.add_argument("--seed", type=int, default=4)
+    p.add_argument("--seed", type=seed_int, default=4)
     p.add_argument("--rate-hz", type=positive_float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only this placement (cores per evaluation; default: both)")
@@ -507,7 +544,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--algorithm", action="append", required=True, help="NSGAII, SMPSO, BO, RANDOM or a combination of N P B R such as NPB; repeatable")
     p.add_argument("--evaluations", type=positive_int, required=True, help="budget per run (split evenly over a combination's steps)")
     p.add_argument("--runs", type=positive_int, default=1)
-    p.add_argument("--seed", type=int, default=0, help="run r uses seed + r")
+    p.add_argument("--seed", type=seed_int, default=0, help="run r uses seed + r")
     p.add_argument("--population", type=positive_int, default=50, help="population, swarm size and BO initial set")
     p.add_argument("--batch", type=positive_int, default=DEFAULT_BATCH,
                    help=f"candidates BO and RANDOM ask for at once (default {DEFAULT_BATCH}); part of the campaign, so a seed flies the same "
@@ -552,7 +589,7 @@ def parser() -> argparse.ArgumentParser:
     p = add("ui", "a web page to set up, launch, watch and browse campaigns")
     p.add_argument("--store-dir", default="runs/ui", help="where campaigns' stores, logs and uploads live (default: runs/ui)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback; any other needs the token)")
-    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--port", type=port_int, default=8765)
     p.add_argument("--token", help="the token the page asks for (default: made up and printed when binding beyond loopback)")
 
     p = add("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies")
@@ -584,6 +621,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as error:
+        if error.filename is None:
+            raise
+        # An output that cannot be written (no such folder, no permission, a full disk): the
+        # user's to mend, so one line naming the path rather than a traceback.
+        print(f"{error.filename}: {error.strerror}: give a path in a writable folder with room", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

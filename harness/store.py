@@ -90,6 +90,25 @@ class Store:
         path = Path(path)
         if not path.is_file():
             raise InputError([Problem(str(path), "", "no such campaign store: give the --store file of a `stella campaign`")])
+        cls._check_is_a_store(path)
+        return cls(path)
+
+    @classmethod
+    def for_campaign(cls, path: Path) -> "Store":
+        """A store to write: a new file, or a campaign store to resume. Any other file is refused
+        rather than turned into a store."""
+        path = Path(path)
+        if path.exists() and not path.is_file():
+            raise InputError([Problem(str(path), "", "is not a file: give --store a file name such as runs/campaign.db")])
+        if path.is_file() and path.stat().st_size > 0:
+            cls._check_is_a_store(path)
+        try:
+            return cls(path)
+        except (OSError, sqlite3.OperationalError) as error:
+            raise InputError([Problem(str(path), "", f"cannot create a campaign store here ({error}): give --store a path in a writable folder")]) from None
+
+    @staticmethod
+    def _check_is_a_store(path: Path) -> None:
         try:
             with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as probe:
                 tables = {row[0] for row in probe.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
@@ -97,7 +116,6 @@ class Store:
             raise InputError([Problem(str(path), "", f"not a campaign store ({error}): give the --store file of a `stella campaign`")]) from None
         if not {"campaigns", "runs", "evaluations"} <= tables:
             raise InputError([Problem(str(path), "", "an SQLite file, but not a campaign store (no campaigns, runs and evaluations tables)")])
-        return cls(path)
 
     def __init__(self, path: Path):
         self.path = Path(path)

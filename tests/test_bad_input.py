@@ -20,7 +20,15 @@ def files(tmp_path):
     other = tmp_path / "other.db"
     with sqlite3.connect(other) as db:
         db.execute("CREATE TABLE notes (x)")
-    return {"TEXT": str(text), "OTHER_SQLITE": str(other), "MISSING": str(tmp_path / "missing.db"), "OUT": str(tmp_path / "out")}
+    (tmp_path / "broken.json").write_text('{"name": "half')
+    (tmp_path / "array.json").write_text("[1, 2]")
+    (tmp_path / "text.mcap").write_text("a text file named like a log")
+    (tmp_path / "magic_only.mcap").write_bytes(b"\x89MCAP0\r\n")  # a log cut before the simulator wrote anything
+    (tmp_path / "empty_folder").mkdir()
+    return {"TEXT": str(text), "OTHER_SQLITE": str(other), "MISSING": str(tmp_path / "missing.db"), "OUT": str(tmp_path / "out"),
+            "BROKEN_JSON": str(tmp_path / "broken.json"), "ARRAY_JSON": str(tmp_path / "array.json"), "TEXT_MCAP": str(tmp_path / "text.mcap"),
+            "MAGIC_ONLY_MCAP": str(tmp_path / "magic_only.mcap"), "EMPTY_FOLDER": str(tmp_path / "empty_folder"),
+            "UNDER_A_FILE": str(text / "out"), "UNDER_A_FILE_DB": str(text / "campaign.db"), "UNDER_A_FILE_JSON": str(text / "concrete.json")}
 
 
 CORPUS = [
@@ -42,6 +50,43 @@ CORPUS = [
     (["generate", "--strength", "0", "--out", "OUT"], "0 is not a strength"),
     (["run", FIG4, "--drive", "autopilot"], "--drive: invalid choice"),
     (["bench", "--campaign", "--drive", "pilot"], "leave --drive out"),
+    (["validate", "BROKEN_JSON"], "invalid JSON at line 1"),
+    (["validate", "ARRAY_JSON"], "expected object, got array"),
+    (["validate", "EMPTY_FOLDER"], "a folder without *.json files"),
+    (["validate", "MISSING"], "no such file"),
+    (["validate", FIG4, "--profile", "BROKEN_JSON"], "invalid JSON"),
+    (["space", FIG4, "--profile", "no_such_profile"], "no_such_profile.json: /: no such file"),
+    (["space", FIG4, "--drive", "autopilot"], "--drive: invalid choice"),
+    (["sample", FIG4, "--seed", "-1"], "-1 is not a seed"),
+    (["sample", FIG4, "--seed", "4294967296"], "is not a seed"),
+    (["sample", FIG4, "--out", "UNDER_A_FILE_JSON"], "Not a directory: give a path in a writable folder"),
+    (["run", "BROKEN_JSON"], "invalid JSON"),
+    (["run", FIG4, "--sut", "no_such_sut"], "unknown SUT; available: bundled, command, px4"),
+    (["run", FIG4, "--sut-param", "CP_DIST"], "is not NAME=NUMBER"),
+    (["run", FIG4, "--sut-param", "CP_DIST=nan"], "must be a finite number"),
+    (["run", FIG4, "--out", "UNDER_A_FILE"], "Not a directory: give a path in a writable folder"),
+    (["inspect", "TEXT_MCAP"], "not an MCAP file"),
+    (["inspect", "MAGIC_ONLY_MCAP"], "no world metadata"),
+    (["inspect", "EMPTY_FOLDER"], "not a file: give an evaluation log"),
+    (["inspect", "MISSING"], "no such file"),
+    (["diff", "TEXT_MCAP", "TEXT_MCAP"], "not an MCAP file"),
+    (["diff", "MAGIC_ONLY_MCAP", "MISSING"], "no such file"),
+    (["diff", "TEXT_MCAP", "TEXT_MCAP", "--tolerance", "-1"], "is not a number of zero or more"),
+    (["campaign", FIG4, "--algorithm", "XYZ", "--evaluations", "3", "--store", "OUT"], "unknown algorithm 'XYZ'"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--batch", "0", "--store", "OUT"], "--batch: 0 is not a positive whole number"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "UNDER_A_FILE_DB"], "cannot create a campaign store here"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "EMPTY_FOLDER"], "is not a file"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "TEXT"], "not a campaign store"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "OTHER_SQLITE"], "not a campaign store"),
+    (["campaign", "BROKEN_JSON", "--algorithm", "NSGAII", "--evaluations", "3", "--store", "OUT"], "invalid JSON"),
+    (["report", "MISSING", "--out", "OUT"], "no such campaign store"),
+    (["export-regressions", "OTHER_SQLITE", "--out", "OUT"], "not a campaign store"),
+    (["export-regressions", "TEXT", "--out", "OUT", "--threshold", "abc"], "--threshold: invalid float value"),
+    (["generate", "--strength", "2", "--out", "UNDER_A_FILE"], "Not a directory: give a path in a writable folder"),
+    (["ui", "--port", "99999"], "99999 is not a TCP port"),
+    (["sut", "check", "--sut", "px4", "--px4-bin", "TEXT"], "is not an executable px4 binary"),
+    (["sut", "check", "--sut", "command", "--sut-command", "true"], "must use {sim_port}, {api_port}"),
+    (["bench", "--runs", "0"], "--runs: 0 is not a positive whole number"),
 ]
 
 
@@ -52,12 +97,14 @@ def test_a_bad_invocation_exits_2_with_a_reason_and_no_traceback(files, capsys, 
         code = main(argv)
     except SystemExit as exit_:  # argparse's own errors
         code = exit_.code
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert message in err and "Traceback" not in err
+    captured = capsys.readouterr()
+    said = captured.err + captured.out  # validate reports problems as its output, as linters do
+    assert code == 2, said
+    assert message in said and "Traceback" not in said
 
 
-def test_reading_a_file_that_is_no_store_leaves_it_as_it_was(files):
+def test_a_file_that_is_no_store_is_left_as_it_was(files):
     before = open(files["OTHER_SQLITE"], "rb").read()
     assert main(["compare", files["OTHER_SQLITE"]]) == 2
+    assert main(["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", files["OTHER_SQLITE"]]) == 2
     assert open(files["OTHER_SQLITE"], "rb").read() == before

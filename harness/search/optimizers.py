@@ -182,7 +182,7 @@ class BOOptimizer:
         names = [f"x{i:03d}" for i in range(space.n_dimensions)]
         optimizer = BayesianOptimization(
             f=None, pbounds={n: (float(lo), float(hi)) for n, lo, hi in zip(names, space.lower, space.upper)},
-            random_state=seed, verbose=0, allow_duplicate_points=True,
+            random_state=seed % 2**32, verbose=0, allow_duplicate_points=True,
         )
 
         def to_vector(params) -> np.ndarray:
