@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -199,17 +201,36 @@ def test_a_malformed_upload_in_the_browser_shows_the_located_error_and_launches_
 
 
 @pytest.mark.slow
+def sigint_pending(pid: int) -> bool:
+    status = Path(f"/proc/{pid}/status").read_text()
+    pending = int(next(line.split()[1] for line in status.splitlines() if line.startswith("ShdPnd:")), 16)
+    return bool(pending & (1 << (signal.SIGINT - 1)))
+
+
 def test_cancel_is_ctrl_c_and_resume_finishes_the_campaign_without_repeating_anything(client, tmp_path):
     import sqlite3
 
     assert client.post("/api/campaigns", json=launch_spec(evaluations=6, population=3)).status_code == 200
     campaigns = client.app.state.campaigns
+    group = campaigns._processes["c1"].pid
     deadline = time.monotonic() + 120
     while campaigns.progress("c1")["done"] < 1 and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert client.post("/api/campaigns/c1/cancel").json() == {"state": "stopped"}
+        time.sleep(0.05)
+    # A gate instead of a race with the machine's speed: the campaign is frozen from here until its
+    # cancel is pending, so it cannot finish first (five more flights in one 50 ms poll cannot be).
+    os.killpg(group, signal.SIGSTOP)
+    frozen_at = campaigns.progress("c1")["done"]
+    assert 1 <= frozen_at < 6
+    cancel = threading.Thread(target=lambda: replies.append(client.post("/api/campaigns/c1/cancel").json()))
+    replies: list = []
+    cancel.start()
+    while not sigint_pending(group) and cancel.is_alive():
+        time.sleep(0.01)
+    os.killpg(group, signal.SIGCONT)
+    cancel.join(timeout=90)
+    assert replies == [{"state": "stopped"}]
     stopped_at = campaigns.progress("c1")["done"]
-    assert 1 <= stopped_at < 6
+    assert frozen_at <= stopped_at < 6
     assert client.post("/api/campaigns/c1/resume").json() == {"state": "running"}
     while campaigns.state("c1") == "running" and time.monotonic() < deadline + 120:
         time.sleep(0.5)
