@@ -1,6 +1,8 @@
 from __future__ import annotations
 
+import os
 import socket
+import time
 from pathlib import Path
 
 import pytest
@@ -58,6 +60,43 @@ def run_seeded_campaign(store_path, executor: str, *extra: str) -> list[tuple]:
 def sequential_candidates(tmp_path_factory) -> list[tuple]:
     """The seeded campaign flown one evaluation at a time: what every executor must reproduce."""
     return run_seeded_campaign(tmp_path_factory.mktemp("sequential") / "sequential.db", "sequential")
+
+
+def children(parent_pid: int) -> list[int]:
+    """The live processes whose parent is parent_pid."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/stat") as handle:
+                parent = int(handle.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if parent == parent_pid:
+            found.append(int(pid))
+    return found
+
+
+def flying(pid: int) -> bool:
+    """Whether process pid, or a process it started, runs an evaluation: has the bridge and the
+    SUT as its children."""
+    family = [pid]
+    while family:
+        kids = children(family.pop())
+        if len(kids) >= 2:
+            return True
+        family += kids
+    return False
+
+
+def wait_until_flying(pid: int, timeout_s: float = 60.0) -> None:
+    """Block until process pid runs an evaluation: a state to wait for, where a sleep would race
+    the machine's speed."""
+    deadline = time.monotonic() + timeout_s
+    while not flying(pid):
+        assert time.monotonic() < deadline, f"process {pid} started no flight within {timeout_s} s"
+        time.sleep(0.02)
 
 
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"

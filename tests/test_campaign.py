@@ -168,6 +168,10 @@ def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_e
             if len(before) >= 3:
                 break
         time.sleep(0.2)
+    # Frozen before its store is read, so what was read is exactly what the kill leaves behind.
+    campaign.send_signal(signal.SIGSTOP)
+    with sqlite3.connect(killed_store) as db:
+        before = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
     campaign.send_signal(signal.SIGKILL)
     campaign.wait()
     assert 3 <= len(before) < 8

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from conftest import ROOT, port_bound
+from conftest import ROOT, children, port_bound
 from harness.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
@@ -62,21 +62,6 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
         assert not port_bound(CONTROL_BASE + slot, socket.SOCK_STREAM)
         assert not port_bound(API_BASE + slot, socket.SOCK_DGRAM)
     assert outcomes.count("ok") + outcomes.count("violation") == 10
-
-
-def children(parent_pid: int) -> list[int]:
-    found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            with open(f"/proc/{pid}/stat") as handle:
-                parent = int(handle.read().rsplit(")", 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):
-            continue
-        if parent == parent_pid:
-            found.append(int(pid))
-    return found
 
 
 def test_a_campaign_killed_with_sigkill_leaves_no_worker_and_no_flight_behind(tmp_path):

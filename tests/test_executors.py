@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign
+from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
 from harness.campaign import CampaignConfig, run_campaign
 from harness.cli import main
 from harness.evaluation import RunOptions
@@ -73,8 +73,9 @@ def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_aga
         deadline = time.monotonic() + 30.0
         while not executor.worker_pids() and time.monotonic() < deadline:
             time.sleep(0.05)
-        time.sleep(1.5)  # the worker is inside the evaluation: the bridge and the autopilot run
-        os.kill(executor.worker_pids()[0], signal.SIGKILL)
+        worker = executor.worker_pids()[0]
+        wait_until_flying(worker)
+        os.kill(worker, signal.SIGKILL)
         runner.join(timeout=120.0)
         [(_job, result)] = results
         assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
@@ -112,9 +113,10 @@ def test_dask_retries_the_task_of_a_lost_worker(tmp_path, profile):
         jobs = [fig4_job(tmp_path, profile, key=k) for k in range(2)]
         runner = threading.Thread(target=lambda: results.extend(executor.run(jobs)))
         runner.start()
-        time.sleep(3.0)  # both tasks are flying
-        worker_pids = executor.client.run(os.getpid)  # {worker address: its pid}
-        os.kill(next(iter(worker_pids.values())), signal.SIGKILL)
+        worker_pids = list(executor.client.run(os.getpid).values())
+        for worker in worker_pids:
+            wait_until_flying(worker)
+        os.kill(worker_pids[0], signal.SIGKILL)
         runner.join(timeout=180.0)
         assert len(results) == 2
         assert all(result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS for _job, result in results)
