@@ -630,6 +630,13 @@ class Bridge:
                         _, _flags, controls, _mode = codec.decode_hil_actuator_controls(payload)
                         self._motors = controls[:4]
                         got_answer = True
+                if not got_answer:
+                    if not lockstep:
+                        break  # before lockstep the step goes on at real-time pace, answered or not
+                    if perf() - t0 > config.stall_timeout_s:
+                        # Bytes keep coming but no answer among them: a flood stalls a step as silence does.
+                        summary.end_reason = "sut_stalled"
+                        break
                 if not lockstep and got_answer:
                     lockstep = True
                     self._event(time_s, "lockstep_started", step=step)

@@ -54,8 +54,9 @@ def encode_hil_sensor(
 
 
 def decode_hil_sensor(payload: bytes) -> tuple:
-    """(time_usec, 13 floats..., fields_updated, id) from a frame's (possibly truncated) payload."""
-    return _HIL_SENSOR.unpack(payload.ljust(_HIL_SENSOR.size, b"\x00"))
+    """(time_usec, 13 floats..., fields_updated, id) from a frame's payload, which MAVLink 2 may have
+    truncated (trailing zeros) or a newer dialect extended (bytes beyond ours are ignored)."""
+    return _HIL_SENSOR.unpack(payload[: _HIL_SENSOR.size].ljust(_HIL_SENSOR.size, b"\x00"))
 
 
 def encode_hil_actuator_controls(
@@ -66,8 +67,8 @@ def encode_hil_actuator_controls(
 
 
 def decode_hil_actuator_controls(payload: bytes) -> tuple[int, int, tuple[float, ...], int]:
-    """(time_usec, flags, controls[16], mode)."""
-    fields = _HIL_ACTUATOR_CONTROLS.unpack(payload.ljust(_HIL_ACTUATOR_CONTROLS.size, b"\x00"))
+    """(time_usec, flags, controls[16], mode); truncated or extended payloads as decode_hil_sensor."""
+    fields = _HIL_ACTUATOR_CONTROLS.unpack(payload[: _HIL_ACTUATOR_CONTROLS.size].ljust(_HIL_ACTUATOR_CONTROLS.size, b"\x00"))
     return fields[0], fields[1], fields[2:18], fields[18]
 
 

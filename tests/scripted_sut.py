@@ -8,13 +8,20 @@ python tests/scripted_sut.py --port P --mode MODE [--steps N]
   disconnect  answer N steps, then close the connection
   stall       answer N steps, then stop answering (keeps the connection open)
   garbage     answer every step, with garbage bytes before every 10th answer
+  fuzz        answer every step (zero throttle), each answer after --junk generated bad frames
+              (tests/fuzz_frames.py, seeded by --seed) of the kinds after which an answer
+              still arrives; --odd-actuators adds well-formed actuator frames with non-finite
+              or absurd values; prints the count of bad frames by kind as JSON at the end
+  flood       answer N steps, then send generated bad frames (none an answer) without pause
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import random
 import socket
 import sys
 import time
@@ -25,6 +32,9 @@ from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from simlink import codec  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(__file__))
+import fuzz_frames  # noqa: E402
+
 HOVER_THROTTLE = 0.4174
 CLIMB_UNTIL_S = 5.0
 TARGET_UP_M = 3.0
@@ -33,9 +43,14 @@ TARGET_UP_M = 3.0
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--port", type=int, required=True)
-    parser.add_argument("--mode", required=True, choices=["hover", "disconnect", "stall", "garbage"])
+    parser.add_argument("--mode", required=True, choices=["hover", "disconnect", "stall", "garbage", "fuzz", "flood"])
     parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--junk", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--odd-actuators", action="store_true")
     args = parser.parse_args()
+    rng = random.Random(args.seed)
+    sent: dict[str, int] = {}
     deadline = time.monotonic() + 20
     while True:
         try:
@@ -52,8 +67,12 @@ def main() -> int:
     roll = pitch = 0.0
     answered = 0
     while True:
-        data = sock.recv(65536)
+        try:
+            data = sock.recv(65536)
+        except OSError:
+            data = b""
         if not data:
+            print(json.dumps(sent), flush=True)
             return 0
         for msgid, payload, frame in splitter.feed(data):
             if msgid == mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION:
@@ -77,6 +96,12 @@ def main() -> int:
                 pitch_cmd = -0.3 * pitch - 0.05 * sensor[5]
                 # PX4 quad-X: front-right, aft-left, front-left, aft-right.
                 motors = (collective - roll_cmd + pitch_cmd, collective + roll_cmd - pitch_cmd, collective + roll_cmd + pitch_cmd, collective - roll_cmd - pitch_cmd)
+            if args.mode == "flood" and answered >= args.steps:
+                try:
+                    while True:
+                        sock.sendall(fuzz_frames.junk(rng, fuzz_frames.NEVER_ANSWERS, answers=False)[1])
+                except OSError:
+                    return 0
             if args.mode in ("disconnect", "stall") and answered >= args.steps:
                 if args.mode == "disconnect":
                     sock.close()
@@ -85,7 +110,17 @@ def main() -> int:
             answer = codec.encode_hil_actuator_controls(seq=answered, sysid=1, compid=1, time_usec=time_usec, controls=motors + (0.0,) * 12, mode=0, flags=1)
             if args.mode == "garbage" and answered % 10 == 0:
                 answer = b"\xfd\x05garbage\x00\xfd" + answer
-            sock.sendall(answer)
+            if args.mode == "fuzz":
+                kinds = fuzz_frames.SURVIVABLE + (("odd_actuator",) if args.odd_actuators else ())
+                bad = [fuzz_frames.junk(rng, kinds) for _ in range(args.junk)]
+                for kind, _data in bad:
+                    sent[kind] = sent.get(kind, 0) + 1
+                answer = b"".join(data for _kind, data in bad) + answer
+            try:
+                sock.sendall(answer)
+            except OSError:
+                print(json.dumps(sent), flush=True)
+                return 0
             answered += 1
 
 
