@@ -72,6 +72,7 @@ class ApiLink:
     def __init__(self, autopilot: "Autopilot", remote: tuple[str, int]):
         self.ap = autopilot
         self.remote = remote
+        self.partner_chosen = False
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((remote[0], 0))
         self.sock.setblocking(False)
@@ -252,9 +253,11 @@ class ApiLink:
             # A datagram holds whole frames: what a bad one left half-parsed must not swallow the next.
             self.mav.buf, self.mav.buf_index, self.mav.expected_length = bytearray(), 0, mavlink.HEADER_LEN_V1 + 2
             messages = [m for m in self.mav.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
-            if messages:
-                # Only a MAVLink peer becomes the partner: a stray datagram must not divert the telemetry.
+            if messages and not self.partner_chosen:
+                # As PX4's UDP link: the first peer to speak MAVLink becomes the partner, for good;
+                # others are still heard, but neither they nor stray datagrams divert the telemetry.
                 self.remote = address
+                self.partner_chosen = True
             for message in messages:
                 self.handle(message)
 

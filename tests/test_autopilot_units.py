@@ -268,5 +268,9 @@ def test_garbage_datagrams_from_another_port_do_not_divert_the_telemetry():
         stranger.sendto(peer.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(peer), target)
         time.sleep(0.05)
         link.receive()
-        assert link.remote == stranger.getsockname()  # a real MAVLink peer is answered, as PX4 answers it
+        assert link.remote == stranger.getsockname()  # the first peer to speak MAVLink is the partner, as in PX4
+        gcs.sendto(peer.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(peer), target)
+        time.sleep(0.05)
+        link.receive()
+        assert link.remote == stranger.getsockname() and link.last_gcs_heartbeat is not None  # heard, but the partner stays
         link.sock.close()

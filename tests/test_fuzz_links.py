@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import json
 import math
+import random
+import socket
 import subprocess
 import sys
+import time
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 import fuzz_frames
 from conftest import ROOT
@@ -70,3 +74,72 @@ def test_a_flood_before_the_first_answer_leaves_the_bridge_at_real_time_pace(tmp
     code, summary, _sent = fly_fuzzed(tmp_path, "flood", "--steps", "0", "--seed", "14", time_limit_s=2.0)
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 2 * 250
     assert summary["wall_time_s"] >= 2.0 * 0.9
+
+
+TELEMETRY = {"HEARTBEAT", "ATTITUDE", "GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE"}
+
+
+def received_types(sock: socket.socket, seconds: float) -> set[str]:
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    seen: set[str] = set()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            data = sock.recv(65536)
+        except (socket.timeout, BlockingIOError):
+            continue
+        seen |= {m.get_type() for m in parser.parse_buffer(data) or []}
+    return seen
+
+
+def test_ten_thousand_bad_datagrams_neither_crash_the_autopilot_nor_divert_its_telemetry(tmp_path):
+    world_path = tmp_path / "api.world.json"
+    world_path.write_text(json.dumps(world(time_limit_s=600.0)))
+    gcs_peer = mavlink.MAVLink(None, srcSystem=255)
+    heartbeat = gcs_peer.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(gcs_peer)
+    rng = random.Random(21)
+    sent: dict[str, int] = {}
+    with PortLease(first_slot=111) as ports, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        gcs.bind(("127.0.0.1", ports.api))
+        gcs.settimeout(0.2)
+        # The simulator holds the vehicle at real-time pace (no harness sends "run"), so the
+        # autopilot stays up for as long as the fuzzing takes.
+        bridge = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim),
+                                   "--control-port", str(ports.control), "--mcap", str(tmp_path / "api.mcap"), "--hold-after-s", "0.5"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+        autopilot = subprocess.Popen([sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{ports.sim}", "--api", f"udp:127.0.0.1:{ports.api}"],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
+        try:
+            deadline = time.monotonic() + 30
+            target = None
+            while target is None:
+                assert time.monotonic() < deadline, "no heartbeat from the autopilot"
+                try:
+                    data, address = gcs.recvfrom(65536)
+                except socket.timeout:
+                    continue
+                if any(m.get_type() == "HEARTBEAT" for m in mavlink.MAVLink(None).parse_buffer(data) or []):
+                    target = address
+            gcs.sendto(heartbeat, target)
+            assert TELEMETRY <= received_types(gcs, 2.0)
+            for index in range(FRAMES_PER_LINK):
+                kind, datagram = fuzz_frames.junk(rng)
+                sent[kind] = sent.get(kind, 0) + 1
+                stranger.sendto(datagram, target)
+                if index % 50 == 0:
+                    gcs.sendto(heartbeat, target)
+                    time.sleep(0.005)  # the autopilot reads its API socket between steps: leave the kernel's buffer room
+            assert autopilot.poll() is None, autopilot.stderr.read().decode()[-3000:]
+            gcs.sendto(heartbeat, target)
+            received_types(gcs, 0.5)  # what was queued during the fuzzing
+            assert TELEMETRY <= received_types(gcs, 2.0)
+            assert autopilot.poll() is None
+        finally:
+            autopilot.terminate()
+            bridge.terminate()
+            _out, err = autopilot.communicate(timeout=30)
+            bridge.wait(timeout=30)
+    assert sum(sent.values()) == FRAMES_PER_LINK and set(sent) == set(fuzz_frames.KINDS)
+    assert "Traceback" not in err.decode(), err.decode()[-3000:]
