@@ -5,7 +5,8 @@ from __future__ import annotations
 import random
 
 import pytest
-
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from simlink import codec
@@ -67,3 +68,26 @@ def test_splitter_skips_garbage_and_bad_checksums_and_keeps_partial_frames():
     assert [f[2] for f in frames] == [good]
     assert splitter.bad_frames == 1
     assert splitter.skipped_bytes > 0
+
+
+ANSWER_EXTRAS = {codec.HIL_ACTUATOR_CONTROLS_ID: codec.HIL_ACTUATOR_CONTROLS_CRC_EXTRA}
+
+
+# Junk that starts like a frame: a frame-start byte, any announced length and flags (signed too).
+FRAME_LIKE = st.builds(lambda length, flags, rest: bytes((codec.STX_V2, length, flags)) + rest, st.integers(0, 255), st.integers(0, 255), st.binary(max_size=80))
+JUNK = st.lists(st.one_of(st.binary(max_size=300), FRAME_LIKE), min_size=1, max_size=4).map(b"".join)
+
+
+@settings(max_examples=1000, deadline=None)
+@given(junk=st.lists(JUNK, min_size=1, max_size=8), cuts=st.lists(st.integers(min_value=0), max_size=6), seed=st.integers(0, 2**32 - 1))
+def test_every_answer_between_any_junk_is_recovered_however_the_stream_is_cut(junk, cuts, seed):
+    """Property: junk between well-formed answers never costs an answer nor invents one, for any
+    junk (frame-start bytes, announced lengths and all) and any way the stream arrives in pieces."""
+    rng = random.Random(seed)
+    answers = [codec.encode_hil_actuator_controls(seq=i, sysid=1, compid=1, time_usec=rng.randrange(2**40),
+                                                  controls=tuple(rng.uniform(0, 1) for _ in range(16)), mode=0, flags=1) for i in range(len(junk))]
+    stream = b"".join(bad + answer for bad, answer in zip(junk, answers))
+    splitter = codec.FrameSplitter(ANSWER_EXTRAS)
+    positions = sorted({min(c, len(stream)) for c in cuts} | {0, len(stream)})
+    frames = [f for a, b in zip(positions, positions[1:]) for f in splitter.feed(stream[a:b])]
+    assert [frame for _msgid, _payload, frame in frames] == answers
