@@ -210,11 +210,38 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
     options = RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params, rate_hz=args.rate_hz, cores=args.cores)
-    result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
-    emit(args, result, _result_text(result))
-    if result["status"] in ("sim_crashed", "sut_crashed", "timeout"):
+    if args.repeat == 1:
+        result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
+        emit(args, result, _result_text(result))
+        results = [result]
+    else:
+        results = _repeat(args, space, x, options)
+    if any(r["status"] in ("sim_crashed", "sut_crashed", "timeout") for r in results):
         return 3
-    return 1 if args.fail_on_violation and result["status"] == "violation" else 0
+    return 1 if args.fail_on_violation and any(r["status"] == "violation" for r in results) else 0
+
+
+def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]:
+    """The same concrete scenario flown --repeat times with the same seed: what differs is the SUT's."""
+    from harness.evaluation import evaluate
+    from harness.logs import slug
+    from harness.statistics import spread
+
+    stem = slug(f"{space.logical.name}-seed{args.seed}")
+    results = []
+    for index in range(args.repeat):
+        results.append(evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options, name=f"{stem}-repeat{index + 1}").as_dict())
+        if not args.json:
+            r = results[-1]
+            print(f"repeat {index + 1}/{args.repeat}: {r['status']}, fitness {r['fitness']:.6f}", file=sys.stderr)
+    report = {**spread(results), "runs": results}
+    lines = [f"{report['repeats']} repeats: " + ", ".join(f"{n} {status}" for status, n in report["statuses"].items())]
+    for name in ("fitness", "min_clearance_m"):
+        if report[name]:
+            lines.append(f"{name}: min {report[name]['min']:.6f}, median {report[name]['median']:.6f}, max {report[name]['max']:.6f}")
+    lines.append(f"violations: {report['violations']} of {report['repeats']}" + (" (flaky: not every repeat violated)" if report["flaky"] else ""))
+    emit(args, report, "\n".join(lines))
+    return results
 
 
 @command("inspect")
@@ -511,7 +538,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=positive_float, default=250.0, help="lockstep rate")
     p.add_argument("--cores", type=int, choices=(1, 2), default=2,
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
-    p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run violates the safety distance")
+    p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run (with --repeat: any repeat) violates the safety distance")
+    p.add_argument("--repeat", type=positive_int, default=1,
+                   help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
+                        "repeats violated (a real SUT's timing differs run to run)")
 
     p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
     p.add_argument("log", help="an evaluation's .mcap file")

@@ -88,3 +88,23 @@ def table(report: dict[str, Any]) -> str:
             f"{number(row['relative_performance_pct'], '+.0f'):>8} {number(row['p_value'], '.2f'):>6} {number(row['a12'], '.2f'):>5}"
         )
     return "\n".join(lines)
+
+
+def spread(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """How repeated flights of one concrete scenario differ: the range and median of fitness and
+    clearance, and how many violated. A violation in some repeats but not all is flaky: a real
+    SUT's timing differs run to run, and a violation by millimetres may not come back."""
+    flown = [r for r in results if r.get("min_clearance_m") is not None]
+
+    def summary(values: list[float]) -> dict[str, float] | None:
+        return {"min": min(values), "median": statistics.median(values), "max": max(values)} if values else None
+
+    violations = sum(r["status"] == "violation" for r in results)
+    return {
+        "repeats": len(results),
+        "statuses": {status: sum(r["status"] == status for r in results) for status in sorted({r["status"] for r in results})},
+        "violations": violations,
+        "flaky": 0 < violations < len(flown),  # of the repeats that flew: a crash says nothing of the violation
+        "fitness": summary([r["fitness"] for r in flown]),
+        "min_clearance_m": summary([r["min_clearance_m"] for r in flown]),
+    }

@@ -20,7 +20,7 @@ from harness.scenario.space import SearchSpace
 from harness.search.optimizers import parse_algorithm
 from harness.search.problem import CampaignProblem
 from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
-from harness.statistics import a12, compare, p_value, relative_performance
+from harness.statistics import a12, compare, p_value, relative_performance, spread
 from harness.store import Store
 
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
@@ -133,6 +133,17 @@ def test_statistics_match_hand_computed_values():
     assert relative_performance(-2.0, -1.0) == pytest.approx(100.0)  # twice as deep a violation
     assert relative_performance(1.5, 1.0) == pytest.approx(-50.0)
     assert p_value([1, 2, 3], [4, 5, 6]) == pytest.approx(0.1)  # exact two-sided Mann-Whitney U, n = 3 + 3
+
+
+def test_the_spread_of_repeats_says_how_many_violated_and_whether_that_is_flaky():
+    def flight(status, fitness):
+        return {"status": status, "fitness": fitness, "min_clearance_m": fitness + 1.0}
+
+    flaky = spread([flight("violation", -0.001), flight("ok", 0.002), flight("violation", -0.003)])
+    assert (flaky["repeats"], flaky["violations"], flaky["flaky"]) == (3, 2, True)
+    assert flaky["fitness"] == {"min": -0.003, "median": -0.001, "max": 0.002} and flaky["statuses"] == {"ok": 1, "violation": 2}
+    steady = spread([flight("violation", -0.5)] * 2 + [{"status": "sut_crashed", "fitness": 1e6, "min_clearance_m": None}])
+    assert not steady["flaky"] and steady["fitness"] == {"min": -0.5, "median": -0.5, "max": -0.5}  # a crash is no flight to spread
 
 
 def test_compare_lays_out_median_best_fitness_per_scenario_and_overall(tmp_path):

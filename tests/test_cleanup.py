@@ -7,6 +7,7 @@ import os
 import random
 import signal
 import socket
+import sqlite3
 import subprocess
 import sys
 import time
@@ -64,22 +65,59 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
     assert outcomes.count("ok") + outcomes.count("violation") == 10
 
 
-def test_a_campaign_killed_with_sigkill_leaves_no_worker_and_no_flight_behind(tmp_path):
-    """Issue 18, defect 3: the multiprocessing workers of a killed campaign lived on."""
+def descendants(pid: int) -> list[int]:
+    family, found = [pid], []
+    while family:
+        kids = children(family.pop())
+        found += kids
+        family += kids
+    return found
+
+
+def stored(store) -> list[tuple]:
+    if not store.exists():
+        return []
+    with sqlite3.connect(store) as db:
+        try:
+            return db.execute("SELECT run_id, ordinal, vector_key, fitness, created FROM evaluations ORDER BY run_id, ordinal").fetchall()
+        except sqlite3.OperationalError:  # killed before it made its tables
+            return []
+
+
+def test_a_campaign_killed_at_ten_random_moments_loses_nothing_repeats_nothing_and_leaves_nothing(tmp_path):
+    """Issue 18: kill -9 of a two-worker campaign at ten random moments (starting up, flying,
+    writing), each followed by a resume; defect 3 was its workers living on."""
     assert our_processes() == [], "processes of an earlier test are still running"
-    command = [sys.executable, "-m", "harness.cli", "campaign", str(SCENARIO), "--algorithm", "RANDOM", "--evaluations", "20",
-               "--workers", "2", "--store", str(tmp_path / "c.db")]
-    campaign = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
-    deadline = time.monotonic() + 60
-    while not our_processes() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert our_processes(), "the campaign never started a flight"
-    workers = children(campaign.pid)  # the pool's workers and multiprocessing's resource tracker
-    assert len(workers) >= 2
-    campaign.kill()
-    campaign.wait(timeout=10)
-    deadline = time.monotonic() + 15
-    while (our_processes() or any(os.path.exists(f"/proc/{pid}") for pid in workers)) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert our_processes() == []
-    assert [pid for pid in workers if os.path.exists(f"/proc/{pid}")] == []
+    def command(store):
+        return [sys.executable, "-m", "harness.cli", "campaign", str(SCENARIO), "--algorithm", "NSGAII", "--evaluations", "10", "--population", "4",
+                "--seed", "2", "--workers", "2", "--store", str(store), "--json"]
+    store = tmp_path / "killed.db"
+    rng = random.Random(18)
+    seen: dict[tuple, tuple] = {}
+    for _moment in range(10):
+        campaign = subprocess.Popen(command(store), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
+        time.sleep(rng.uniform(0.5, 8.0))
+        # Frozen first, so that what is read and which processes exist is what the kill leaves.
+        os.killpg(campaign.pid, signal.SIGSTOP)
+        family = descendants(campaign.pid)
+        rows = stored(store)
+        campaign.kill()
+        os.killpg(campaign.pid, signal.SIGCONT)
+        campaign.wait(timeout=10)
+        deadline = time.monotonic() + 15
+        while (our_processes() or any(os.path.exists(f"/proc/{pid}") for pid in family)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert our_processes() == [] and [pid for pid in family if os.path.exists(f"/proc/{pid}")] == []
+        keys = [(run, ordinal) for run, ordinal, *_ in rows]
+        assert len(keys) == len(set(keys)), "an evaluation was stored twice"
+        now = {(run, ordinal): row for run, ordinal, *row in rows}
+        assert all(now.get(key) == row for key, row in seen.items()), "a stored evaluation was lost or changed"
+        seen.update(now)
+    finished = subprocess.run(command(store), capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    final = stored(store)
+    assert [ordinal for _run, ordinal, *_ in final] == list(range(10))
+    assert all({(run, ordinal): row for run, ordinal, *row in final}[key] == row for key, row in seen.items())
+    subprocess.run(command(tmp_path / "clean.db"), capture_output=True, timeout=600, cwd=ROOT, check=True)
+    uninterrupted = stored(tmp_path / "clean.db")
+    assert [row[1:4] for row in final] == [row[1:4] for row in uninterrupted]  # the same candidates and results, in order

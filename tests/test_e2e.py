@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from pathlib import Path
 
 import jsonschema
 import pytest
@@ -139,3 +140,16 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
     touchdown = finished["touchdown"]
     assert math.hypot(touchdown["north_m"] - 0.0, touchdown["east_m"] - 15.0) < 1.5
     assert "Landing detected" in texts and "Disarmed" in texts
+
+
+@pytest.mark.slow
+def test_repeats_of_one_concrete_scenario_report_their_spread(tmp_path, capsys):
+    from conftest import FIG4, FIG4_SEED1_FITNESS
+    from harness.cli import main
+
+    assert main(["run", str(FIG4), "--seed", "1", "--repeat", "2", "--out", str(tmp_path), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["repeats"], report["statuses"], report["violations"], report["flaky"]) == (2, {"ok": 2}, 0, False)
+    # the bundled autopilot is deterministic: no spread at all
+    assert report["fitness"] == {"min": FIG4_SEED1_FITNESS, "median": FIG4_SEED1_FITNESS, "max": FIG4_SEED1_FITNESS}
+    assert len({run["log_path"] for run in report["runs"]}) == 2 and all(summarize(Path(run["log_path"]))["fitness_reproduced"] for run in report["runs"])
