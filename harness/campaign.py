@@ -50,12 +50,15 @@ class CampaignConfig:
     sut_params: Mapping[str, float] = field(default_factory=dict)
     drive: str | None = None  # None: each scenario's own mission.drive
     batch: int = DEFAULT_BATCH
+    confirm: int = 0
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
         overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}
         if self.batch != DEFAULT_BATCH:  # stores made before the batch was a setting resume as they were
             overrides["batch"] = self.batch
+        if self.confirm:
+            overrides["confirm"] = self.confirm
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -141,7 +144,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 run_id, finished = store.run(campaign_id, str(Path(scenario_file).resolve()), space.logical.name, algorithm.upper(), run_index, seed)
                 if finished:
                     continue
-                problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result)
+                problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
+                                          confirm=config.confirm)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best

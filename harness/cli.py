@@ -358,7 +358,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         load_logical(Path(scenario), load_profile(args.profile), args.drive)
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch, args.confirm)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -465,6 +465,13 @@ def positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"{value} is not a positive whole number")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is not a whole number of zero or more")
     return value
 
 
@@ -576,6 +583,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=positive_int, default=1)
     p.add_argument("--seed", type=seed_int, default=0, help="run r uses seed + r")
     p.add_argument("--population", type=positive_int, default=50, help="population, swarm size and BO initial set")
+    p.add_argument("--confirm", type=non_negative_int, default=0,
+                   help="fly each violation N more times with the same seed and store how often it came back; one that did not every "
+                        "time is marked flaky in report and export-regressions")
     p.add_argument("--batch", type=positive_int, default=DEFAULT_BATCH,
                    help=f"candidates BO and RANDOM ask for at once (default {DEFAULT_BATCH}); part of the campaign, so a seed flies the same "
                         "candidates on every executor; raise it to the number of workers on a big machine")

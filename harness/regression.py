@@ -22,7 +22,7 @@ from harness.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete, with_drive_recorded
-from harness.store import Store
+from harness.store import Store, is_flaky
 
 FORMAT = "stella.regression/1"
 SUFFIX = ".regression.json"
@@ -123,8 +123,10 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
             "found": {
                 "fitness": case["fitness"], "status": case["status"], "min_clearance_m": case["min_clearance_m"], "store": str(store_path.resolve()),
                 "run": case["run_index"], "algorithm": case["algorithm"], "evaluation": case["ordinal"], "log": case["log_path"],
+                **({"confirmations": json.loads(case["confirmations"]), "flaky": is_flaky(case["confirmations"])} if case["confirmations"] else {}),
             },
-            "note": f"{EXPECTATIONS[expect]}; found by {case['algorithm']} with fitness {case['fitness']:.3f} ({case['status']})",
+            "note": f"{EXPECTATIONS[expect]}; found by {case['algorithm']} with fitness {case['fitness']:.3f} ({case['status']})"
+                    + ("; FLAKY: it did not violate in every re-flight" if is_flaky(case["confirmations"]) else ""),
             "concrete_scenario": concrete,
         }
         path = out_dir / f"{name}{SUFFIX}"

@@ -11,13 +11,14 @@ import base64
 import html
 import io
 import json
+import math
 import tempfile
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
 from harness.statistics import compare
-from harness.store import Store
+from harness.store import Store, is_flaky
 
 PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
@@ -129,12 +130,18 @@ def _worst(store: Store, count: int) -> list[str]:
 
 def _violations(store: Store) -> str:
     query = (
-        "SELECT r.scenario, r.algorithm, r.run_index, COUNT(*), MIN(e.fitness) FROM evaluations e JOIN runs r ON r.id = e.run_id"
-        " WHERE e.status = 'violation' GROUP BY r.id ORDER BY r.scenario, r.algorithm, r.run_index"
+        "SELECT r.id, r.scenario, r.algorithm, r.run_index, e.fitness, e.confirmations FROM evaluations e JOIN runs r ON r.id = e.run_id"
+        " WHERE e.status = 'violation' ORDER BY r.scenario, r.algorithm, r.run_index, e.ordinal"
     )
-    rows = ["<tr><th>scenario</th><th>algorithm</th><th>run</th><th>violations</th><th>lowest fitness</th></tr>"]
-    for scenario, algorithm, run, count, lowest in store.db.execute(query):
-        rows.append(f"<tr><td class='text'>{html.escape(scenario)}</td><td class='text'>{algorithm}</td><td>{run}</td><td>{count}</td><td>{lowest:.3f}</td></tr>")
+    runs: dict[int, list] = {}
+    for run_id, scenario, algorithm, run, fitness, confirmations in store.db.execute(query):
+        entry = runs.setdefault(run_id, [scenario, algorithm, run, 0, math.inf, 0])
+        entry[3] += 1
+        entry[4] = min(entry[4], fitness)
+        entry[5] += is_flaky(confirmations)
+    rows = ["<tr><th>scenario</th><th>algorithm</th><th>run</th><th>violations</th><th>flaky (--confirm)</th><th>lowest fitness</th></tr>"]
+    for scenario, algorithm, run, count, lowest, flaky in runs.values():
+        rows.append(f"<tr><td class='text'>{html.escape(scenario)}</td><td class='text'>{algorithm}</td><td>{run}</td><td>{count}</td><td>{flaky}</td><td>{lowest:.3f}</td></tr>")
     return f"<table>{''.join(rows)}</table>" if len(rows) > 1 else "<p>No violation found.</p>"
 
 

@@ -55,6 +55,7 @@ CREATE TABLE IF NOT EXISTS evaluations (
     seed INTEGER NOT NULL,
     created REAL NOT NULL,
     attempts TEXT,
+    confirmations TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -127,6 +128,8 @@ class Store:
         columns = {row[1] for row in self.db.execute("PRAGMA table_info(evaluations)")}
         if "attempts" not in columns:  # a store written before tries were recorded
             self.db.execute("ALTER TABLE evaluations ADD COLUMN attempts TEXT")
+        if "confirmations" not in columns:  # ... or before violations were re-flown (--confirm)
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN confirmations TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -181,13 +184,14 @@ class Store:
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: Mapping[str, Any], concrete: Mapping[str, Any] | None) -> None:
         with self.db:
             self.db.execute(
-                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result["fitness"], result["status"], result.get("why"),
                     result.get("min_clearance_m"), result.get("sim_time_s"), result.get("wall_time_s"), result.get("log_path"), result["seed"], time.time(),
                     json.dumps(result["attempts"]) if result.get("attempts") else None,
+                    json.dumps(result["confirmations"]) if result.get("confirmations") else None,
                 ),
             )
 
@@ -215,13 +219,13 @@ class Store:
     def worst_cases(self, threshold: float, worst_per_run: int) -> list[dict[str, Any]]:
         """Flown evaluations with fitness below threshold, plus each run's worst_per_run lowest, lowest first."""
         query = (
-            "SELECT * FROM (SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed,"
+            "SELECT * FROM (SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed, e.confirmations,"
             " r.scenario_file, r.algorithm, r.run_index,"
             " ROW_NUMBER() OVER (PARTITION BY e.run_id ORDER BY e.fitness, e.ordinal) AS rank"
             " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status != 'infeasible')"
             " WHERE fitness < ? OR rank <= ? ORDER BY fitness, scenario_file, algorithm, run_index, ordinal"
         )
-        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "scenario_file", "algorithm", "run_index")
+        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "confirmations", "scenario_file", "algorithm", "run_index")
         return [dict(zip(names, row)) for row in self.db.execute(query, (threshold, worst_per_run))]
 
     def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
@@ -231,3 +235,11 @@ class Store:
             best = min(best, fitness)
             curve.append((ordinal, best))
         return curve
+
+
+def is_flaky(confirmations: str | Mapping[str, Any] | None) -> bool:
+    """A violation re-flown with --confirm that did not violate in every re-flight."""
+    if confirmations is None:
+        return False
+    record = json.loads(confirmations) if isinstance(confirmations, str) else confirmations
+    return record["violations"] < record["repeats"]

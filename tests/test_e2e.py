@@ -153,3 +153,31 @@ def test_repeats_of_one_concrete_scenario_report_their_spread(tmp_path, capsys):
     # the bundled autopilot is deterministic: no spread at all
     assert report["fitness"] == {"min": FIG4_SEED1_FITNESS, "median": FIG4_SEED1_FITNESS, "max": FIG4_SEED1_FITNESS}
     assert len({run["log_path"] for run in report["runs"]}) == 2 and all(summarize(Path(run["log_path"]))["fitness_reproduced"] for run in report["runs"])
+
+
+@pytest.mark.slow
+def test_confirm_re_flies_each_violation_and_stores_how_often_it_came_back(tmp_path, capsys):
+    import sqlite3
+
+    from harness.cli import main
+
+    store = tmp_path / "confirm.db"
+    # Collision prevention off (CP_DIST < 0, as in PX4), and seed 13, whose first random sample
+    # stands the wall across the route: the bundled autopilot flies into it.
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "2", "--population", "2",
+                 "--seed", "13", "--confirm", "2", "--sut-param", "CP_DIST=-1", "--executor", "sequential", "--store", str(store), "--json"]) == 0
+    capsys.readouterr()
+    with sqlite3.connect(store) as db:
+        rows = db.execute("SELECT status, fitness, confirmations FROM evaluations ORDER BY ordinal").fetchall()
+    assert len(rows) == 2 and any(status == "violation" for status, _f, _c in rows)
+    for status, fitness, confirmations in rows:
+        if status != "violation":
+            assert confirmations is None
+            continue
+        record = json.loads(confirmations)
+        # the bundled autopilot is deterministic: every re-flight violates by exactly as much
+        assert (record["repeats"], record["violations"], record["fitness"]) == (2, 2, [fitness, fitness])
+    assert main(["export-regressions", str(store), "--out", str(tmp_path / "cases"), "--expect", "violation", "--json"]) == 0
+    capsys.readouterr()
+    cases = [json.loads(p.read_text()) for p in (tmp_path / "cases").glob("*.json")]
+    assert cases and all(case["found"]["flaky"] is False and case["found"]["confirmations"]["repeats"] == 2 for case in cases if case["found"]["status"] == "violation")

@@ -9,7 +9,7 @@ from memory and costs no budget.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -45,6 +45,7 @@ class CampaignProblem:
     step: int = 0
     optimizer: str = ""
     step_limit: int | None = None
+    confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
@@ -118,10 +119,17 @@ class CampaignProblem:
             name = f"run{self.run_id}-eval{ordinal:05d}"
             jobs.append((index, Job(ordinal, concrete, self.seed, str(self.out_dir), name, self.options), x, key, ordinal))
         by_ordinal = {job.key: (index, x, key) for index, job, x, key, _ in jobs}
+        to_confirm: list[tuple[Job, dict[str, Any]]] = []
         for job, result in self.executor.run([job for _, job, _, _, _ in jobs]):
             index, x, key = by_ordinal[job.key]
-            self._finish(job.key, x, key, result, job.concrete)
             results[index] = result["fitness"]
+            if result["status"] == "violation" and self.confirm:
+                to_confirm.append((job, result))
+            else:
+                self._finish(job.key, x, key, result, job.concrete)
+        for job, result in self._confirmed(to_confirm):
+            index, x, key = by_ordinal[job.key]
+            self._finish(job.key, x, key, result, job.concrete)
         # Duplicates inside one batch share the first one's result.
         for index, raw in enumerate(vectors):
             if results[index] is None:
@@ -131,6 +139,22 @@ class CampaignProblem:
         if stop is not None or any(r is None for r in results):
             raise stop or StopSearch(campaign_done=True)
         return results  # type: ignore[return-value]
+
+    def _confirmed(self, violations: list[tuple[Job, dict[str, Any]]]) -> list[tuple[Job, dict[str, Any]]]:
+        """Each violation with the outcome of flying it `confirm` more times (same scenario and
+        seed); stored with it, the evaluation counts as flown once, costing one of the budget."""
+        if not violations:
+            return []
+        again = {f"{job.name}-confirm{i + 1}": job for job, _result in violations for i in range(self.confirm)}
+        outcomes: dict[str, list[dict[str, Any]]] = {job.name: [] for job, _result in violations}
+        jobs = [replace(job, key=number, name=name) for number, (name, job) in enumerate(again.items())]
+        for job, result in self.executor.run(jobs):
+            outcomes[again[job.name].name].append(result)
+        for job, result in violations:
+            flights = outcomes[job.name]
+            result["confirmations"] = {"repeats": len(flights), "violations": sum(r["status"] == "violation" for r in flights),
+                                       "fitness": [r["fitness"] for r in flights], "statuses": [r["status"] for r in flights]}
+        return violations
 
     def _finish(self, ordinal: int, x: np.ndarray, key: str, result: dict[str, Any], concrete) -> None:
         self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self.step, optimizer=self.optimizer, vector=x, result=result, concrete=concrete)
