@@ -7,9 +7,11 @@ usage, 3 infrastructure failure.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
 import math
+import sqlite3
 import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -661,12 +663,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except sqlite3.OperationalError as error:
+        if "full" not in str(error):
+            raise
+        # SQLite rolled the transaction back: the store holds every evaluation finished before.
+        print(f"{getattr(args, 'store', 'the campaign store')}: {error}: make room and run the same command again to resume", file=sys.stderr)
+        return 2
     except OSError as error:
-        if error.filename is None:
+        if error.filename is None and error.errno != errno.ENOSPC:
             raise
         # An output that cannot be written (no such folder, no permission, a full disk): the
         # user's to mend, so one line naming the path rather than a traceback.
-        print(f"{error.filename}: {error.strerror}: give a path in a writable folder with room", file=sys.stderr)
+        resume = "; the store keeps every finished evaluation: run the same command again to resume" if args.command == "campaign" else ""
+        print(f"{error.filename or 'writing the campaign store or logs'}: {error.strerror}: give a path in a writable folder with room{resume}", file=sys.stderr)
         return 2
 
 

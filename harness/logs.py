@@ -154,7 +154,16 @@ def json_metadata(path: Path, name: str) -> Any:
 
 
 def merge(bridge_log: Path, out: Path, *, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
-    """The evaluation's log: the bridge's recording plus the API link's traffic and the harness's metadata."""
+    """The evaluation's log: the bridge's recording plus the API link's traffic and the harness's metadata.
+    A merge that fails (a full disk) leaves no half-written log behind."""
+    try:
+        _merge(bridge_log, out, api_records, extra_metadata)
+    except BaseException:
+        Path(out).unlink(missing_ok=True)
+        raise
+
+
+def _merge(bridge_log: Path, out: Path, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
     with open(bridge_log, "rb") as source, open(out, "wb") as target:
         reader = make_reader(source)
         summary = reader.get_summary()

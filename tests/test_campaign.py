@@ -199,3 +199,42 @@ def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_e
     assert [row[:3] for row in after] == uninterrupted  # the same candidates, in the same order, with the same results
     report = json.loads(resumed.stdout)
     assert report["runs"][0]["replayed"] == len(before)
+
+
+@pytest.mark.slow
+def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_nothing(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from harness import logs
+    from harness.cli import main
+
+    scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
+
+    def command(store):
+        return ["campaign", str(scenario), "--algorithm", "NSGAII", "--evaluations", "6", "--population", "2", "--executor", "sequential",
+                "--store", str(store), "--json"]
+
+    real_merge = logs.merge
+
+    def merge_until_the_disk_is_full(bridge_log, out, **kwargs):
+        if "eval00003" in str(out):  # the disk fills up while the fourth evaluation's log is written
+            raise OSError(errno.ENOSPC, "No space left on device", str(out))
+        return real_merge(bridge_log, out, **kwargs)
+
+    store = tmp_path / "full.db"
+    monkeypatch.setattr(logs, "merge", merge_until_the_disk_is_full)
+    assert main(command(store)) == 2
+    said = capsys.readouterr().err
+    assert said.count("\n") == 1 and "No space left on device" in said and "run the same command again to resume" in said
+    with sqlite3.connect(store) as db:
+        before = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
+    assert [row[0] for row in before] == [0, 1, 2]  # the fourth flight's log could not be written: it is not stored
+    monkeypatch.setattr(logs, "merge", real_merge)
+    assert main(command(store)) == 0
+    capsys.readouterr()
+    with sqlite3.connect(store) as db:
+        after = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
+    assert after[:3] == before and [row[0] for row in after] == list(range(6))
+    assert main(command(tmp_path / "room.db")) == 0
+    with sqlite3.connect(tmp_path / "room.db") as db:
+        assert db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall() == [row[:3] for row in after]
