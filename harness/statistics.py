@@ -41,11 +41,13 @@ def p_value(candidate: Sequence[float], baseline: Sequence[float]) -> float | No
 def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     best: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     violations: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for run in store.run_rows():
         if run["best_fitness"] is None:
             continue
         best[run["scenario"]][run["algorithm"]].append(run["best_fitness"])
         violations[run["scenario"]][run["algorithm"]] += run["violations"] or 0
+        flaky[run["scenario"]][run["algorithm"]] += run["flaky"] or 0
     baseline = baseline.upper()
     rows = []
     pooled: dict[str, list[float]] = defaultdict(list)
@@ -55,7 +57,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         for algorithm, values in sorted(by_algorithm.items()):
             median = statistics.median(values)
             row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
-                   "violations": violations[scenario][algorithm], "relative_performance_pct": None, "p_value": None, "a12": None}
+                   "violations": violations[scenario][algorithm], "flaky": flaky[scenario][algorithm],
+                   "relative_performance_pct": None, "p_value": None, "a12": None}
             pooled[algorithm].extend(values)
             if base and algorithm != baseline:
                 row["relative_performance_pct"] = relative_performance(median, statistics.median(base))
@@ -68,7 +71,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     for algorithm, values in sorted(pooled.items()):
         base = pooled.get(baseline)
         entry = {"algorithm": algorithm, "runs": len(values), "median_best_fitness": statistics.median(values),
-                 "violations": sum(violations[s][algorithm] for s in violations), "relative_performance_pct": None, "p_value": None, "a12": None}
+                 "violations": sum(violations[s][algorithm] for s in violations), "flaky": sum(flaky[s][algorithm] for s in flaky),
+                 "relative_performance_pct": None, "p_value": None, "a12": None}
         if base and algorithm != baseline:
             entry["relative_performance_pct"] = statistics.mean(relative[algorithm]) if relative[algorithm] else None
             entry["p_value"] = p_value(values, base)
@@ -87,6 +91,9 @@ def table(report: dict[str, Any]) -> str:
             f"{row['scenario'][:28]:<28} {row['algorithm']:<10} {row['runs']:>4} {row['median_best_fitness']:>14.3f} {row['violations']:>10} "
             f"{number(row['relative_performance_pct'], '+.0f'):>8} {number(row['p_value'], '.2f'):>6} {number(row['a12'], '.2f'):>5}"
         )
+    if any(row["flaky"] for row in report["overall"]):
+        lines.append("flaky: " + ", ".join(f"{row['algorithm']} {row['flaky']} of its {row['violations']} violations did not come back in "
+                                            "every --confirm re-flight" for row in report["overall"] if row["flaky"]))
     return "\n".join(lines)
 
 

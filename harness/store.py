@@ -204,11 +204,12 @@ class Store:
     def run_rows(self) -> Iterator[dict[str, Any]]:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
-            " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id)"
+            " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id),"
+            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats'))"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
         for row in self.db.execute(query):
-            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations"), row))
+            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky"), row))
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""

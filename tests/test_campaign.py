@@ -20,7 +20,7 @@ from harness.scenario.space import SearchSpace
 from harness.search.optimizers import parse_algorithm
 from harness.search.problem import CampaignProblem
 from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
-from harness.statistics import a12, compare, p_value, relative_performance, spread
+from harness.statistics import a12, compare, p_value, relative_performance, spread, table
 from harness.store import Store
 
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
@@ -157,6 +157,18 @@ def test_compare_lays_out_median_best_fitness_per_scenario_and_overall(tmp_path)
     bo = next(r for r in report["scenarios"] if r["algorithm"] == "BO")
     assert bo["median_best_fitness"] == 5.0 and bo["relative_performance_pct"] == pytest.approx(-150.0)
     assert bo["a12"] == 0.0 and bo["p_value"] == pytest.approx(0.1)
+
+
+def test_compare_counts_the_violations_that_did_not_come_back_in_every_re_flight(tmp_path):
+    with Store(tmp_path / "c.db") as store:
+        run_id, _ = store.run(store.campaign({"c": 1}), "s.json", "s", "NSGAII", 0, 0)
+        for ordinal, reproduced in enumerate((2, 1, None)):
+            confirmations = {"repeats": 2, "violations": reproduced} if reproduced is not None else None
+            store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="NSGAII", vector=np.array([float(ordinal)]),
+                                 result={"fitness": -0.1 * (ordinal + 1), "status": "violation", "seed": 0, "confirmations": confirmations}, concrete=None)
+        report = compare(store, "NSGAII")
+    assert (report["overall"][0]["violations"], report["overall"][0]["flaky"]) == (3, 1)
+    assert "NSGAII 1 of its 3 violations did not come back" in table(report)
 
 
 @pytest.mark.slow
