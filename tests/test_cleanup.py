@@ -74,6 +74,15 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
+def alive(pid: int) -> bool:
+    """Running, not a zombie: a container whose init does not reap keeps dead orphans listed."""
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def stored(store) -> list[tuple]:
     if not store.exists():
         return []
@@ -105,9 +114,9 @@ def test_a_campaign_killed_at_ten_random_moments_loses_nothing_repeats_nothing_a
         os.killpg(campaign.pid, signal.SIGCONT)
         campaign.wait(timeout=10)
         deadline = time.monotonic() + 15
-        while (our_processes() or any(os.path.exists(f"/proc/{pid}") for pid in family)) and time.monotonic() < deadline:
+        while (our_processes() or any(alive(pid) for pid in family)) and time.monotonic() < deadline:
             time.sleep(0.2)
-        assert our_processes() == [] and [pid for pid in family if os.path.exists(f"/proc/{pid}")] == []
+        assert our_processes() == [] and [pid for pid in family if alive(pid)] == []
         keys = [(run, ordinal) for run, ordinal, *_ in rows]
         assert len(keys) == len(set(keys)), "an evaluation was stored twice"
         now = {(run, ordinal): row for run, ordinal, *row in rows}
