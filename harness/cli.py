@@ -463,46 +463,23 @@ def cmd_export_regressions(args: argparse.Namespace) -> int:
     return 0
 
 
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is not a positive whole number")
-    return value
+def _bounded(name: str, convert: Callable[[str], Any], accepts: Callable[[Any], bool], is_not: str) -> Callable[[str], Any]:
+    """An argparse type: convert, then refuse values outside the range with `TEXT is not ...`."""
+    def parse(text: str):
+        value = convert(text)
+        if not accepts(value):
+            raise argparse.ArgumentTypeError(f"{text} is not {is_not}")
+        return value
+    parse.__name__ = name  # argparse names the type in "invalid NAME value"
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is not a whole number of zero or more")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    value = float(text)
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text} is not a number of zero or more")
-    return value
-
-
-def seed_int(text: str) -> int:
-    value = int(text)
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"{value} is not a seed: give a whole number from 0 to 4294967295")
-    return value
-
-
-def port_int(text: str) -> int:
-    value = int(text)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"{value} is not a TCP port: give 1 to 65535")
-    return value
-
-
-def positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"{text} is not a positive number")
-    return value
+positive_int = _bounded("positive_int", int, lambda v: v >= 1, "a positive whole number")
+non_negative_int = _bounded("non_negative_int", int, lambda v: v >= 0, "a whole number of zero or more")
+seed_int = _bounded("seed_int", int, lambda v: 0 <= v < 2**32, "a seed: give a whole number from 0 to 4294967295")
+port_int = _bounded("port_int", int, lambda v: 1 <= v <= 65535, "a TCP port: give 1 to 65535")
+positive_float = _bounded("positive_float", float, lambda v: 0 < v < math.inf, "a positive number")
+non_negative_float = _bounded("non_negative_float", float, lambda v: 0 <= v < math.inf, "a number of zero or more")
 
 
 def parser() -> argparse.ArgumentParser:
