@@ -12,6 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot.api import ApiLink
 from autopilot.collision import ObstacleMap, constrain_velocity
 from autopilot.commander import (
+    NAV_DELAY,
     NAV_LAND,
     NAV_RETURN_TO_LAUNCH,
     NAV_TAKEOFF,
@@ -116,7 +117,7 @@ class Autopilot:
         if frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
             home = self.home_geodetic()
             z = z - (home[2] if home else self.estimator.origin[2])
-        if command not in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED):
+        if command not in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED, NAV_DELAY):
             log.info("mission item %d: command %d will be skipped", seq, command)
         return MissionItem(seq, command, north, east, z, *params, has_position=has_position)
 

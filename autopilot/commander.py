@@ -26,6 +26,7 @@ NAV_WAYPOINT = 16
 NAV_RETURN_TO_LAUNCH = 20
 NAV_LAND = 21
 NAV_TAKEOFF = 22
+NAV_DELAY = 93
 DO_CHANGE_SPEED = 178
 
 MODE_NAMES = {
@@ -85,6 +86,7 @@ class Commander:
     _land_candidate_s: float | None = None
     _landed_at_s: float | None = None
     _phase: str = ""
+    _wait_until_s: float = 0.0  # the end of a waypoint's hold time or of a delay item
     _yaw_sp: float = 0.0
     manual: Sticks | None = None
     _mode_slot: int | None = None
@@ -256,6 +258,12 @@ class Commander:
             self.landed = False
             self._hold = (estimate.north_m, estimate.east_m, estimate.down_m)
             self.events.append(("in_air", None))
+        if item.command == NAV_DELAY:
+            if self._phase != "wait":
+                self._phase, self._wait_until_s = "wait", now_s + max(0.0, item.param1)
+            if now_s >= self._wait_until_s:
+                self._advance(self.current)
+            return self._hold_setpoint()
         if item.command == NAV_TAKEOFF:
             target = item.altitude_m
             n, e, _ = self._hold
@@ -264,6 +272,10 @@ class Commander:
                 self._advance(self.current)
             return Setpoint(north_m=n, east_m=e, down_m=self._down_for(target), v_down_m_s=0.0, yaw_rad=self._yaw_sp)
         if item.command == NAV_WAYPOINT:
+            if self._phase == "wait":  # PX4's hold time at a reached waypoint (param1, seconds)
+                if now_s >= self._wait_until_s:
+                    self._advance(self.current)
+                return self._hold_setpoint()
             if self._altitude(estimate) < min(item.altitude_m, self._target_alt_m) - VERTICAL_ACCEPTANCE_M and self._phase != "cruise":
                 n, e, _ = self._hold
                 return Setpoint(north_m=n, east_m=e, down_m=self._down_for(max(item.altitude_m, self._target_alt_m)), yaw_rad=self._yaw_sp)
@@ -272,6 +284,9 @@ class Commander:
             radius = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
             if distance <= radius and abs(self._altitude(estimate) - item.altitude_m) <= VERTICAL_ACCEPTANCE_M:
                 self._hold = (item.north_m, item.east_m, self._down_for(item.altitude_m))
+                if item.param1 > 0:
+                    self._phase, self._wait_until_s = "wait", now_s + item.param1
+                    return self._hold_setpoint()
                 self._advance(self.current)
             return sp
         if item.command == NAV_LAND:

@@ -36,12 +36,13 @@ PLACEMENT_NAMES = {2: "a core each for the simulator and the SUT, polling", 1: "
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
-              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS, drive: str | None = None) -> dict[str, Any]:
+              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS, drive: str | None = None,
+              mission_plan: Path | None = None) -> dict[str, Any]:
     """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by
-    default. `drive` overrides the scenario's drive."""
+    default. `drive` overrides the scenario's drive, `mission_plan` its route."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
-    space = SearchSpace(load_logical(path, profile, drive), profile)
+    space = SearchSpace(load_logical(path, profile, drive, mission_plan), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     machine_cores = len(os.sched_getaffinity(0))
     report_placements = []

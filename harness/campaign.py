@@ -51,6 +51,8 @@ class CampaignConfig:
     drive: str | None = None  # None: each scenario's own mission.drive
     batch: int = DEFAULT_BATCH
     confirm: int = 0
+    mission_plan: str | None = None  # a .plan flown instead of each scenario's route
+
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
@@ -59,6 +61,8 @@ class CampaignConfig:
             overrides["batch"] = self.batch
         if self.confirm:
             overrides["confirm"] = self.confirm
+        if self.mission_plan:
+            overrides["mission_plan"] = str(Path(self.mission_plan).resolve())
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -137,7 +141,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     profile = load_profile(config.profile)
     summary = CampaignSummary()
     for scenario_file in config.scenarios:
-        space = SearchSpace(load_logical(Path(scenario_file), profile, config.drive), profile)
+        space = SearchSpace(load_logical(Path(scenario_file), profile, config.drive, Path(config.mission_plan) if config.mission_plan else None), profile)
         for algorithm, combination in zip(config.algorithms, combinations):
             for run_index in range(config.runs):
                 seed = config.seed + run_index

@@ -20,7 +20,8 @@ import numpy as np
 
 from harness.errors import InputError, Problem, StellaError
 from harness.scenario.documents import load_json
-from harness.scenario.logical import DRIVES, load_logical, logical_problems
+from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
+from harness.scenario.plan import plan_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT
 from harness.scenario.world import space_from_concrete
@@ -51,9 +52,9 @@ def _expand(paths: Sequence[str]) -> list[Path]:
     files: list[Path] = []
     for raw in paths:
         path = Path(raw)
-        found = sorted(path.glob("*.json")) if path.is_dir() else [path]
+        found = sorted([*path.glob("*.json"), *path.glob("*.plan")]) if path.is_dir() else [path]
         if not found:
-            raise InputError([Problem(str(path), "", "a folder without *.json files: give scenario or profile files, or a folder of them")])
+            raise InputError([Problem(str(path), "", "a folder without *.json or *.plan files: give scenario, profile or plan files, or a folder of them")])
         files.extend(found)
     return files
 
@@ -70,7 +71,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
             problems.extend(error.problems)
             report.append({"file": str(path), "ok": False})
             continue
-        if is_profile_document(document):
+        if path.suffix == ".plan":
+            found, kind, notes = plan_problems(document, str(path)), "QGroundControl plan", []
+        elif is_profile_document(document):
             found = profile_problems(document, str(path))
             kind = "profile"
             notes: list[str] = []
@@ -85,7 +88,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
             except InputError as error:
                 found = list(error.problems)
         else:
-            found = logical_problems(document, profile, str(path))
+            try:
+                found = logical_problems(with_plan_embedded(document, path.parent), profile, str(path))
+            except InputError as error:  # its plan file
+                found = list(error.problems)
             kind = "logical scenario"
             notes = []
             if not found:
@@ -109,7 +115,12 @@ def _space(args: argparse.Namespace):
     from harness.scenario.space import SearchSpace
 
     profile = load_profile(args.profile)
-    return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None)), profile)
+    return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None), _mission_plan(args)), profile)
+
+
+def _mission_plan(args: argparse.Namespace) -> Path | None:
+    plan = getattr(args, "mission_plan", None)
+    return Path(plan) if plan else None
 
 
 @command("space")
@@ -183,6 +194,10 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
 
     config = {key: value for key, value in (("px4_bin", args.px4_bin), ("command", args.sut_command), ("hold", args.sut_hold)) if value is not None}
     params: dict[str, float] = {}
+    if args.sut_params_file:
+        from harness.param_files import load_params_file
+
+        params.update(load_params_file(Path(args.sut_params_file)))
     for item in args.sut_param or []:
         name, _, value = item.partition("=")
         try:
@@ -205,7 +220,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     sut, sut_config, sut_params = _sut_spec(args)
     if args.concrete:
-        space, x = load_concrete(Path(args.concrete), args.drive)
+        space, x = load_concrete(Path(args.concrete), args.drive, _mission_plan(args))
     elif args.scenario:
         space = _space(args)
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
@@ -320,8 +335,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from harness.bench import PLACEMENTS, bench_text, run_bench
     from harness.evaluation import RunOptions
 
-    if args.drive and (args.executor or args.campaign):
-        raise InputError([Problem("--drive", "", "the executor and campaign benchmarks fly the standard scenario's own drive; leave --drive out")])
+    for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
+        if given and (args.executor or args.campaign):
+            raise InputError([Problem(option, "", f"the executor and campaign benchmarks fly the standard scenario's own mission; leave {option} out")])
     if args.executor:
         from harness.bench import executor_bench_text, run_executor_bench
 
@@ -337,7 +353,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     sut, sut_config, sut_params = _sut_spec(args)
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
                        sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), placements=(args.cores,) if args.cores else PLACEMENTS,
-                       drive=args.drive)
+                       drive=args.drive, mission_plan=_mission_plan(args))
     emit(args, report, bench_text(report))
     return 0
 
@@ -357,10 +373,11 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         except ValueError as error:
             raise InputError([Problem("--algorithm", "", str(error))]) from None
     for scenario in args.scenarios:
-        load_logical(Path(scenario), load_profile(args.profile), args.drive)
+        load_logical(Path(scenario), load_profile(args.profile), args.drive, _mission_plan(args))
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch, args.confirm)
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch, args.confirm,
+                            args.mission_plan)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -501,6 +518,7 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("scenario", help="logical scenario JSON")
         p.add_argument("--profile", default="default")
         p.add_argument("--drive", choices=DRIVES, help="override the scenario's mission.drive (pilot adds the pilot's dimensions)")
+        p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home is the origin)")
         if name == "sample":
             p.add_argument("--seed", type=seed_int, default=0)
             p.add_argument("--out", help="also write the concrete scenario to this file")
@@ -510,7 +528,10 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("--px4-bin", help="with --sut px4: the px4 binary or its build folder (default: $STELLA_PX4_BIN)")
         p.add_argument("--sut-command", help="with --sut command: the SUT's command line with {sim_port}, {api_port}, {instance}, {workdir}")
         p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
-        p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable")
+        p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable; wins over --sut-params-file")
+        p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export or a NAME,VALUE CSV (the UAV Testing Competition's)")
+        p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home becomes the origin; "
+                                                          "takeoff, waypoint, land, return, change speed, delay)")
         p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
                                                        "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
 

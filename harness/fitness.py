@@ -69,9 +69,10 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any
             (math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states),
             default=math.inf,
         )
-        if closest > acceptance_radius_m:
+        radius = waypoint.get("acceptance_radius_m", acceptance_radius_m)
+        if closest > radius:
             what = f"waypoint {number}" if drive == "mission" else "the goal"
-            return f"{what} missed by {closest:.1f} m (acceptance radius {acceptance_radius_m} m); run ended: {reason}"
+            return f"{what} missed by {closest:.1f} m (acceptance radius {radius} m); run ended: {reason}"
     if not mission.get("land", True):
         return None
     if reason == "crashed":
@@ -79,7 +80,8 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any
         return f"crashed into the ground at {touchdown.get('speed_m_s', float('nan')):.1f} m/s"
     if reason != "landed":
         return {"time_limit": "not landed within the time limit"}.get(reason, f"run ended: {reason}")
-    goal = mission["waypoints"][-1]
+    # The pilot lands where its route ends; a mission where its plan ends (home after a return).
+    goal = mission["waypoints"][-1] if drive == "pilot" else mission.get("landing", mission["waypoints"][-1])
     touchdown = summary.get("touchdown") or {}
     miss = math.hypot(touchdown.get("north_m", math.inf) - goal["north_m"], touchdown.get("east_m", math.inf) - goal["east_m"])
     if miss > LANDING_TOLERANCE_M:

@@ -43,9 +43,17 @@ log_subscribe(_route_mavsdk_log)
 
 
 def mission_items(world: Mapping[str, Any]) -> list[MissionItem]:
-    """MISSION_ITEM_INTs for the world's mission: take off, set speed, waypoints, land at the last."""
+    """MISSION_ITEM_INTs for the world's mission: a plan's items as they are, or take off, set
+    speed, waypoints, land at the last."""
     origin = world["origin"]
     mission = world["mission"]
+    if "plan_items" in mission:
+        items = []
+        for seq, item in enumerate(mission["plan_items"]):
+            p = [float("nan") if v is None else float(v) for v in item["params"]]
+            items.append(MissionItem(seq=seq, frame=item["frame"], command=item["command"], current=1 if seq == 0 else 0, autocontinue=1,
+                                     param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=item["x"], y=item["y"], z=float(item["z"]), mission_type=0))
+        return items
     start = world["uav"]["start"]
     items: list[MissionItem] = []
 

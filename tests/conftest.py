@@ -115,3 +115,31 @@ def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
     space = SearchSpace(load_logical(FIG4, profile), profile)
     x = space.sample_feasible(np.random.default_rng(1), 1)[0]
     return Job(key, space.to_concrete(x), 1, str(out_dir), f"job{key}", RunOptions(**options))
+
+
+PLAN_SCENARIO = ROOT / "scenarios" / "examples" / "plan_mission.json"
+PLAN_SPEED_M_S = 4.0  # two_altitudes.plan's change-speed item
+
+
+def plan_flight(log_path: Path) -> dict:
+    """What a flight of two_altitudes.plan did at each waypoint, as a user would check it: the
+    best moment within the acceptance radius (horizontal miss, altitude error there), the fastest
+    horizontal speed after the speed change, and how long it stayed at the held waypoint."""
+    import math
+
+    from harness import logs
+
+    world = logs.json_metadata(log_path, "world")
+    states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
+    up0 = world["uav"]["start"]["up_m"]
+    waypoints = []
+    for waypoint in world["mission"]["waypoints"]:
+        def miss(s, w=waypoint):
+            return math.hypot(s["north_m"] - w["north_m"], s["east_m"] - w["east_m"])
+        inside = [s for s in states if miss(s) <= 2.0] or [min(states, key=miss)]
+        best = min(inside, key=lambda s, w=waypoint: abs(s["up_m"] - up0 - w["altitude_m"]))
+        at_it = [s for s in states if miss(s) <= 1.0 and abs(s["up_m"] - up0 - waypoint["altitude_m"]) <= 0.5]
+        waypoints.append({"miss_m": miss(best), "altitude_error_m": best["up_m"] - up0 - waypoint["altitude_m"],
+                          "at_it_s": len(at_it) * (states[1]["t"] - states[0]["t"])})
+    speeds = [math.hypot(*s["v_ned_m_s"][:2]) for s in states]
+    return {"waypoints": waypoints, "max_speed_m_s": max(speeds), "states": states}

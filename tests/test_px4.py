@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from conftest import ROOT
+from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
 from harness import logs
 from harness.cli import main
 from harness.fitness import PENALTY
@@ -90,3 +90,14 @@ def test_a_scenario_whose_name_has_a_colon_and_spaces_is_flown_by_px4(capsys, tm
     result = json.loads(capsys.readouterr().out)
     assert result["status"] in ("ok", "violation", "mission_failed"), result["why"]
     assert Path(result["log_path"]).name == "Holdout_2_three_static_obstacles-seed3.mcap"
+
+
+def test_px4_flies_a_qgroundcontrol_plan_as_planned(capsys, tmp_path):
+    assert main(["run", str(PLAN_SCENARIO), "--sut", "px4", "--seed", "2", "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] == "ok", result["why"]
+    flight = plan_flight(Path(result["log_path"]))
+    for waypoint in flight["waypoints"]:
+        assert waypoint["miss_m"] <= 2.0 and abs(waypoint["altitude_error_m"]) <= 0.5, flight["waypoints"]
+    assert flight["waypoints"][1]["at_it_s"] >= 1.5  # held 2 s
+    assert 3.5 <= flight["max_speed_m_s"] <= PLAN_SPEED_M_S + 0.6

@@ -8,6 +8,7 @@ from typing import Any, Mapping
 
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json, schema_problems
+from harness.scenario.plan import Plan, load_plan, plan_from_document, plan_problems
 from harness.scenario.profile import WEATHER_PARAMETERS, Interval, Profile
 
 SIZE_DIMENSIONS = {
@@ -57,6 +58,12 @@ class LogicalScenario:
     def drive(self) -> str:
         return (self.mission or {}).get("drive", "mission")
 
+    @property
+    def plan(self) -> Plan | None:
+        """The QGroundControl plan the mission flies, embedded on loading (`"plan"`, --mission-plan)."""
+        document = (self.mission or {}).get("plan")
+        return plan_from_document(document, self.file) if document is not None else None
+
 
 DRIVES = ("mission", "pilot")
 
@@ -72,6 +79,23 @@ def with_drive(document: Mapping[str, Any], drive: str | None) -> Mapping[str, A
     changed = dict(document)
     changed["mission"] = {**document.get("mission", {}), "drive": drive}
     return changed
+
+
+def with_plan_embedded(document: Any, folder: Path, mission_plan: Path | None = None) -> Any:
+    """The logical scenario document with its mission's plan file read into it, so that the
+    scenario travels whole (to workers, into concrete scenarios); `mission_plan` replaces the
+    mission's route by that plan (--mission-plan). A plan path is relative to the scenario file."""
+    if not isinstance(document, Mapping) or not isinstance(document.get("mission", {}), Mapping):
+        return document  # not a scenario: validation names what is wrong with it
+    mission = dict(document.get("mission", {}))
+    if mission_plan is not None:
+        mission = {key: value for key, value in mission.items() if key not in ("waypoints", "land")}
+        mission["plan"] = load_plan(mission_plan)[0]
+    elif isinstance(mission.get("plan"), str):
+        mission["plan"] = load_plan(folder / mission["plan"])[0]
+    else:
+        return document
+    return {**document, "mission": mission}
 
 
 def _range(document: Mapping[str, Any] | None) -> Interval | None:
@@ -107,11 +131,26 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             problems += _range_problems(file, f"{at}/speed range", obstacle["speed range"], profile.document["obstacles"]["speed"]["unit"])
             if obstacle["speed range"]["min"] < 0:
                 problems.append(Problem(file, f"{at}/speed range/min", "speeds cannot be negative"))
+    area = environment["flight area"].get("area")
+    if area:
+        for axis in ("north", "east"):
+            if area[f"{axis}_min_m"] >= area[f"{axis}_max_m"]:
+                problems.append(Problem(file, f"/environment/flight area/area/{axis}_min_m",
+                                        f"{area[f'{axis}_min_m']} is not below {axis}_max_m {area[f'{axis}_max_m']}: swapped bounds?"))
+    mission = document.get("mission", {})
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
-    if "move to waypoint" not in maneuvers and "waypoints" not in document.get("mission", {}):
+    if "move to waypoint" not in maneuvers and "waypoints" not in mission and "plan" not in mission:
         problems.append(
-            Problem(file, "/system/UAVs/0/maneuvers", 'add "move to waypoint" or mission waypoints: the UAV has nowhere to fly')
+            Problem(file, "/system/UAVs/0/maneuvers", 'add "move to waypoint", mission waypoints or a mission plan: the UAV has nowhere to fly')
         )
+    if "plan" in mission:
+        for key in ("waypoints", "land", "cruise_speed_m_s"):
+            if key in mission:
+                problems.append(Problem(file, f"/mission/{key}", "a mission plan sets the route, its speeds and its ending: remove this or the plan"))
+        if isinstance(mission["plan"], str):
+            problems.append(Problem(file, "/mission/plan", "a plan path is read when the scenario file is loaded; here it must be the plan itself"))
+        else:
+            problems += plan_problems(mission["plan"], file, "/mission/plan")
     return problems
 
 
@@ -163,9 +202,10 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
     )
 
 
-def load_logical(path: Path, profile: Profile, drive: str | None = None) -> LogicalScenario:
-    """A logical scenario file; `drive` overrides its mission's drive (`--drive`)."""
-    document = with_drive(load_json(path), drive)
+def load_logical(path: Path, profile: Profile, drive: str | None = None, mission_plan: Path | None = None) -> LogicalScenario:
+    """A logical scenario file; `drive` overrides its mission's drive (`--drive`), `mission_plan`
+    its route (`--mission-plan`)."""
+    document = with_plan_embedded(with_drive(load_json(path), drive), path.parent, mission_plan)
     problems = logical_problems(document, profile, str(path))
     if problems:
         raise InputError(problems)

@@ -17,6 +17,7 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario.documents import pointer
 from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
+from harness.scenario.plan import Plan
 from harness.scenario import units
 from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from sim_bridge.terrain import max_height_on_segment_m
@@ -66,9 +67,12 @@ class Mission:
     cruise_speed_m_s: float
     land: bool
     drive: str = "mission"  # or "pilot": see README, Drives
+    plan: Plan | None = None  # a QGroundControl plan flown item by item
 
     @property
     def landing_point(self) -> tuple[float, float]:
+        if self.plan is not None and self.drive == "mission":
+            return self.plan.landing_point
         return self.waypoints[-1][0], self.waypoints[-1][1]
 
 
@@ -77,6 +81,15 @@ def mission_for(logical: LogicalScenario, profile: Profile) -> Mission:
     uav = profile.uav
     m = logical.mission or {}
     cruise_speed_m_s = float(m.get("cruise_speed_m_s", uav["cruise_speed_m_s"]))
+    plan = logical.plan
+    if plan is not None:
+        return Mission(
+            waypoints=tuple((w.north_m, w.east_m, w.altitude_m) for w in plan.waypoints),
+            cruise_speed_m_s=cruise_speed_m_s,
+            land=plan.lands,
+            drive=logical.drive,
+            plan=plan,
+        )
     if "waypoints" in m:
         return Mission(
             waypoints=tuple((w["north_m"], w["east_m"], w["altitude_m"]) for w in m["waypoints"]),
@@ -103,7 +116,8 @@ class SearchSpace:
         self.logical = logical
         self.profile = profile
         self.mission = mission_for(logical, profile)
-        self.area = profile.landforms[logical.landform].area
+        self.area = logical.document["environment"]["flight area"].get("area") or (
+            self.mission.plan.area() if self.mission.plan else profile.landforms[logical.landform].area)
         self._template: dict[str, Any] = {
             "format": CONCRETE_FORMAT,
             "scenario": logical.name,

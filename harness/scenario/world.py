@@ -10,9 +10,9 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
-from harness.scenario.logical import logical_from_document, logical_problems, with_drive
+from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
 from harness.scenario.profile import profile_from_document, profile_problems
-from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
+from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
 from sim_bridge.terrain import terrain_height_m
 
 WORLD_FORMAT = "stella.world/1"
@@ -66,11 +66,12 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
     landform = profile.landforms[space.logical.landform]
     wind_toward = math.radians(environment["wind_from_deg"] + 180.0)
     mission = space.mission
+    start_up_m = terrain_height_m(landform.terrain, 0.0, 0.0)
     return {
         "format": WORLD_FORMAT,
         "scenario": space.logical.name,
         "seed": int(seed),
-        "origin": dict(ORIGIN),
+        "origin": dict(ORIGIN) if mission.plan is None else {**mission.plan.origin, "alt_m": mission.plan.home[2] - start_up_m},
         "terrain": dict(landform.terrain),
         "surface": {"kind": space.logical.surface, "water": list(profile.surfaces[space.logical.surface]["water"])},
         "atmosphere": {
@@ -82,21 +83,46 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
         "sensor": {**dict(profile.sensor), "range_m": sensor_range_m(profile.sensor, environment["visibility_m"])},
         "obstacles": [_obstacle(space, concrete, i) for i in range(len(concrete["obstacles"]))],
         "uav": {
-            "start": {"north_m": 0.0, "east_m": 0.0, "up_m": terrain_height_m(landform.terrain, 0.0, 0.0)},
+            "start": {"north_m": 0.0, "east_m": 0.0, "up_m": start_up_m},
             "body": {k: v for k, v in profile.uav["body"].items() if k != "description"},
         },
-        "mission": {
-            "takeoff_altitude_m": mission.waypoints[0][2],
-            "waypoints": [{"north_m": n, "east_m": e, "altitude_m": a} for n, e, a in mission.waypoints],
-            "cruise_speed_m_s": mission.cruise_speed_m_s,
-            "land": mission.land,
-        },
+        "mission": _mission(mission),
         "safety_distance_m": profile.safety_distance_m,
-        "time_limit_s": profile.time_limit_s,
+        "time_limit_s": _time_limit_s(mission, profile.time_limit_s),
         "not_simulated": concrete["not_simulated"],
         "drive": mission.drive,
         **({"pilot": dict(concrete["pilot"])} if mission.drive == "pilot" else {}),
     }
+
+
+def _mission(mission: Mission) -> dict[str, Any]:
+    """The route as the harness flies and scores it; a plan's items also as they are uploaded."""
+    if mission.plan is None:
+        return {
+            "takeoff_altitude_m": mission.waypoints[0][2],
+            "waypoints": [{"north_m": n, "east_m": e, "altitude_m": a} for n, e, a in mission.waypoints],
+            "cruise_speed_m_s": mission.cruise_speed_m_s,
+            "land": mission.land,
+        }
+    plan = mission.plan
+    landing_north, landing_east = plan.landing_point
+    return {
+        "takeoff_altitude_m": plan.takeoff_altitude_m,
+        "waypoints": [{"north_m": w.north_m, "east_m": w.east_m, "altitude_m": w.altitude_m,
+                       **({"acceptance_radius_m": w.params[1]} if w.params[1] > 0 else {})} for w in plan.waypoints],
+        "cruise_speed_m_s": mission.cruise_speed_m_s,
+        "land": plan.lands,
+        "landing": {"north_m": landing_north, "east_m": landing_east},
+        "plan_items": plan.upload_items(),
+    }
+
+
+def _time_limit_s(mission: Mission, profile_limit_s: float) -> float:
+    """The profile's limit, stretched for a plan that needs longer (twice its estimated duration
+    plus a minute for take-off, landing and braking)."""
+    if mission.plan is None:
+        return profile_limit_s
+    return max(profile_limit_s, 2.0 * mission.plan.flight_time_estimate_s(mission.cruise_speed_m_s) + 60.0)
 
 
 def with_drive_recorded(document: Any, drive: str | None) -> Any:
@@ -104,9 +130,9 @@ def with_drive_recorded(document: Any, drive: str | None) -> Any:
     return {**document, "drive": drive} if drive is not None and isinstance(document, dict) else document
 
 
-def space_from_concrete(document: Any, file: str, drive: str | None = None) -> SearchSpace:
+def space_from_concrete(document: Any, file: str, drive: str | None = None, mission_plan: Path | None = None) -> SearchSpace:
     """Rebuild the search space from the logical scenario and profile a concrete file embeds;
-    `drive` overrides the logical scenario's drive (`--drive`)."""
+    `drive` overrides the logical scenario's drive (`--drive`), `mission_plan` its route."""
     if not isinstance(document, dict) or document.get("format") != CONCRETE_FORMAT:
         raise InputError([Problem(file, "/format", f'not a concrete scenario: expected "format": "{CONCRETE_FORMAT}"')])
     for key in ("logical_scenario", "profile_document"):
@@ -116,15 +142,16 @@ def space_from_concrete(document: Any, file: str, drive: str | None = None) -> S
     if problems:
         raise InputError([Problem(p.file, "/profile_document" + p.pointer, p.message) for p in problems])
     profile = profile_from_document(document["profile_document"])
-    logical = with_drive(document["logical_scenario"], drive)
+    logical = with_plan_embedded(with_drive(document["logical_scenario"], drive), Path(file).parent, mission_plan)
     problems = logical_problems(logical, profile, file)
     if problems:
         raise InputError([Problem(p.file, "/logical_scenario" + p.pointer, p.message) for p in problems])
     return SearchSpace(logical_from_document(logical, profile, file), profile)
 
 
-def load_concrete(path: Path, drive: str | None = None) -> tuple[SearchSpace, np.ndarray]:
-    """A concrete scenario file; `drive` flies it with another drive than it was made for."""
+def load_concrete(path: Path, drive: str | None = None, mission_plan: Path | None = None) -> tuple[SearchSpace, np.ndarray]:
+    """A concrete scenario file; `drive` flies it with another drive than it was made for,
+    `mission_plan` along another route."""
     document = with_drive_recorded(load_json(path), drive)
-    space = space_from_concrete(document, str(path), drive)
+    space = space_from_concrete(document, str(path), drive, mission_plan)
     return space, space.from_concrete(document, str(path))

@@ -1,0 +1,66 @@
+"""SUT parameter files (QGroundControl's .params, the competition's NAME,VALUE CSV) and how they
+merge with --sut-param."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from harness.cli import _sut_spec, main
+from harness.errors import InputError
+from harness.param_files import load_params_file
+
+QGC = """# Onboard parameters for Vehicle 1
+#
+# Stack: PX4 Pro
+# Vehicle: Multi-Rotor
+#
+# Vehicle-Id Component-Id Name Value Type
+1\t1\tCP_DIST\t2.500000000000000000\t9
+1\t1\tCP_GO_NO_DATA\t1\t6
+1\t1\tMPC_XY_CRUISE\t5.000000000000000000\t9
+"""
+
+
+def test_qgroundcontrol_params_keep_their_types(tmp_path):
+    path = tmp_path / "vehicle.params"
+    path.write_text(QGC)
+    values = load_params_file(path)
+    assert values == {"CP_DIST": 2.5, "CP_GO_NO_DATA": 1, "MPC_XY_CRUISE": 5.0}
+    assert isinstance(values["CP_GO_NO_DATA"], int) and isinstance(values["MPC_XY_CRUISE"], float)
+
+
+def test_competition_csv_with_or_without_a_header(tmp_path):
+    path = tmp_path / "params.csv"
+    path.write_text("name,value\nCP_DIST,3\nMPC_XY_VEL_MAX, 8.5\n")
+    assert load_params_file(path) == {"CP_DIST": 3, "MPC_XY_VEL_MAX": 8.5}
+    path.write_text("CP_DIST,3\n")
+    assert load_params_file(path) == {"CP_DIST": 3}
+
+
+def test_sut_param_wins_over_the_file(tmp_path):
+    path = tmp_path / "params.csv"
+    path.write_text("CP_DIST,3\nMPC_XY_CRUISE,4\n")
+    args = argparse.Namespace(sut="bundled", px4_bin=None, sut_command=None, sut_hold=None, sut_param=["CP_DIST=1.5"], sut_params_file=str(path))
+    assert _sut_spec(args)[2] == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
+
+
+@pytest.mark.parametrize("text, line, message", [
+    ("CP_DIST\n", "line 1", "expected NAME,VALUE"),
+    ("CP_DIST,near\n", "line 1", "not a finite number"),
+    ("CP_DIST,nan\n", "line 1", "not a finite number"),
+    ("CP_DIST,2\nCP_DIST,3\n", "line 2", "set twice"),
+    ("1\t1\tCP_GO_NO_DATA\t0.5\t6\n", "line 1", "not a finite number of the right type"),
+    ("1\t1\tCP_DIST\t2\t42\n", "line 1", "unknown MAV_PARAM_TYPE 42"),
+    ("THIS_NAME_IS_FAR_TOO_LONG,1\n", "line 1", "is not a parameter name"),
+    ("# only a comment\n", "/", "no parameters in this file"),
+])
+def test_a_bad_line_is_located_and_the_command_exits_2(tmp_path, capsys, text, line, message):
+    path = tmp_path / "bad.params"
+    path.write_text(text)
+    with pytest.raises(InputError) as raised:
+        load_params_file(path)
+    assert str(raised.value).startswith(f"{path}: {line}: ") and message in str(raised.value)
+    assert main(["sut", "check", "--sut-params-file", str(path)]) == 2
+    assert f"{path}: {line}: " in capsys.readouterr().err
