@@ -474,9 +474,51 @@ def cmd_ui(args: argparse.Namespace) -> int:
 def cmd_export_regressions(args: argparse.Namespace) -> int:
     from harness.regression import export_regressions
 
+    if args.format == "aerialist":
+        return _export_aerialist(args)
     written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect)
     text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
     emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
+    return 0
+
+
+def _export_aerialist(args: argparse.Namespace) -> int:
+    from harness.aerialist import export_aerialist
+    from harness.regression import chosen_cases
+
+    sut, chosen = chosen_cases(Path(args.store), args.threshold, args.worst)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written, skipped = [], []
+    for name, case in chosen:
+        path, reasons = export_aerialist(name, json.loads(case["concrete"]), sut["params"], out)
+        if path:
+            written.append(str(path))
+        else:
+            skipped.append({"name": name, "reasons": reasons})
+    lines = written + [f"not expressible in the competition's format: {s['name']}: {'; '.join(s['reasons'])}" for s in skipped]
+    lines.append(f"wrote {len(written)} competition test(s) (YAML and .plan) to {out}; {len(skipped)} not expressible")
+    emit(args, {"out": str(out), "files": written, "not_expressible": skipped}, "\n".join(lines))
+    return 0
+
+
+@command("import")
+def cmd_import(args: argparse.Namespace) -> int:
+    from harness.aerialist import import_aerialist
+
+    concrete, params = import_aerialist(Path(args.test), args.safety_distance)
+    out = Path(args.out)
+    out.write_text(json.dumps(concrete, indent=2) + "\n")
+    files = [str(out)]
+    command = f"stella run --concrete {out}"
+    if params:
+        params_path = out.with_name(out.stem + ".params.csv")
+        params_path.write_text("".join(f"{name},{value}\n" for name, value in params.items()))
+        files.append(str(params_path))
+        command += f" --sut-params-file {params_path}"
+    boxes = len(concrete["obstacles"])
+    emit(args, {"files": files, "obstacles": boxes, "sut_params": params, "fly": command},
+         "\n".join(files) + f"\nimported {boxes} box(es) and the plan; fly it with: {command}  (add --sut px4 for PX4 SITL)")
     return 0
 
 
@@ -639,6 +681,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--worst", type=int, default=0, help="also export the N lowest-fitness evaluations of each run")
     p.add_argument("--expect", choices=["safe", "violation"], default="safe",
                    help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
+
+    p.add_argument("--format", choices=["stella", "aerialist"], default="stella",
+                   help="stella: regression cases for pytest (default); aerialist: the UAV Testing Competition's YAML and .plan (static boxes only)")
+
+    p = add("import", "turn a UAV Testing Competition test (Aerialist YAML) into a concrete scenario")
+    p.add_argument("kind", choices=["aerialist"])
+    p.add_argument("test", help="the test's YAML (its mission_file and params_file are found beside it or in the working directory)")
+    p.add_argument("--out", required=True, help="the concrete scenario JSON to write (its SUT parameters go beside it as NAME.params.csv)")
+    p.add_argument("--safety-distance", type=non_negative_float, default=1.5, help="metres (default 1.5: the competition's soft-fail distance)")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
     p.add_argument("--strength", type=int, default=2)

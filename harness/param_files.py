@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 from harness.errors import InputError, Problem
+from harness.scenario.documents import read_text
 
 FLOAT_TYPES = (9, 10)  # MAV_PARAM_TYPE_REAL32, REAL64
 INTEGER_TYPES = range(1, 9)
@@ -38,12 +39,7 @@ def _qgc_line(fields: list[str]) -> tuple[str, int | float]:
 
 def load_params_file(path: Path) -> dict[str, int | float]:
     """The parameters of a .params or NAME,VALUE file, in file order; each bad line located."""
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError([Problem(str(path), "", "no such file")]) from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError([Problem(str(path), "", f"cannot read: {error}")]) from None
+    lines = read_text(path).splitlines()
     values: dict[str, int | float] = {}
     problems = []
     for number, line in enumerate(lines, 1):

@@ -97,23 +97,31 @@ def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) ->
     return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
 
 
+def chosen_cases(store_path: Path, threshold: float, worst: int) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+    """The campaign's SUT and (name, case) for each distinct concrete scenario with fitness below
+    `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes once."""
+    with Store.existing(store_path) as store:
+        sut = store.campaign_sut()
+        cases = store.worst_cases(threshold, worst)
+    chosen, seen = [], set()
+    for case in cases:
+        if case["concrete"] is None or case["vector_key"] in seen:
+            continue
+        seen.add(case["vector_key"])
+        chosen.append((slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}"), case))
+    return sut, chosen
+
+
 def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe") -> list[Path]:
     """One case file per distinct concrete scenario with fitness below `threshold`, plus the
     `worst` lowest-fitness ones of each run; identical scenarios found twice are written once."""
     if expect not in EXPECTATIONS:
         raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
-    with Store.existing(store_path) as store:
-        sut = store.campaign_sut()
-        chosen = store.worst_cases(threshold, worst)
+    sut, chosen = chosen_cases(store_path, threshold, worst)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
-    seen: set[str] = set()
-    for case in chosen:
-        if case["concrete"] is None or case["vector_key"] in seen:
-            continue
-        seen.add(case["vector_key"])
+    for name, case in chosen:
         concrete = json.loads(case["concrete"])
-        name = slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}")
         document = {
             "format": FORMAT,
             "name": name,

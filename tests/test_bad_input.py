@@ -52,7 +52,7 @@ CORPUS = [
     (["bench", "--campaign", "--drive", "pilot"], "leave --drive out"),
     (["validate", "BROKEN_JSON"], "invalid JSON at line 1"),
     (["validate", "ARRAY_JSON"], "expected object, got array"),
-    (["validate", "EMPTY_FOLDER"], "a folder without *.json files"),
+    (["validate", "EMPTY_FOLDER"], "a folder without *.json or *.plan files"),
     (["validate", "MISSING"], "no such file"),
     (["validate", FIG4, "--profile", "BROKEN_JSON"], "invalid JSON"),
     (["space", FIG4, "--profile", "no_such_profile"], "no_such_profile.json: /: no such file"),

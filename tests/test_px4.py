@@ -101,3 +101,9 @@ def test_px4_flies_a_qgroundcontrol_plan_as_planned(capsys, tmp_path):
         assert waypoint["miss_m"] <= 2.0 and abs(waypoint["altitude_error_m"]) <= 0.5, flight["waypoints"]
     assert flight["waypoints"][1]["at_it_s"] >= 1.5  # held 2 s
     assert 3.5 <= flight["max_speed_m_s"] <= PLAN_SPEED_M_S + 0.6
+
+
+def test_px4_flies_an_imported_competition_case_with_the_clearance_computed_by_hand(capsys, tmp_path):
+    from test_aerialist import check_hover_clearances, fly_hover_case
+
+    check_hover_clearances(fly_hover_case(tmp_path, capsys, "--sut", "px4"))

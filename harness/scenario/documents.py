@@ -30,14 +30,19 @@ def pointer(path: Any) -> str:
     return "/" + "/".join(parts) if parts else ""
 
 
-def load_json(path: Path) -> Any:
-    """Read a JSON file; syntax errors become a located InputError with line and column."""
+def read_text(path: Path) -> str:
+    """A UTF-8 input file's text; a missing or unreadable file is a located InputError."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError([Problem(str(path), "", "no such file")]) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError([Problem(str(path), "", f"cannot read: {exc}")]) from None
+
+
+def load_json(path: Path) -> Any:
+    """Read a JSON file; syntax errors become a located InputError with line and column."""
+    text = read_text(path)
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
