@@ -277,6 +277,10 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         emit(args, {"log": str(path), "topics": rows}, "\n".join(lines))
         return 0
     summary = summarize(path)
+    if args.competition:
+        from harness.competition_score import competition_score
+
+        summary["competition"] = competition_score(path)
     if args.plot:
         plot(path, Path(args.plot))
         summary["plot"] = args.plot
@@ -289,6 +293,10 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if summary["min_clearance_at_s"] is not None:
         lines.append(f"min clearance: {summary['min_clearance_m']:.3f} m at t={summary['min_clearance_at_s']:.3f} s to {summary['min_clearance_obstacle']}")
     lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {'not checked (partial log)' if summary['partial'] else summary['fitness_reproduced']}")
+    if args.competition:
+        score = summary["competition"]
+        per_box = ", ".join(f"{name} {d:.3f} m" for name, d in score["distances_m"].items())
+        lines.append(f"the UAV Testing Competition's score: {score['verdict']}, {score['points']} point(s); 2D distance {per_box}")
     if args.export:
         out = Path(args.out) if args.out else path.with_name(f"{path.stem}-csv")
         written = export_csv(path, out, args.topic)
@@ -596,6 +604,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("log", help="an evaluation's .mcap file")
     p.add_argument("--plot", help="write a PNG: top view of the trajectory and the clearance over time")
     p.add_argument("--topics", action="store_true", help="list the log's topics with schema, message count and time span instead")
+    p.add_argument("--competition", action="store_true",
+                   help="also score the flight as the UAV Testing Competition does (2D distance of the path to each box, soft fail < 1.5 m, points)")
     p.add_argument("--export", choices=["csv"], help="also write one CSV per topic (nested fields as dotted columns, /clearance one row per step)")
     p.add_argument("--topic", action="append", help="with --export: only this topic; repeatable (default: every topic)")
     p.add_argument("--out", help="with --export: folder for the CSV files (default: LOG-csv/ beside the log)")

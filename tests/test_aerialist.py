@@ -17,6 +17,7 @@ from conftest import ROOT
 from harness import logs
 from harness.aerialist import PLAN_FRAMES, export_aerialist, import_aerialist
 from harness.cli import main
+from harness.competition_score import path_to_polygon, points_for, resampled
 from harness.errors import InputError
 from harness.mavsdk_session import mission_items
 from harness.scenario.logical import load_logical
@@ -163,7 +164,34 @@ def fly_hover_case(tmp_path: Path, capsys, *sut: str) -> Path:
 
 @pytest.mark.slow
 def test_a_hand_written_case_flies_and_its_clearance_to_each_box_matches_hand_computation(tmp_path, capsys):
-    check_hover_clearances(fly_hover_case(tmp_path, capsys))
+    log = fly_hover_case(tmp_path, capsys)
+    check_hover_clearances(log)
+    # The competition's 2D distance of the path (0.125 m half width) exceeds our body's clearance
+    # (0.3 m half width, up to 0.42 m across its diagonal) by about the difference.
+    assert main(["inspect", str(log), "--competition", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert 0.1 <= summary["competition"]["min_distance_m"] - summary["min_clearance_m"] <= 0.35, summary
+    assert (summary["competition"]["verdict"], summary["competition"]["points"]) == ("pass", 0)
+
+
+SQUARE = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]  # 2 m box at the origin
+
+
+@pytest.mark.parametrize("path, expected", [
+    ([(5.0, 0.0), (5.0, 10.0)], 4.0),  # beside a face
+    ([(4.0, 5.0), (8.0, 5.0)], 5.0),  # beyond a corner, nearest at the path's end: hypot(3, 4)
+    ([(-5.0, 0.0), (5.0, 0.0)], 0.0),  # through it
+    ([(0.5, 0.5)], 0.0),  # inside
+    ([(3.0, 3.0)], math.hypot(2.0, 2.0)),  # one point off a corner
+])
+def test_the_competitions_path_to_box_distance(path, expected):
+    assert path_to_polygon(path, SQUARE) == pytest.approx(expected)
+
+
+def test_the_competitions_resampling_and_points():
+    states = [{"t": t / 10, "north_m": float(t), "east_m": 0.0} for t in range(10)]
+    assert resampled(states) == [(2.0, 0.0), (7.0, 0.0)]  # means of 0-0.4 s and 0.5-0.9 s
+    assert [points_for(d) for d in (0.0, 0.24, 0.25, 0.99, 1.49, 1.5, 7.0)] == [5, 5, 2, 2, 1, 0, 0]
 
 
 def wall_store(path: Path, profile) -> None:
