@@ -24,6 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol)")
     parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
     parser.add_argument("--params", help="JSON file of PX4-named parameter overrides")
+    parser.add_argument("--fault", help="switch on one seeded fault (autopilot/faults.py) to test a test")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--spin-us", type=float, default=0.0,
                         help="poll this long for the simulator's next message before sleeping; only worth it when the simulator runs on another core")
@@ -32,9 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="autopilot %(levelname)s: %(message)s")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
-        params = Params.from_file(args.params) if args.params else Params()
+        params = Params.from_file(args.params, args.fault) if args.params else Params(fault=args.fault)
     except (ParamError, OSError, ValueError) as error:
-        print(f"{args.params}: {error}", file=sys.stderr)
+        print(f"{args.params or '--fault'}: {error}", file=sys.stderr)
         return 2
     try:
         return Autopilot(params).serve(_address(args.sim, "tcp"), _address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)

@@ -58,7 +58,7 @@ class Autopilot:
         self.commander = Commander(params)
         self.position_control = PositionControl(params)
         self.rate_control = RateControl(params)
-        self.obstacles = ObstacleMap()
+        self.obstacles = ObstacleMap(params.fault)
         self.position_mode = PositionMode(params)
         self._manual_active = False
         self.now_s = 0.0
@@ -144,6 +144,13 @@ class Autopilot:
             if sticks is not None:
                 self.commander.on_sticks(sticks, self.vehicle_estimate())
 
+    def _baro_drift_m(self, temperature_c: float) -> float:
+        """Seeded fault baro_temperature_drift: an uncompensated sensor reads high as it warms up
+        after power-on, by 0.4 m per degC above 15 degC over its first minute."""
+        if self.params.fault != "baro_temperature_drift":
+            return 0.0
+        return 0.4 * max(0.0, temperature_c - 15.0) * min(1.0, self.now_s / 60.0)
+
     def step(self, time_us: int, values: tuple) -> tuple[float, float, float, float]:
         dt = 0.004 if self._last_time_us is None else max(1e-4, (time_us - self._last_time_us) / 1e6)
         self._last_time_us = time_us
@@ -157,7 +164,7 @@ class Autopilot:
             est.last_imu_s = self.now_s
         else:
             est.update_imu(self.now_s, dt, (values[3], values[4], values[5]), (values[0], values[1], values[2]), (values[6], values[7], values[8]))
-            est.update_baro(dt, values[11])
+            est.update_baro(dt, values[11] + self._baro_drift_m(values[12]))
         commander = self.commander
         if commander.home is None and est.position_ready and not commander.armed:
             commander.home = (est.pos[0], est.pos[1], est.pos[2])

@@ -26,8 +26,14 @@ BACK_OFF_GAIN = 1.0  # 1/s
 BACK_OFF_MAX_M_S = 0.5
 
 
+MIRRORED_PAST_RAD = math.pi  # seeded fault cp_sector_mirrored
+NARROW_VIEW_COS = math.cos(math.radians(15.0))  # seeded fault cp_narrow_view
+OFF_ABOVE_M_S = 4.0  # seeded fault cp_off_above_cruise
+
+
 class ObstacleMap:
-    def __init__(self) -> None:
+    def __init__(self, fault: str | None = None) -> None:
+        self.fault = fault
         # None: no data for that direction; math.inf: nothing within range; else metres.
         self.distances: list[float | None] = [None] * BINS
         self.updated_s = -math.inf
@@ -43,10 +49,15 @@ class ObstacleMap:
         bins: list[float | None] = [None] * BINS
         step = math.radians(increment_deg)
         offset = math.radians(angle_offset_deg)
+        heading = yaw_rad % (2.0 * math.pi)
         for index, raw in enumerate(distances_cm):
             if raw == UINT16_MAX:
                 continue
             world = (yaw_rad + offset + index * step) % (2.0 * math.pi)
+            if self.fault == "range_frame_world":
+                world = (offset + index * step) % (2.0 * math.pi)
+            elif self.fault == "cp_sector_mirrored" and heading > MIRRORED_PAST_RAD:
+                world = (yaw_rad - offset - index * step) % (2.0 * math.pi)
             target = int(round(world / BIN_RAD)) % BINS
             value = math.inf if raw > max_cm else max(raw, min_cm) / 100.0
             current = bins[target]
@@ -109,9 +120,12 @@ def constrain_velocity(
         return 0.0, 0.0
     vn, ve = setpoint_ne
     speed = math.hypot(vn, ve)
+    fault = params.fault
+    if fault == "cp_off_above_cruise" and speed > OFF_ABOVE_M_S:
+        return setpoint_ne
     acc = params["MPC_ACC_HOR"]
-    jerk = params["MPC_JERK_AUTO"]
-    delay = params["CP_DELAY"]
+    jerk = math.inf if fault == "cp_braking_without_jerk" else params["MPC_JERK_AUTO"]
+    delay = 0.0 if fault == "cp_ignores_delay" else params["CP_DELAY"]
     if speed > 1e-3:
         # Distance to stop from this speed: the inverse of max_speed_from_distance.
         braking_m = (speed * speed + speed * 4.0 * acc * acc / jerk) / (2.0 * acc)
@@ -119,6 +133,8 @@ def constrain_velocity(
         vn, ve = speed * math.cos(direction), speed * math.sin(direction)
     limits = [(bin_n, bin_e, 0.0) for bin_n, bin_e in obstacles.unknown] if params["CP_GO_NO_DATA"] < 1 else []
     for bin_n, bin_e, distance in obstacles.occupied:
+        if fault == "cp_narrow_view" and speed > 1e-3 and (bin_n * vn + bin_e * ve) < NARROW_VIEW_COS * speed:
+            continue
         if distance < cp_dist:
             # Closer than CP_DIST: back off gently instead of only refusing to go closer, or
             # estimation drift creeps the vehicle towards the obstacle while it holds position.

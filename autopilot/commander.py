@@ -191,7 +191,7 @@ class Commander:
         dn, de = north - estimate.north_m, east - estimate.east_m
         distance = math.hypot(dn, de)
         speed = min(self._cruise(), math.sqrt(2.0 * self.params["MPC_ACC_HOR"] * 0.5 * distance), self.params["MPC_XY_P"] * distance + 0.3)
-        if distance > 2.0:
+        if distance > 2.0 and self.params.fault != "yaw_fixed_heading":
             self._yaw_sp = math.atan2(de, dn)
         if distance < 1e-6:
             return Setpoint(north_m=north, east_m=east, down_m=self._down_for(altitude_m), yaw_rad=self._yaw_sp), distance
@@ -211,6 +211,9 @@ class Commander:
         """Landed when commanded down but no longer descending, with lift (the vertical part of the
         thrust; a vehicle held back from sliding on the ground tilts, so not the total) well below hover."""
         hover = self.params["MPC_THR_HOVER"]
+        if self.params.fault == "land_detect_home_altitude" and abs(self._altitude(estimate)) > 0.5:
+            self._land_candidate_s = None
+            return False
         if descending_commanded and abs(estimate.v_down_m_s) < 0.15 and lift < 0.8 * hover:
             if self._land_candidate_s is None:
                 self._land_candidate_s = now_s
@@ -281,7 +284,7 @@ class Commander:
                 return Setpoint(north_m=n, east_m=e, down_m=self._down_for(max(item.altitude_m, self._target_alt_m)), yaw_rad=self._yaw_sp)
             self._phase = "cruise"
             sp, distance = self._fly_to(estimate, item.north_m, item.east_m, item.altitude_m)
-            radius = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
+            radius = (item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]) * (10.0 if self.params.fault == "acceptance_radius_10x" else 1.0)
             if distance <= radius and abs(self._altitude(estimate) - item.altitude_m) <= VERTICAL_ACCEPTANCE_M:
                 self._hold = (item.north_m, item.east_m, self._down_for(item.altitude_m))
                 if item.param1 > 0:

@@ -126,7 +126,12 @@ class ParamError(ValueError):
 class Params:
     """Current values; PX4's parameter protocol encodes INT32 values bytewise in the float field."""
 
-    def __init__(self, overrides: dict[str, float] | None = None):
+    def __init__(self, overrides: dict[str, float] | None = None, fault: str | None = None):
+        from autopilot.faults import BY_NAME as FAULTS
+
+        if fault is not None and fault not in FAULTS:
+            raise ParamError(f"unknown fault {fault!r}; known: {', '.join(FAULTS)}")
+        self.fault = fault  # the seeded fault switched on (autopilot/faults.py), or None
         self._values = {spec.name: spec.default for spec in SPECS}
         for name, value in (overrides or {}).items():
             self.set(name, value)
@@ -160,9 +165,9 @@ class Params:
         return raw
 
     @classmethod
-    def from_file(cls, path: Path) -> "Params":
+    def from_file(cls, path: Path, fault: str | None = None) -> "Params":
         """A JSON object of NAME: value overrides."""
-        return cls(json.loads(Path(path).read_text()))
+        return cls(json.loads(Path(path).read_text()), fault)
 
 
 def markdown_table(specs: Iterable[ParamSpec] = SPECS) -> str:

@@ -52,6 +52,7 @@ class CampaignConfig:
     batch: int = DEFAULT_BATCH
     confirm: int = 0
     mission_plan: str | None = None  # a .plan flown instead of each scenario's route
+    sut_fault: str | None = None  # a seeded fault switched on in the bundled autopilot
 
 
     def identity(self) -> dict[str, Any]:
@@ -63,6 +64,8 @@ class CampaignConfig:
             overrides["confirm"] = self.confirm
         if self.mission_plan:
             overrides["mission_plan"] = str(Path(self.mission_plan).resolve())
+        if self.sut_fault:
+            overrides["sut_fault"] = self.sut_fault
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),

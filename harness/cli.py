@@ -192,7 +192,10 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
     """(SUT name, its configuration, its parameters) from the command line, checked by the adapter."""
     import sut_adapter
 
-    config = {key: value for key, value in (("px4_bin", args.px4_bin), ("command", args.sut_command), ("hold", args.sut_hold)) if value is not None}
+    config = {key: value for key, value in (("px4_bin", args.px4_bin), ("command", args.sut_command), ("hold", args.sut_hold),
+                                            ("fault", args.sut_fault)) if value is not None}
+    if args.sut_fault is not None and args.sut != "bundled":
+        raise InputError([Problem("--sut-fault", "", f"seeded faults live in the bundled autopilot, not in --sut {args.sut}")])
     params: dict[str, float] = {}
     if args.sut_params_file:
         from harness.param_files import load_params_file
@@ -385,7 +388,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     sut, sut_config, sut_params = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch, args.confirm,
-                            args.mission_plan)
+                            args.mission_plan, sut_config.get("fault"))
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -451,6 +454,35 @@ def cmd_sut(args: argparse.Namespace) -> int:
     stages = check(space, x, RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), args.timeout_s)
     emit(args, {"sut": sut, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut, stages))
     return 0 if all(s.ok for s in stages) else 3
+
+
+@command("faults")
+def cmd_faults(args: argparse.Namespace) -> int:
+    from harness import faults
+
+    if args.action == "list":
+        listed = faults.fault_list()
+        lines = []
+        for fault in listed:
+            lines += [f"{fault['name']} ({fault['area']}): {fault['breaks']}",
+                      f"    like: {fault['kin']}; revealed by: {fault['revealed_by']}; witness: {fault['witness'] or 'none'}"]
+        emit(args, {"faults": listed}, "\n".join(lines))
+        return 0
+    out = Path(args.out)
+    if args.action == "check":
+        report = faults.check(args.fault, out, args.workers, progress=lambda line: None if args.json else print(line, file=sys.stderr))
+        emit(args, {"witnesses": report, "all_revealed": all(e["revealed"] for e in report)}, faults.check_text(report).splitlines()[-1])
+        return 0 if all(e["revealed"] for e in report) else 1
+    if not args.fault or len(args.fault) != 1 or not args.scenario:
+        raise InputError([Problem("stella faults witness", "", "give one --fault NAME and the --scenario to sample witnesses from")])
+    [fault] = args.fault
+    concrete, tried = faults.find_witness(fault, Path(args.scenario), args.tries, args.seed, out)
+    if concrete is None:
+        emit(args, {"fault": fault, "witness": None, "tried": tried}, f"none of {tried} samples of {args.scenario} reveals {fault}")
+        return 1
+    path = faults.write_witness(fault, concrete)
+    emit(args, {"fault": fault, "witness": str(path), "tried": tried}, f"sample {tried} reveals {fault}: written to {path}")
+    return 0
 
 
 @command("docker")
@@ -579,6 +611,7 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("--sut-command", help="with --sut command: the SUT's command line with {sim_port}, {api_port}, {instance}, {workdir}")
         p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
         p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable; wins over --sut-params-file")
+        p.add_argument("--sut-fault", metavar="NAME", help="switch on one of the bundled autopilot's seeded faults (`stella faults list`)")
         p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export or a NAME,VALUE CSV (the UAV Testing Competition's)")
         p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home becomes the origin; "
                                                           "takeoff, waypoint, land, return, change speed, delay)")
@@ -671,6 +704,15 @@ def parser() -> argparse.ArgumentParser:
                    help="logical scenario whose world the check starts (default: Fig. 4)")
     p.add_argument("--profile", default="default")
     p.add_argument("--timeout-s", type=positive_float, default=60.0, help="per stage")
+
+    p = add("faults", "the bundled autopilot's seeded faults: list them, fly each witness with and without its fault, find a witness")
+    p.add_argument("action", choices=["list", "check", "witness"])
+    p.add_argument("--fault", action="append", metavar="NAME", help="with check: only these (repeatable; default all); with witness: the fault")
+    p.add_argument("--scenario", help="with witness: the logical scenario to sample candidates from")
+    p.add_argument("--tries", type=positive_int, default=20, help="with witness: samples to try (default 20)")
+    p.add_argument("--seed", type=seed_int, default=0, help="with witness: the sampling seed")
+    p.add_argument("--out", default="runs/faults", help="folder for the flights' logs (default runs/faults)")
+    p.add_argument("--workers", type=positive_int, help="with check: flights at once (default: cores)")
 
     p = add("docker", "build the worker image for --executor docker and docker/compose.yaml")
     p.add_argument("action", choices=["build"])

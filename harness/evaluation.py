@@ -81,6 +81,7 @@ class EvaluationResult:
     log_path: str | None
     scenario: str
     sut: str
+    sut_fault: str | None = None  # a seeded fault of the bundled autopilot, switched on
     violations: list[str] = field(default_factory=list)
     artifacts: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
@@ -167,7 +168,8 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         t0 = time.monotonic()
         result_stub = {"status": failure[0] if failure else None, "why": failure[1] if failure else None}
         logs.merge(stack.bridge_log, log_path, api_records=api_records, extra_metadata={
-            "concrete_scenario": concrete, "sut": {"name": options.sut, "params": dict(options.sut_params)}, "result": result_stub,
+            "concrete_scenario": concrete, "result": result_stub,
+            "sut": {"name": options.sut, "params": dict(options.sut_params), **({"fault": options.sut_config["fault"]} if "fault" in options.sut_config else {})},
         })
         status, value, why, clearance = _score(log_path, world, summary, failure)
         timings["score_s"] = time.monotonic() - t0
@@ -199,6 +201,7 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         log_path=str(log_path) if log_path else None,
         scenario=space.logical.name,
         sut=options.sut,
+        sut_fault=options.sut_config.get("fault"),
         artifacts=artifacts,
         timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
         mavsdk=mavsdk_info,

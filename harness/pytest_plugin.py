@@ -146,10 +146,13 @@ class Flights:
         self._thread: threading.Thread | None = None
 
     def options(self, regression: Regression) -> RunOptions:
-        return self.run_options(self.sut_override or regression.sut, regression.sut_params)
+        sut = self.sut_override or regression.sut
+        return self.run_options(sut, regression.sut_params, regression.sut_fault if sut == "bundled" else None)
 
-    def run_options(self, sut: str, params: Mapping[str, float]) -> RunOptions:
+    def run_options(self, sut: str, params: Mapping[str, float], fault: str | None = None) -> RunOptions:
         config = {"px4_bin": self.px4_bin} if sut == "px4" and self.px4_bin else {}
+        if fault:
+            config["fault"] = fault
         return RunOptions(sut=sut, sut_config=config, sut_params=params)
 
     def jobs(self, item: RegressionItem, first_key: int = 0) -> list[Job]:

@@ -40,6 +40,7 @@ class Regression:
     seed: int
     sut: str
     sut_params: Mapping[str, float]
+    sut_fault: str | None
     concrete: Mapping[str, Any]
     found: Mapping[str, Any]
     space: SearchSpace
@@ -65,7 +66,7 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
     except InputError as error:
         raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
     return Regression(path, document["name"], document["expect"], document["seed"], document["sut"]["name"], dict(document["sut"].get("params", {})),
-                      concrete, document.get("found", {}), space, x)
+                      document["sut"].get("fault"), concrete, document.get("found", {}), space, x)
 
 
 def describe(result: Mapping[str, Any], safety_distance_m: float) -> str:

@@ -215,7 +215,8 @@ class Store:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
         row = self.db.execute("SELECT config FROM campaigns").fetchone()
         config = json.loads(row[0]) if row else {}
-        return {"name": config.get("sut", "bundled"), "params": config.get("sut_params", {})}
+        return {"name": config.get("sut", "bundled"), "params": config.get("sut_params", {}),
+                **({"fault": config["sut_fault"]} if config.get("sut_fault") else {})}
 
     def worst_cases(self, threshold: float, worst_per_run: int) -> list[dict[str, Any]]:
         """Flown evaluations with fitness below threshold, plus each run's worst_per_run lowest, lowest first."""

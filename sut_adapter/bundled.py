@@ -17,8 +17,14 @@ class BundledAutopilot:
     range_messages = ("OBSTACLE_DISTANCE",)
 
     def __init__(self, config: Mapping[str, str] | None = None):
+        from autopilot.faults import BY_NAME
+
+        config = dict(config or {})
+        self.fault = config.pop("fault", None)
         if config:
-            raise SutError(self.name, f"takes no configuration, got {sorted(config)}")
+            raise SutError(self.name, f"takes no configuration but a seeded fault, got {sorted(config)}")
+        if self.fault is not None and self.fault not in BY_NAME:
+            raise SutError(self.name, f"no seeded fault {self.fault!r}; `stella faults list` names them")
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
@@ -27,6 +33,8 @@ class BundledAutopilot:
             params_file = workdir / "autopilot_params.json"
             params_file.write_text(json.dumps(dict(params)))
             argv += ["--params", str(params_file)]
+        if self.fault is not None:
+            argv += ["--fault", self.fault]
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]
         return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))

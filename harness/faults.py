@@ -1,0 +1,125 @@
+"""Seeded faults from the harness's side: their list, a witness per fault (a concrete scenario in
+scenarios/faults/ that reveals it), flying the witnesses both ways, and finding a witness.
+
+A scenario *reveals* a fault when the faulty autopilot violates the safety distance or fails the
+mission in it and the fault-free one flies it `ok`: unsafe because of the fault, not merely unsafe.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from autopilot.faults import BY_NAME, FAULTS
+from harness.errors import InputError, Problem
+from harness.evaluation import RunOptions, evaluate
+from harness.paths import scenarios_dir
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import load_concrete
+
+WITNESS_SEED = 0  # the sensor-noise seed every witness is flown with
+REVEALING = ("violation", "mission_failed")
+
+
+def witness_path(fault: str) -> Path:
+    return scenarios_dir() / "faults" / f"{fault}.json"
+
+
+def checked_names(names: Iterable[str] | None) -> list[str]:
+    names = list(names or BY_NAME)
+    unknown = [n for n in names if n not in BY_NAME]
+    if unknown:
+        raise InputError([Problem("--fault", "", f"no seeded fault {unknown[0]!r}; known: {', '.join(BY_NAME)}")])
+    return names
+
+
+def fault_list() -> list[dict[str, Any]]:
+    return [{**asdict(fault), "witness": str(witness_path(fault.name)) if witness_path(fault.name).is_file() else None} for fault in FAULTS]
+
+
+def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
+    return faulty["status"] in REVEALING and clean is not None and clean["status"] == "ok"
+
+
+def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:
+    options = RunOptions(sut_config={"fault": fault} if fault else {})
+    result = evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options, name=name).as_dict()
+    return {key: result[key] for key in ("status", "fitness", "why", "min_clearance_m", "log_path")}
+
+
+def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None,
+          progress: Callable[[str], None] = lambda _line: None) -> list[dict[str, Any]]:
+    """Each fault's witness flown with the fault and without (through the local executor, both
+    flights of every witness at once); `revealed` when it tells them apart."""
+    from harness.executors import Job, make_executor
+
+    names = checked_names(names)
+    jobs, missing, witness_of = [], {}, {}
+    for name in names:
+        path = witness_path(name)
+        if not path.is_file():
+            missing[name] = {"fault": name, "witness": None, "revealed": False, "why": f"no witness: {path} is missing"}
+            continue
+        space, x = load_concrete(path)
+        concrete = space.to_concrete(x)
+        for fault, suffix in ((name, "with-fault"), (None, "without")):
+            witness_of[len(jobs)] = name
+            jobs.append(Job(len(jobs), concrete, WITNESS_SEED, str(out_dir), f"{name}-{suffix}", RunOptions(sut_config={"fault": fault} if fault else {})))
+    flown: dict[str, dict[str, Any]] = {}
+    executor = make_executor("local", workers)
+    try:
+        for job, result in executor.run(jobs):
+            flown[job.name] = {key: result.get(key) for key in ("status", "fitness", "why", "min_clearance_m", "log_path")}
+            name = witness_of[job.key]
+            if f"{name}-with-fault" in flown and f"{name}-without" in flown:
+                progress(_line(_entry(name, flown)))
+    finally:
+        executor.close()
+    return [missing[name] if name in missing else _entry(name, flown) for name in names]
+
+
+def _entry(name: str, flown: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    faulty, clean = flown[f"{name}-with-fault"], flown[f"{name}-without"]
+    return {"fault": name, "witness": str(witness_path(name)), "with_fault": faulty, "without": clean, "revealed": reveals(faulty, clean)}
+
+
+def _line(entry: dict[str, Any]) -> str:
+    if entry["witness"] is None:
+        return f"{entry['fault']:<28} {entry['why']}"
+    a, b = entry["with_fault"], entry["without"]
+    return (f"{entry['fault']:<28} {'revealed' if entry['revealed'] else 'NOT REVEALED':<13} with it: {a['status']} "
+            f"(fitness {a['fitness']:.3f}); without: {b['status']} (fitness {b['fitness']:.3f})")
+
+
+def check_text(report: list[dict[str, Any]]) -> str:
+    revealed = sum(entry["revealed"] for entry in report)
+    return "\n".join([_line(entry) for entry in report] + [f"{revealed} of {len(report)} witnesses reveal their fault"])
+
+
+def find_witness(fault: str, scenario: Path, tries: int, seed: int, out_dir: Path) -> tuple[dict[str, Any] | None, int]:
+    """The first of `tries` feasible samples of a logical scenario that reveals the fault, as a
+    concrete scenario, and how many samples it took (flown with the fault first: most do not
+    fail with it, and those need no second flight)."""
+    checked_names([fault])
+    profile = load_profile("default")
+    space = SearchSpace(load_logical(scenario, profile), profile)
+    for index, x in enumerate(space.sample_feasible(np.random.default_rng(seed), tries), 1):
+        faulty = _fly(space, x, fault, out_dir, f"{fault}-try{index}-with-fault")
+        if faulty["status"] not in REVEALING:
+            continue
+        if reveals(faulty, _fly(space, x, None, out_dir, f"{fault}-try{index}-without")):
+            return space.to_concrete(x), index
+    return None, tries
+
+
+def write_witness(fault: str, concrete: dict[str, Any]) -> Path:
+    path = witness_path(fault)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(concrete, indent=2) + "\n")
+    return path
