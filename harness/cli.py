@@ -468,20 +468,61 @@ def cmd_faults(args: argparse.Namespace) -> int:
                       f"    like: {fault['kin']}; revealed by: {fault['revealed_by']}; witness: {fault['witness'] or 'none'}"]
         emit(args, {"faults": listed}, "\n".join(lines))
         return 0
+    if args.action == "bench":
+        return _faults_bench(args)
+    if args.action == "report":
+        from harness.fault_bench import report, report_text
+
+        if not args.store:
+            raise InputError([Problem("stella faults report", "", "give --store FOLDER (the one `stella faults bench` wrote)")])
+        result = report(Path(args.store), args.baseline)
+        emit(args, result, report_text(result))
+        return 0
     out = Path(args.out)
     if args.action == "check":
         report = faults.check(args.fault, out, args.workers, progress=lambda line: None if args.json else print(line, file=sys.stderr))
         emit(args, {"witnesses": report, "all_revealed": all(e["revealed"] for e in report)}, faults.check_text(report).splitlines()[-1])
         return 0 if all(e["revealed"] for e in report) else 1
-    if not args.fault or len(args.fault) != 1 or not args.scenario:
-        raise InputError([Problem("stella faults witness", "", "give one --fault NAME and the --scenario to sample witnesses from")])
+    if not args.fault or len(args.fault) != 1 or not args.scenario or len(args.scenario) != 1:
+        raise InputError([Problem("stella faults witness", "", "give one --fault NAME and one --scenario to sample witnesses from")])
     [fault] = args.fault
-    concrete, tried = faults.find_witness(fault, Path(args.scenario), args.tries, args.seed, out)
+    concrete, tried = faults.find_witness(fault, Path(args.scenario[0]), args.tries, args.seed, out)
     if concrete is None:
         emit(args, {"fault": fault, "witness": None, "tried": tried}, f"none of {tried} samples of {args.scenario} reveals {fault}")
         return 1
     path = faults.write_witness(fault, concrete)
     emit(args, {"fault": fault, "witness": str(path), "tried": tried}, f"sample {tried} reveals {fault}: written to {path}")
+    return 0
+
+
+def _faults_bench(args: argparse.Namespace) -> int:
+    from harness.executors import make_executor
+    from harness.fault_bench import report, report_text, run_bench
+    from harness.search.optimizers import parse_algorithm
+
+    missing = [flag for flag, value in (("--fault", args.fault), ("--algorithm", args.algorithm), ("--scenario", args.scenario),
+                                        ("--evaluations", args.evaluations), ("--store", args.store)) if not value]
+    if missing:
+        raise InputError([Problem("stella faults bench", "", f"give {', '.join(missing)}")])
+    for algorithm in args.algorithm:
+        try:
+            parse_algorithm(algorithm)
+        except ValueError as error:
+            raise InputError([Problem("--algorithm", "", str(error))]) from None
+    profile = load_profile("default")
+    for scenario in args.scenario:
+        load_logical(Path(scenario), profile)
+    try:
+        executor = make_executor(args.executor, args.workers)
+    except ValueError as error:
+        raise InputError([Problem("--executor", "", str(error))]) from None
+    try:
+        run_bench(args.fault, tuple(a.upper() for a in args.algorithm), tuple(args.scenario), args.runs, args.evaluations, Path(args.store), executor,
+                  seed=args.seed, population=args.population)
+    finally:
+        executor.close()
+    result = report(Path(args.store), args.baseline)
+    emit(args, result, report_text(result))
     return 0
 
 
@@ -706,13 +747,21 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout-s", type=positive_float, default=60.0, help="per stage")
 
     p = add("faults", "the bundled autopilot's seeded faults: list them, fly each witness with and without its fault, find a witness")
-    p.add_argument("action", choices=["list", "check", "witness"])
-    p.add_argument("--fault", action="append", metavar="NAME", help="with check: only these (repeatable; default all); with witness: the fault")
-    p.add_argument("--scenario", help="with witness: the logical scenario to sample candidates from")
+    p.add_argument("action", choices=["list", "check", "witness", "bench", "report"])
+    p.add_argument("--fault", action="append", metavar="NAME", help="with check: only these (repeatable; default all); with witness: the fault; "
+                                                                    "with bench: the faults to campaign against (none: the fault-free control)")
+    p.add_argument("--scenario", action="append", help="with witness: the logical scenario to sample candidates from; with bench: repeatable")
+    p.add_argument("--algorithm", action="append", help="with bench: as for campaign; repeatable")
+    p.add_argument("--runs", type=positive_int, default=3, help="with bench: runs per fault, algorithm and scenario (default 3)")
+    p.add_argument("--evaluations", type=positive_int, help="with bench: budget per run")
+    p.add_argument("--population", type=positive_int, default=50, help="with bench: as for campaign")
+    p.add_argument("--store", help="with bench and report: the benchmark's folder (one campaign store per fault and the fault-free re-flights)")
+    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local", help="with bench: as for campaign")
+    p.add_argument("--baseline", default="RANDOM", help="with bench and report: the algorithm the others are tested against (default RANDOM)")
     p.add_argument("--tries", type=positive_int, default=20, help="with witness: samples to try (default 20)")
-    p.add_argument("--seed", type=seed_int, default=0, help="with witness: the sampling seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="with witness: the sampling seed; with bench: run r uses seed + r")
     p.add_argument("--out", default="runs/faults", help="folder for the flights' logs (default runs/faults)")
-    p.add_argument("--workers", type=positive_int, help="with check: flights at once (default: cores)")
+    p.add_argument("--workers", type=positive_int, help="with check and bench: flights at once (default: cores)")
 
     p = add("docker", "build the worker image for --executor docker and docker/compose.yaml")
     p.add_argument("action", choices=["build"])

@@ -53,12 +53,12 @@ def space(profile):
     return SearchSpace(load_logical(SCENARIO, profile), profile)
 
 
-def candidates(space, tmp_path, combination, seed, budget=20, name="store.db", executor=None):
+def candidates(space, tmp_path, combination, seed, budget=20, name="store.db", executor=None, population=6):
     with Store(tmp_path / name) as store:
         campaign = store.campaign({"test": combination, "seed": seed, "name": name})
         run_id, _ = store.run(campaign, str(SCENARIO), "s", combination, 0, seed)
         problem = CampaignProblem(space, store, run_id, executor or AnalyticExecutor(), seed, EvaluationBudget(budget), tmp_path)
-        run_sequence(combination, problem, budget=budget, seed=seed, population=6, batch=2)
+        run_sequence(combination, problem, budget=budget, seed=seed, population=population, batch=2)
         rows = store.db.execute("SELECT ordinal, vector, fitness FROM evaluations WHERE run_id = ? ORDER BY ordinal", (run_id,)).fetchall()
     return rows, problem
 
@@ -73,6 +73,11 @@ def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combina
     assert [r[1] for r in first] != [r[1] for r in other]
     assert len(first) == 20 and [r[0] for r in first] == list(range(20))
     assert problem.best[1] == min(r[2] for r in first)
+
+
+def test_nsga2_runs_with_an_odd_population(space, tmp_path):
+    rows, _problem = candidates(space, tmp_path, "N", seed=1, budget=12, population=5)
+    assert [r[0] for r in rows] == list(range(12))
 
 
 @pytest.mark.slow

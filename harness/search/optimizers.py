@@ -134,7 +134,8 @@ class NSGAIIOptimizer:
         algorithm = NSGAII(
             problem=jproblem,
             population_size=population,
-            offspring_population_size=population,
+            # SBX makes two children of two parents: an odd population's last child would lack a partner.
+            offspring_population_size=population + population % 2,
             mutation=_mutation(problem.space.n_dimensions),
             crossover=SBXCrossover(probability=0.9, distribution_index=20.0),
             selection=BinaryTournamentSelection(),

@@ -1,0 +1,171 @@
+"""The seeded-fault benchmark: does a search find real faults within its budget?
+
+Each (fault, algorithm, scenario, run) is a campaign run against the faulty bundled autopilot,
+kept in `DB/FAULT.db` (so it resumes like any campaign). Every violation it found is flown again
+against the fault-free autopilot with the same seed (cached in `DB/fault_free.json`, one flight
+per concrete scenario and seed). The fault is *detected* in a run when some violation it found
+keeps the safety distance without the fault; the evaluations to detection are the ordinal of the
+first such one, plus one. `--fault none` is the control: the same SUT both ways, so it can detect
+nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import statistics as stats
+from pathlib import Path
+from typing import Any, Iterable
+
+from scipy.stats import fisher_exact
+
+from harness.campaign import CampaignConfig, run_campaign
+from harness.errors import InputError, Problem
+from harness.evaluation import RunOptions
+from harness.executors import Executor, Job
+from harness.faults import checked_names
+from harness.statistics import a12, p_value
+from harness.store import Store
+
+CONTROL = "none"
+FAULT_FREE_CACHE = "fault_free.json"
+
+
+def _stores(folder: Path) -> dict[str, Path]:
+    return {path.stem: path for path in sorted(folder.glob("*.db"))}
+
+
+def _key(concrete: str, seed: int) -> str:
+    return hashlib.sha256(f"{seed}:{concrete}".encode()).hexdigest()
+
+
+def _load_cache(folder: Path) -> dict[str, dict[str, Any]]:
+    path = folder / FAULT_FREE_CACHE
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _save_cache(folder: Path, cache: dict[str, dict[str, Any]]) -> None:
+    """Written whole to a temporary file and renamed, so a kill never leaves half a cache."""
+    temporary = folder / f".{FAULT_FREE_CACHE}.tmp"
+    temporary.write_text(json.dumps(cache, indent=1))
+    os.replace(temporary, folder / FAULT_FREE_CACHE)
+
+
+def _violations(store_path: Path) -> list[dict[str, Any]]:
+    with Store.existing(store_path) as store:
+        rows = store.db.execute(
+            "SELECT r.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.concrete, e.seed FROM evaluations e JOIN runs r ON r.id = e.run_id"
+            " WHERE e.status = 'violation' ORDER BY r.id, e.ordinal")
+        return [dict(zip(("run_id", "scenario", "algorithm", "run", "ordinal", "concrete", "seed"), row)) for row in rows]
+
+
+def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,
+              executor: Executor, *, seed: int = 0, population: int = 50, on_result=lambda r: None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    faults = list(faults)
+    checked_names([f for f in faults if f != CONTROL])
+    for fault in faults:
+        config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population, sut_fault=None if fault == CONTROL else fault)
+        with Store.for_campaign(folder / f"{fault}.db") as store:
+            run_campaign(config, store, executor, folder / "logs" / fault, options=RunOptions(sut_config=_config(fault)), on_result=on_result)
+        _fly_fault_free(folder / f"{fault}.db", folder, executor)
+
+
+def _config(fault: str) -> dict[str, str]:
+    return {} if fault == CONTROL else {"fault": fault}
+
+
+def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:
+    """Each violation not yet flown without the fault, flown now; the cache saved after each."""
+    cache = _load_cache(folder)
+    jobs, keys = [], {}
+    for violation in _violations(store_path):
+        key = _key(violation["concrete"], violation["seed"])
+        if key in cache or key in keys.values():
+            continue
+        keys[len(jobs)] = key
+        jobs.append(Job(len(jobs), json.loads(violation["concrete"]), violation["seed"], str(folder / "logs" / "fault_free"), f"fault-free-{key[:12]}",
+                        RunOptions()))
+    for job, result in executor.run(jobs):
+        cache[keys[job.key]] = {"status": result["status"], "fitness": result["fitness"], "min_clearance_m": result.get("min_clearance_m")}
+        _save_cache(folder, cache)
+
+
+def detections(folder: Path) -> list[dict[str, Any]]:
+    """Per (fault, scenario, algorithm, run): detected, and the evaluations to the first detection."""
+    if not folder.is_dir() or not _stores(folder):
+        raise InputError([Problem(str(folder), "", "no fault benchmark here: give the folder `stella faults bench --store` wrote")])
+    cache = _load_cache(folder)
+    rows = []
+    for fault, store_path in _stores(folder).items():
+        found: dict[int, int | None] = {}
+        unflown = 0
+        for violation in _violations(store_path):
+            clean = cache.get(_key(violation["concrete"], violation["seed"]))
+            if clean is None:
+                unflown += 1
+            elif clean["status"] != "violation" and violation["run_id"] not in found:
+                found[violation["run_id"]] = violation["ordinal"] + 1
+        with Store.existing(store_path) as store:
+            for run in store.run_rows():
+                rows.append({"fault": fault, "scenario": run["scenario"], "algorithm": run["algorithm"], "run": run["run_index"],
+                             "evaluations": run["evaluations"], "finished": run["finished"] is not None, "violations": run["violations"] or 0,
+                             "detected": run["id"] in found, "evaluations_to_detection": found.get(run["id"]), "unflown_violations": unflown})
+    return rows
+
+
+def report(folder: Path, baseline: str = "RANDOM") -> dict[str, Any]:
+    every = detections(folder)
+    rows = [r for r in every if r["fault"] != CONTROL]
+    control = [r for r in every if r["fault"] == CONTROL]
+    algorithms = sorted({r["algorithm"] for r in rows})
+    baseline = baseline.upper()
+    by_algorithm = {}
+    for algorithm in algorithms:
+        mine = [r for r in rows if r["algorithm"] == algorithm]
+        # A run that never detected is censored at its budget: ranked after every detection.
+        to_detection = [r["evaluations_to_detection"] if r["detected"] else r["evaluations"] + 1 for r in mine]
+        detected = [r["evaluations_to_detection"] for r in mine if r["detected"]]
+        entry = {"runs": len(mine), "detected": len(detected), "detection_rate": len(detected) / len(mine) if mine else math.nan,
+                 "median_evaluations_to_detection": stats.median(detected) if detected else None, "censored": len(mine) - len(detected),
+                 "_censored_ranks": to_detection}
+        by_algorithm[algorithm] = entry
+    base = by_algorithm.get(baseline)
+    for algorithm, entry in by_algorithm.items():
+        if base is None or algorithm == baseline:
+            entry.update(fisher_p=None, mann_whitney_p=None, a12=None)
+            continue
+        table = [[entry["detected"], entry["runs"] - entry["detected"]], [base["detected"], base["runs"] - base["detected"]]]
+        entry["fisher_p"] = float(fisher_exact(table)[1])
+        entry["mann_whitney_p"] = p_value(entry["_censored_ranks"], base["_censored_ranks"])
+        entry["a12"] = a12(entry["_censored_ranks"], base["_censored_ranks"])
+    for entry in by_algorithm.values():
+        entry.pop("_censored_ranks")
+    per_fault = {}
+    for fault in sorted({r["fault"] for r in rows}):
+        per_fault[fault] = {algorithm: sum(r["detected"] for r in rows if r["fault"] == fault and r["algorithm"] == algorithm) for algorithm in algorithms}
+        per_fault[fault]["runs_per_algorithm"] = max((sum(1 for r in rows if r["fault"] == fault and r["algorithm"] == a) for a in algorithms), default=0)
+    return {"baseline": baseline, "algorithms": by_algorithm, "per_fault": per_fault,
+            "found_by_none": [f for f, counts in per_fault.items() if not any(counts[a] for a in algorithms)],
+            "control": {"runs": len(control), "detected": sum(r["detected"] for r in control)},
+            "unflown_violations": sum({r["fault"]: r["unflown_violations"] for r in every}.values())}
+
+
+def report_text(result: dict[str, Any]) -> str:
+    lines = [f"{'algorithm':<10} {'detected':>9} {'rate':>6} {'median evals':>13} {'censored':>9} {'Fisher p':>9} {'MWU p':>7} {'A12':>5}   (baseline {result['baseline']})"]
+    fmt = lambda v, spec: "-" if v is None else format(v, spec)
+    for algorithm, e in result["algorithms"].items():
+        lines.append(f"{algorithm:<10} {e['detected']:>4}/{e['runs']:<4} {e['detection_rate']:>6.2f} {fmt(e['median_evaluations_to_detection'], '>13'):>13} "
+                     f"{e['censored']:>9} {fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
+    lines.append("")
+    algorithms = list(result["algorithms"])
+    lines.append(f"{'fault':<28} " + " ".join(f"{a:>8}" for a in algorithms) + "   (runs detecting it, of runs per algorithm)")
+    for fault, counts in result["per_fault"].items():
+        lines.append(f"{fault:<28} " + " ".join(f"{counts[a]:>5}/{counts['runs_per_algorithm']:<2}" for a in algorithms))
+    lines.append(f"found by no algorithm: {', '.join(result['found_by_none']) or 'none'}")
+    lines.append(f"control (--fault none): {result['control']['detected']} detections in {result['control']['runs']} runs")
+    if result["unflown_violations"]:
+        lines.append(f"{result['unflown_violations']} violations not yet flown without their fault: run the bench command again to finish")
+    return "\n".join(lines)
