@@ -557,7 +557,7 @@ def cmd_export_regressions(args: argparse.Namespace) -> int:
 
     if args.format == "aerialist":
         return _export_aerialist(args)
-    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect)
+    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect, per_mode=args.per_mode)
     text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
     emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
     return 0
@@ -567,7 +567,7 @@ def _export_aerialist(args: argparse.Namespace) -> int:
     from harness.aerialist import export_aerialist
     from harness.regression import chosen_cases
 
-    sut, chosen = chosen_cases(Path(args.store), args.threshold, args.worst)
+    sut, chosen = chosen_cases(Path(args.store), args.threshold, args.worst, args.per_mode)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written, skipped = [], []
@@ -580,6 +580,15 @@ def _export_aerialist(args: argparse.Namespace) -> int:
     lines = written + [f"not expressible in the competition's format: {s['name']}: {'; '.join(s['reasons'])}" for s in skipped]
     lines.append(f"wrote {len(written)} competition test(s) (YAML and .plan) to {out}; {len(skipped)} not expressible")
     emit(args, {"out": str(out), "files": written, "not_expressible": skipped}, "\n".join(lines))
+    return 0
+
+
+@command("triage")
+def cmd_triage(args: argparse.Namespace) -> int:
+    from harness.triage import triage, triage_text
+
+    report = triage(Path(args.store))
+    emit(args, report, triage_text(report))
     return 0
 
 
@@ -783,8 +792,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--expect", choices=["safe", "violation"], default="safe",
                    help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
 
+    p.add_argument("--per-mode", action="store_true", help="only the worst violation of each failure mode (`stella triage`) instead of every one")
     p.add_argument("--format", choices=["stella", "aerialist"], default="stella",
                    help="stella: regression cases for pytest (default); aerialist: the UAV Testing Competition's YAML and .plan (static boxes only)")
+
+    p = add("triage", "group a campaign's violations into failure modes by what happened (obstacle, phase, approach, speed, environment)")
+    p.add_argument("store", help="SQLite campaign store")
 
     p = add("import", "turn a UAV Testing Competition test (Aerialist YAML) into a concrete scenario")
     p.add_argument("kind", choices=["aerialist"])

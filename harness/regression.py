@@ -98,12 +98,18 @@ def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) ->
     return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
 
 
-def chosen_cases(store_path: Path, threshold: float, worst: int) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
     """The campaign's SUT and (name, case) for each distinct concrete scenario with fitness below
-    `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes once."""
+    `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes
+    once. `per_mode`: only the worst violation of each failure mode (harness/triage.py)."""
     with Store.existing(store_path) as store:
         sut = store.campaign_sut()
         cases = store.worst_cases(threshold, worst)
+    if per_mode:
+        from harness.triage import triage
+
+        wanted = {(m["worst"]["scenario_file"], m["worst"]["algorithm"], m["worst"]["run"], m["worst"]["evaluation"]) for m in triage(store_path)["modes"]}
+        cases = [c for c in cases if (c["scenario_file"], c["algorithm"], c["run_index"], c["ordinal"]) in wanted]
     chosen, seen = [], set()
     for case in cases:
         if case["concrete"] is None or case["vector_key"] in seen:
@@ -113,12 +119,12 @@ def chosen_cases(store_path: Path, threshold: float, worst: int) -> tuple[dict[s
     return sut, chosen
 
 
-def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe") -> list[Path]:
+def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe", per_mode: bool = False) -> list[Path]:
     """One case file per distinct concrete scenario with fitness below `threshold`, plus the
     `worst` lowest-fitness ones of each run; identical scenarios found twice are written once."""
     if expect not in EXPECTATIONS:
         raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
-    sut, chosen = chosen_cases(store_path, threshold, worst)
+    sut, chosen = chosen_cases(store_path, threshold, worst, per_mode)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:

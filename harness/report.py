@@ -145,8 +145,28 @@ def _violations(store: Store) -> str:
     return f"<table>{''.join(rows)}</table>" if len(rows) > 1 else "<p>No violation found.</p>"
 
 
+def _failure_modes(store: Store) -> str:
+    """The violations grouped by what happened (harness/triage.py)."""
+    from harness.triage import triage
+
+    report = triage(store.path)
+    if not report["modes"]:
+        return "<p>No violation to triage.</p>"
+    spread = report["diversity"]["mean_pairwise_trajectory_distance_m"]
+    rows = ["<tr><th>violations</th><th>mode</th><th>contact</th><th>near miss</th><th>worst (fitness, log)</th><th>typical (fitness, log)</th></tr>"]
+    for mode in report["modes"]:
+        worst, typical = mode["worst"], mode["typical"]
+        rows.append(f"<tr><td>{mode['count']}</td><td class='text'>{html.escape(mode['mode'])}</td><td>{mode['contacts']}</td><td>{mode['near_misses']}</td>"
+                    f"<td class='text'>{worst['fitness']:.3f} <code>{html.escape(worst['log'])}</code></td>"
+                    f"<td class='text'>{typical['fitness']:.3f} <code>{html.escape(typical['log'])}</code></td></tr>")
+    summary = (f"<p>{report['violations']} distinct violations in {len(report['modes'])} failure modes; mean pairwise trajectory distance "
+               f"{'-' if spread is None else f'{spread:.1f} m'}.</p>")
+    return summary + f"<table>{''.join(rows)}</table>"
+
+
 def write_report(store: Store, out: Path, worst: int = 5, baseline: str = "NSGAII") -> None:
     report = compare(store, baseline)
     body = ["<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
-            "<h2>Violations</h2>", _violations(store), f"<h2>The {worst} worst concrete scenarios</h2>", *_worst(store, worst)]
+            "<h2>Violations</h2>", _violations(store), "<h2>Failure modes</h2>", _failure_modes(store),
+            f"<h2>The {worst} worst concrete scenarios</h2>", *_worst(store, worst)]
     out.write_text(PAGE.format(title=f"Campaign report: {html.escape(str(store.path))}", body="\n".join(body)), encoding="utf-8")

@@ -88,3 +88,12 @@ def test_a_small_benchmark_runs_end_to_end_and_resumes_without_flying_again(tmp_
     assert main(command) == 0
     assert json.loads(capsys.readouterr().out) == first
     assert sorted(p.name for p in (tmp_path / "bench" / "logs").rglob("*.mcap")) == flights
+
+    # The faulty campaign's violations, triaged: every one in a mode, one regression case per mode.
+    store = tmp_path / "bench" / "cp_off_above_cruise.db"
+    assert main(["triage", str(store), "--json"]) == 0
+    triaged = json.loads(capsys.readouterr().out)
+    assert triaged["violations"] > 0 and sum(m["count"] for m in triaged["modes"]) == triaged["violations"] and not triaged["skipped"]
+    assert all(m["worst"]["fitness"] <= m["typical"]["fitness"] < 0 for m in triaged["modes"])
+    assert main(["export-regressions", str(store), "--per-mode", "--out", str(tmp_path / "cases"), "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["files"]) == len(triaged["modes"])

@@ -1,0 +1,168 @@
+"""Triage: a campaign's violations grouped into failure modes by what happened, not by how close
+their vectors are.
+
+A violation's mode is read from its log at the moment of least clearance: the obstacle involved
+(kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle
+was relative to the direction of flight (ahead, beside, behind; or the vehicle hovering), the
+closing speed band, and the environment (wind, visibility) bands. Each mode has its count, its
+severity (near miss: 0 < clearance < safety distance; contact: clearance <= 0), its worst and its
+most typical example (the one whose trajectory is closest to the others'), with their logs.
+The campaign's diversity is the number of modes and, as the UAV Testing Competition measures
+it, the mean pairwise distance between the violating trajectories.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from harness import logs
+from harness.errors import InputError, Problem
+from harness.fitness import min_clearance
+from harness.store import Store
+from sim_bridge.obstacles import Obstacle
+
+TRAJECTORY_POINTS = 50  # a trajectory is compared at this many instants spread over its flight
+BRAKING_M_S2 = 0.5  # deceleration above this along the velocity is braking
+MOVING_M_S = 0.5
+CLIMB_M_S = 0.3
+SPEED_BANDS = ((1.0, "slow (< 1 m/s)"), (3.0, "medium (1-3 m/s)"), (math.inf, "fast (> 3 m/s)"))
+WIND_BANDS = ((0.5, "calm"), (3.0, "light wind"), (math.inf, "strong wind"))
+
+
+def _band(value: float, bands: Sequence[tuple[float, str]]) -> str:
+    return next(name for limit, name in bands if value < limit)
+
+
+def _phase(before: Mapping[str, Any], at: Mapping[str, Any]) -> str:
+    vn, ve, vd = at["v_ned_m_s"]
+    horizontal = math.hypot(vn, ve)
+    if vd < -CLIMB_M_S and horizontal < MOVING_M_S:
+        return "climb"
+    if vd > CLIMB_M_S and horizontal < MOVING_M_S:
+        return "descent"
+    if horizontal < MOVING_M_S:
+        return "hover"
+    dt = max(1e-6, at["t"] - before["t"])
+    along = ((vn - before["v_ned_m_s"][0]) * vn + (ve - before["v_ned_m_s"][1]) * ve) / (horizontal * dt)
+    return "braking" if along < -BRAKING_M_S2 else "cruise"
+
+
+def _approach(at: Mapping[str, Any], obstacle_at: np.ndarray) -> str:
+    vn, ve, _vd = at["v_ned_m_s"]
+    speed = math.hypot(vn, ve)
+    dn, de = obstacle_at[0] - at["north_m"], obstacle_at[1] - at["east_m"]
+    distance = math.hypot(dn, de)
+    if speed < MOVING_M_S or distance < 1e-6:
+        return "while hovering"
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (vn * dn + ve * de) / (speed * distance)))))
+    return "ahead" if angle < 45.0 else "beside" if angle < 135.0 else "behind"
+
+
+def trajectory(states: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """TRAJECTORY_POINTS positions (north, east, up) at evenly spread instants of the flight."""
+    t = np.array([s["t"] for s in states])
+    points = np.array([[s["north_m"], s["east_m"], s["up_m"]] for s in states])
+    instants = np.linspace(t[0], t[-1], TRAJECTORY_POINTS)
+    return np.stack([np.interp(instants, t, points[:, axis]) for axis in range(3)], axis=1)
+
+
+def trajectory_distance(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.mean(np.linalg.norm(a - b, axis=1)))
+
+
+def features(log_path: Path) -> dict[str, Any]:
+    """What happened at the moment of least clearance of one flight."""
+    world = logs.json_metadata(log_path, "world")
+    clearance = min_clearance(batch for _t, _ns, batch in logs.messages(log_path, ["/clearance"]))
+    states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
+    if world is None or not states or clearance.obstacle is None:
+        raise InputError([Problem(str(log_path), "", "no world, trajectory or clearance in this log: it cannot be triaged")])
+    index = min(range(len(states)), key=lambda i: abs(states[i]["t"] - clearance.at_s))
+    at, before = states[index], states[max(0, index - 1)]
+    spec = next(o for o in world["obstacles"] if o["id"] == clearance.obstacle)
+    obstacle = Obstacle.from_spec(spec)
+    here = obstacle.position_at(at["t"])
+    obstacle_velocity = (obstacle.position_at(at["t"] + 0.1) - obstacle.position_at(max(0.0, at["t"] - 0.1))) / 0.2
+    closing = math.hypot(at["v_ned_m_s"][0] - obstacle_velocity[0], at["v_ned_m_s"][1] - obstacle_velocity[1])
+    wind = math.hypot(world["atmosphere"]["wind_north_m_s"], world["atmosphere"]["wind_east_m_s"])
+    visibility = "clear" if world["sensor"]["range_m"] >= world["sensor"]["max_range_m"] else "reduced visibility"
+    return {
+        "obstacle": f"{spec['kind']} {spec['form']}",
+        "phase": _phase(before, at),
+        "approach": _approach(at, here),
+        "speed": _band(closing, SPEED_BANDS),
+        "wind": _band(wind, WIND_BANDS),
+        "visibility": visibility,
+        "min_clearance_m": clearance.min_clearance_m,
+        "trajectory": trajectory(states),
+    }
+
+
+MODE_KEYS = ("obstacle", "phase", "approach", "speed", "wind", "visibility")
+
+
+def mode_name(entry: Mapping[str, Any]) -> str:
+    return f"{entry['obstacle']}, {entry['approach']}, {entry['phase']}, {entry['speed']}, {entry['wind']}, {entry['visibility']}"
+
+
+def triage(store_path: Path) -> dict[str, Any]:
+    """The campaign's violations grouped into failure modes, most frequent first."""
+    with Store.existing(store_path) as store:
+        rows = store.db.execute(
+            "SELECT r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key"
+            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status = 'violation' ORDER BY r.id, e.ordinal").fetchall()
+    violations, skipped = [], []
+    seen = set()
+    for scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key in rows:
+        if vector_key in seen:
+            continue
+        seen.add(vector_key)
+        where = {"scenario": scenario, "scenario_file": scenario_file, "algorithm": algorithm, "run": run, "evaluation": ordinal, "fitness": fitness,
+                 "log": log_path}
+        if not log_path or not Path(log_path).is_file():
+            skipped.append({**where, "why": "its log is missing"})
+            continue
+        try:
+            violations.append({**where, **features(Path(log_path))})
+        except InputError as error:
+            skipped.append({**where, "why": str(error)})
+    modes: dict[tuple, list[dict[str, Any]]] = {}
+    for violation in violations:
+        modes.setdefault(tuple(violation[key] for key in MODE_KEYS), []).append(violation)
+    described = []
+    for key, members in sorted(modes.items(), key=lambda item: (-len(item[1]), item[0])):
+        worst = min(members, key=lambda v: v["fitness"])
+        typical = min(members, key=lambda v: sum(trajectory_distance(v["trajectory"], o["trajectory"]) for o in members))
+        described.append({
+            "mode": mode_name(dict(zip(MODE_KEYS, key))), **dict(zip(MODE_KEYS, key)), "count": len(members),
+            "contacts": sum(v["min_clearance_m"] <= 0.0 for v in members), "near_misses": sum(v["min_clearance_m"] > 0.0 for v in members),
+            "worst": _example(worst), "typical": _example(typical),
+        })
+    pairs = list(itertools.combinations([v["trajectory"] for v in violations], 2))
+    return {
+        "store": str(store_path), "violations": len(violations), "modes": described, "skipped": skipped,
+        "diversity": {"modes": len(described), "mean_pairwise_trajectory_distance_m": float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None},
+    }
+
+
+def _example(violation: Mapping[str, Any]) -> dict[str, Any]:
+    return {key: violation[key] for key in ("scenario", "scenario_file", "algorithm", "run", "evaluation", "fitness", "min_clearance_m", "log")}
+
+
+def triage_text(report: Mapping[str, Any]) -> str:
+    diversity = report["diversity"]
+    spread = diversity["mean_pairwise_trajectory_distance_m"]
+    lines = [f"{report['violations']} distinct violations in {diversity['modes']} failure modes; mean pairwise trajectory distance "
+             + (f"{spread:.1f} m" if spread is not None else "-")]
+    for mode in report["modes"]:
+        lines.append(f"{mode['count']:>4}  {mode['mode']}  ({mode['contacts']} contact, {mode['near_misses']} near miss)")
+        lines.append(f"      worst: fitness {mode['worst']['fitness']:.3f}, {mode['worst']['log']}")
+        lines.append(f"      typical: fitness {mode['typical']['fitness']:.3f}, {mode['typical']['log']}")
+    for skipped in report["skipped"]:
+        lines.append(f"not triaged: {skipped['algorithm']} run {skipped['run']} evaluation {skipped['evaluation']}: {skipped['why']}")
+    return "\n".join(lines)
