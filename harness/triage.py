@@ -2,8 +2,9 @@
 their vectors are.
 
 A violation's mode is read from its log at the moment of least clearance: the obstacle involved
-(kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle
-was relative to the direction of flight (ahead, beside, behind; or the vehicle hovering), the
+(kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle's
+centre was relative to the direction of flight (ahead, beside, behind; the vehicle hovering; or
+inside the obstacle, for a contact), the
 closing speed band, and the environment (wind, visibility) bands. Each mode has its count, its
 severity (near miss: 0 < clearance < safety distance; contact: clearance <= 0), its worst and its
 most typical example (the one whose trajectory is closest to the others'), with their logs.
@@ -94,7 +95,8 @@ def features(log_path: Path) -> dict[str, Any]:
     return {
         "obstacle": f"{spec['kind']} {spec['form']}",
         "phase": _phase(before, at),
-        "approach": _approach(at, here),
+        # Inside the obstacle, where its centre lies says nothing of how the vehicle got there.
+        "approach": "inside" if clearance.min_clearance_m <= 0.0 else _approach(at, here),
         "speed": _band(closing, SPEED_BANDS),
         "wind": _band(wind, WIND_BANDS),
         "visibility": visibility,

@@ -79,7 +79,7 @@ def test_a_report_of_a_folder_that_is_no_benchmark_is_refused(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_small_benchmark_runs_end_to_end_and_resumes_without_flying_again(tmp_path, capsys):
-    command = ["faults", "bench", "--fault", "cp_off_above_cruise", "--fault", "none", "--algorithm", "RANDOM", "--scenario", str(WALL),
+    command = ["faults", "bench", "--fault", "cp_off_above_cruise", "--fault", "none", "--algorithm", "NSGAII", "--population", "10", "--scenario", str(WALL),
                "--runs", "1", "--evaluations", "6", "--store", str(tmp_path / "bench"), "--json"]
     assert main(command) == 0
     first = json.loads(capsys.readouterr().out)
