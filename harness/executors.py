@@ -203,7 +203,7 @@ class LocalExecutor(Executor):
         # A worker is killed with the campaign, however the campaign ends (even kill -9); its
         # evaluation's processes follow it the same way (processes.die_with_parent).
         return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                                      initializer=die_with_parent, initargs=(signal.SIGKILL,))
+                                                      initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid()))
 
     def submit(self, job: Job) -> concurrent.futures.Future:
         try:

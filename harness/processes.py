@@ -90,10 +90,14 @@ def _tail(path: Path, lines: int) -> str:
 _PR_SET_PDEATHSIG = 1
 
 
-def die_with_parent(sig: int = signal.SIGTERM) -> None:
-    """In the child: get `sig` when the harness dies, even by SIGKILL, so nothing is orphaned."""
+def die_with_parent(sig: int = signal.SIGTERM, parent_pid: int | None = None) -> None:
+    """In the child: get `sig` when the harness dies, even by SIGKILL, so nothing is orphaned.
+    A child that sets this up long after it was started (a spawned pool worker, after its
+    imports) passes `parent_pid`: if the parent died before, no signal would ever come."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, sig)
+    if parent_pid is not None and os.getppid() != parent_pid:
+        os.kill(os.getpid(), sig)
 
 
 def _signal_group(group: int, sig: int) -> None:

@@ -83,6 +83,17 @@ def alive(pid: int) -> bool:
         return False
 
 
+def described(pid: int) -> str:
+    """pid, state and command line, for a failure message."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as handle:
+            argv = b" ".join(handle.read().split(b"\0")).decode(errors="replace")
+        with open(f"/proc/{pid}/stat") as handle:
+            return f"{pid} ({handle.read().rsplit(')', 1)[1].split()[0]}): {argv[:200]}"
+    except OSError:
+        return f"{pid}: gone"
+
+
 def stored(store) -> list[tuple]:
     if not store.exists():
         return []
@@ -116,7 +127,7 @@ def test_a_campaign_killed_at_ten_random_moments_loses_nothing_repeats_nothing_a
         deadline = time.monotonic() + 15
         while (our_processes() or any(alive(pid) for pid in family)) and time.monotonic() < deadline:
             time.sleep(0.2)
-        assert our_processes() == [] and [pid for pid in family if alive(pid)] == []
+        assert our_processes() == [] and [pid for pid in family if alive(pid)] == [], [described(pid) for pid in family if alive(pid)]
         keys = [(run, ordinal) for run, ordinal, *_ in rows]
         assert len(keys) == len(set(keys)), "an evaluation was stored twice"
         now = {(run, ordinal): row for run, ordinal, *row in rows}
