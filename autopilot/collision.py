@@ -49,15 +49,17 @@ class ObstacleMap:
         bins: list[float | None] = [None] * BINS
         step = math.radians(increment_deg)
         offset = math.radians(angle_offset_deg)
-        heading = yaw_rad % (2.0 * math.pi)
+        # Sector i lies at reference + sign * (offset + i * step): the heading and +1, unless a
+        # seeded fault takes north as the reference or mirrors the sectors.
+        reference, sign = yaw_rad, 1.0
+        if self.fault == "range_frame_world":
+            reference = 0.0
+        elif self.fault == "cp_sector_mirrored" and yaw_rad % (2.0 * math.pi) > MIRRORED_PAST_RAD:
+            sign = -1.0
         for index, raw in enumerate(distances_cm):
             if raw == UINT16_MAX:
                 continue
-            world = (yaw_rad + offset + index * step) % (2.0 * math.pi)
-            if self.fault == "range_frame_world":
-                world = (offset + index * step) % (2.0 * math.pi)
-            elif self.fault == "cp_sector_mirrored" and heading > MIRRORED_PAST_RAD:
-                world = (yaw_rad - offset - index * step) % (2.0 * math.pi)
+            world = (reference + sign * offset + sign * index * step) % (2.0 * math.pi)
             target = int(round(world / BIN_RAD)) % BINS
             value = math.inf if raw > max_cm else max(raw, min_cm) / 100.0
             current = bins[target]
@@ -126,6 +128,7 @@ def constrain_velocity(
     acc = params["MPC_ACC_HOR"]
     jerk = math.inf if fault == "cp_braking_without_jerk" else params["MPC_JERK_AUTO"]
     delay = 0.0 if fault == "cp_ignores_delay" else params["CP_DELAY"]
+    narrow_view = fault == "cp_narrow_view" and speed > 1e-3
     if speed > 1e-3:
         # Distance to stop from this speed: the inverse of max_speed_from_distance.
         braking_m = (speed * speed + speed * 4.0 * acc * acc / jerk) / (2.0 * acc)
@@ -133,7 +136,7 @@ def constrain_velocity(
         vn, ve = speed * math.cos(direction), speed * math.sin(direction)
     limits = [(bin_n, bin_e, 0.0) for bin_n, bin_e in obstacles.unknown] if params["CP_GO_NO_DATA"] < 1 else []
     for bin_n, bin_e, distance in obstacles.occupied:
-        if fault == "cp_narrow_view" and speed > 1e-3 and (bin_n * vn + bin_e * ve) < NARROW_VIEW_COS * speed:
+        if narrow_view and (bin_n * vn + bin_e * ve) < NARROW_VIEW_COS * speed:
             continue
         if distance < cp_dist:
             # Closer than CP_DIST: back off gently instead of only refusing to go closer, or

@@ -25,7 +25,7 @@ from harness.campaign import CampaignConfig, run_campaign
 from harness.errors import InputError, Problem
 from harness.evaluation import RunOptions
 from harness.executors import Executor, Job
-from harness.faults import checked_names
+from harness.faults import checked_names, options_for
 from harness.statistics import a12, p_value
 from harness.store import Store
 
@@ -63,18 +63,16 @@ def _violations(store_path: Path) -> list[dict[str, Any]]:
 
 def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,
               executor: Executor, *, seed: int = 0, population: int = 50, on_result=lambda r: None) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise InputError([Problem(str(folder), "", "is not a folder: give --store a folder for the benchmark's stores, such as runs/fault-bench")])
     folder.mkdir(parents=True, exist_ok=True)
     faults = list(faults)
     checked_names([f for f in faults if f != CONTROL])
     for fault in faults:
         config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population, sut_fault=None if fault == CONTROL else fault)
         with Store.for_campaign(folder / f"{fault}.db") as store:
-            run_campaign(config, store, executor, folder / "logs" / fault, options=RunOptions(sut_config=_config(fault)), on_result=on_result)
+            run_campaign(config, store, executor, folder / "logs" / fault, options=options_for(config.sut_fault), on_result=on_result)
         _fly_fault_free(folder / f"{fault}.db", folder, executor)
-
-
-def _config(fault: str) -> dict[str, str]:
-    return {} if fault == CONTROL else {"fault": fault}
 
 
 def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:

@@ -47,8 +47,13 @@ def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
     return faulty["status"] in REVEALING and clean is not None and clean["status"] == "ok"
 
 
+def options_for(fault: str | None) -> RunOptions:
+    """The bundled autopilot with the fault switched on, or fault-free for None."""
+    return RunOptions(sut_config={"fault": fault} if fault else {})
+
+
 def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:
-    options = RunOptions(sut_config={"fault": fault} if fault else {})
+    options = options_for(fault)
     result = evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options, name=name).as_dict()
     return {key: result[key] for key in ("status", "fitness", "why", "min_clearance_m", "log_path")}
 
@@ -70,7 +75,7 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
         concrete = space.to_concrete(x)
         for fault, suffix in ((name, "with-fault"), (None, "without")):
             witness_of[len(jobs)] = name
-            jobs.append(Job(len(jobs), concrete, WITNESS_SEED, str(out_dir), f"{name}-{suffix}", RunOptions(sut_config={"fault": fault} if fault else {})))
+            jobs.append(Job(len(jobs), concrete, WITNESS_SEED, str(out_dir), f"{name}-{suffix}", options_for(fault)))
     flown: dict[str, dict[str, Any]] = {}
     executor = make_executor("local", workers)
     try:
