@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test browser docker
+.PHONY: setup demo test test-fast browser docker
 setup: $(VENV)/.installed
 
 # setup.py compiles these: an edit to one rebuilds it (the autopilot refuses stale builds).
@@ -14,11 +14,27 @@ $(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)
 	$(BIN)/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $@
 
+# The tool's main job on the embedded defaults: a small search that finds a violation, its
+# report, and the worst case kept as a regression test that pytest flies.
+DEMO := runs/demo
 demo: setup
-	$(BIN)/stella validate scenarios/table3 scenarios/examples scenarios/profiles
-	rm -rf runs/demo
-	$(BIN)/stella run scenarios/examples/fig4.json --seed 1 --out runs/demo
-	$(BIN)/stella inspect runs/demo/*.mcap --plot runs/demo/top_view.png
+	$(BIN)/stella validate scenarios/table3 scenarios/examples scenarios/profiles scenarios/faults
+	rm -rf $(DEMO)
+	$(BIN)/stella campaign scenarios/table3/scenario_09.json --algorithm NSGAII --evaluations 60 \
+		--population 20 --store $(DEMO)/campaign.db
+	$(BIN)/stella report $(DEMO)/campaign.db --out $(DEMO)/report.html
+	$(BIN)/stella export-regressions $(DEMO)/campaign.db --out $(DEMO)/regressions \
+		--threshold=-inf --worst 1 --expect violation
+	$(BIN)/pytest -q -p no:cacheprovider -o addopts= --stella-out $(DEMO)/regression-logs $(DEMO)/regressions
+	@echo
+	@echo "campaign store (every evaluation): $(DEMO)/campaign.db, flight logs in $(DEMO)/campaign-logs/"
+	@echo "report (open in a browser):        $(DEMO)/report.html"
+	@echo "regression case of the worst:      $(DEMO)/regressions/"
+	@echo "its flight log from pytest:        $(DEMO)/regression-logs/ (open the .mcap in Foxglove)"
+
+# The tests not marked slow: seconds, nothing started.
+test-fast: setup
+	$(BIN)/pytest -m "not slow"
 
 # Debian's chromium opens the campaign report in a test; installed if missing.
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
