@@ -9,15 +9,13 @@ import logging
 import math
 import socket
 import time
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot.commander import MAIN_AUTO, SUB_AUTO_LAND, SUB_AUTO_LOITER, SUB_AUTO_RTL
-from autopilot.params import BY_NAME, ParamError
-
-if TYPE_CHECKING:
-    from autopilot.app import Autopilot
+from autopilot.commander import MAIN_AUTO, SUB_AUTO_LAND, SUB_AUTO_LOITER, SUB_AUTO_RTL, Commander, MissionItem, VehicleEstimate
+from autopilot.estimator import Estimator
+from autopilot.params import BY_NAME, ParamError, Params
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +66,33 @@ MESSAGE_STREAMS = {
 MIN_STREAM_PERIOD_S = 0.02
 
 
+class Vehicle(Protocol):
+    """What the API link reads and commands of the autopilot (autopilot.app.Autopilot is one)."""
+
+    now_s: float
+    collective: float
+    sensors_seen: bool
+    params: Params
+    estimator: Estimator
+    commander: Commander
+
+    def euler(self) -> tuple[float, float, float]: ...
+
+    def yaw_rad(self) -> float: ...
+
+    def home_geodetic(self) -> tuple[float, float, float] | None: ...
+
+    def vehicle_estimate(self) -> VehicleEstimate: ...
+
+    def ready_to_arm(self) -> tuple[bool, str]: ...
+
+    def on_armed(self) -> None: ...
+
+    def mission_item_from_global(self, seq: int, command: int, frame: int, lat: float, lon: float, z: float, params) -> MissionItem | None: ...
+
+
 class ApiLink:
-    def __init__(self, autopilot: "Autopilot", remote: tuple[str, int]):
+    def __init__(self, autopilot: Vehicle, remote: tuple[str, int]):
         self.ap = autopilot
         self.remote = remote
         self.partner_chosen = False

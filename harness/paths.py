@@ -6,11 +6,16 @@ import os
 from pathlib import Path
 
 
+def project_root() -> Path:
+    """The checkout the packages run from (an editable install, as make setup makes)."""
+    return Path(__file__).resolve().parent.parent
+
+
 def scenarios_dir() -> Path:
     override = os.environ.get("STELLA_SCENARIOS")
     if override:
         return Path(override)
-    return Path(__file__).resolve().parent.parent / "scenarios"
+    return project_root() / "scenarios"
 
 
 def schema_path(name: str) -> Path:

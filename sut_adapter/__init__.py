@@ -5,6 +5,7 @@ Nothing outside this package knows which SUT runs; the harness asks `get(name)` 
 
 from __future__ import annotations
 
-from sut_adapter.base import SutError, SutHandle, SystemUnderTest, get, names, register
+from sut_adapter.base import SutError, SutHandle, SystemUnderTest
+from sut_adapter.registry import get, names, register
 
 __all__ = ["SutError", "SutHandle", "SystemUnderTest", "get", "names", "register"]

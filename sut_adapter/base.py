@@ -1,4 +1,4 @@
-"""The SUT protocol and its registry.
+"""The SUT protocol: what the harness may rely on of any system under test.
 
 A SUT is started for one evaluation with a port block (the simulator's TCP port it connects
 to, the UDP port it sends its API link to, the instance index those came from), a fresh
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
 
-from harness.processes import ManagedProcess
+from sut_adapter.processes import ManagedProcess
 
 HOLD_MODES = ("frozen", "paced")
 
@@ -69,34 +69,3 @@ class SystemUnderTest(Protocol):
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
         """Start the SUT so that it connects to the simulator on sim_port and sends its API link to api_port."""
-
-
-_REGISTRY: dict[str, Callable[[Mapping[str, str]], SystemUnderTest]] = {}
-
-
-def register(name: str, factory: Callable[[Mapping[str, str]], SystemUnderTest]) -> None:
-    _REGISTRY[name] = factory
-
-
-def names() -> list[str]:
-    return sorted(_REGISTRY)
-
-
-def get(name: str, config: Mapping[str, str] | None = None) -> SystemUnderTest:
-    """The SUT called name, configured by config (e.g. {"px4_bin": PATH}, {"command": TEMPLATE})."""
-    if name not in _REGISTRY:
-        raise SutError(name, f"unknown SUT; available: {', '.join(names())}")
-    return _REGISTRY[name](config or {})
-
-
-def _register_builtins() -> None:
-    from sut_adapter.bundled import BundledAutopilot
-    from sut_adapter.command import CommandSut
-    from sut_adapter.px4 import Px4Sitl
-
-    register("bundled", BundledAutopilot)
-    register("command", CommandSut)
-    register("px4", Px4Sitl)
-
-
-_register_builtins()

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Mapping
+from typing import Any, Mapping
 
-from harness.processes import ManagedProcess
 from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.processes import ManagedProcess
 
 
 class BundledAutopilot:
@@ -17,13 +17,11 @@ class BundledAutopilot:
     range_messages = ("OBSTACLE_DISTANCE",)
 
     def __init__(self, config: Mapping[str, str] | None = None):
-        from autopilot.faults import BY_NAME
-
         config = dict(config or {})
         self.fault = config.pop("fault", None)
         if config:
             raise SutError(self.name, f"takes no configuration but a seeded fault, got {sorted(config)}")
-        if self.fault is not None and self.fault not in BY_NAME:
+        if self.fault is not None and self.fault not in seeded_faults():
             raise SutError(self.name, f"no seeded fault {self.fault!r}; `stella faults list` names them")
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
@@ -38,3 +36,18 @@ class BundledAutopilot:
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]
         return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))
+
+
+def seeded_faults() -> dict[str, Any]:
+    """The bundled autopilot's seeded faults by name (autopilot/faults.py), for `stella faults`."""
+    from autopilot.faults import BY_NAME
+
+    return dict(BY_NAME)
+
+
+def step_bench(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
+    """The bundled autopilot's own cost per step, replaying a simulator-to-SUT stream in this
+    process (autopilot/step_bench.py)."""
+    from autopilot.step_bench import replay
+
+    return replay(stream, mission)

@@ -16,8 +16,8 @@ import string
 from pathlib import Path
 from typing import Mapping
 
-from harness.processes import ManagedProcess
 from sut_adapter.base import HOLD_MODES, SutError, SutHandle, start_process
+from sut_adapter.processes import ManagedProcess
 
 PLACEHOLDERS = ("sim_port", "api_port", "instance", "workdir")
 

@@ -19,8 +19,8 @@ import os
 from pathlib import Path
 from typing import Mapping
 
-from harness.processes import ManagedProcess, non_empty
 from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.processes import ManagedProcess, non_empty
 
 AIRFRAME = "10016"
 MODEL = "none_iris"

@@ -48,7 +48,7 @@ def campaign_candidates(store_path) -> list[tuple]:
 
 
 def run_seeded_campaign(store_path, executor: str, *extra: str) -> list[tuple]:
-    from harness.cli import main
+    from harness.tools.cli import main
 
     scenario = ROOT / "scenarios" / "table3" / "scenario_02.json"
     argv = ["campaign", str(scenario), *SEEDED_CAMPAIGN, "--executor", executor, "--store", str(store_path), "--json", *extra]
@@ -107,8 +107,8 @@ def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
     """An executor job: Fig. 4 sampled with seed 1, flown with seed 1."""
     import numpy as np
 
-    from harness.evaluation import RunOptions
-    from harness.executors import Job
+    from harness.flight.evaluation import RunOptions
+    from harness.execution.executor import Job
     from harness.scenario.logical import load_logical
     from harness.scenario.space import SearchSpace
 
@@ -127,7 +127,7 @@ def plan_flight(log_path: Path) -> dict:
     horizontal speed after the speed change, and how long it stayed at the held waypoint."""
     import math
 
-    from harness import logs
+    from harness.flight import logs
 
     world = logs.json_metadata(log_path, "world")
     states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]

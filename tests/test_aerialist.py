@@ -14,16 +14,16 @@ import pytest
 import yaml
 
 from conftest import ROOT
-from harness import logs
-from harness.aerialist import PLAN_FRAMES, export_aerialist, import_aerialist
-from harness.cli import main
-from harness.competition_score import path_to_polygon, points_for, resampled
+from harness.campaigns.store import Store
 from harness.errors import InputError
-from harness.mavsdk_session import mission_items
+from harness.flight import logs
+from harness.flight.mavsdk_session import mission_items
+from harness.interop.aerialist import PLAN_FRAMES, export_aerialist, import_aerialist
+from harness.interop.competition_score import path_to_polygon, points_for, resampled
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete, world_spec
-from harness.store import Store
+from harness.tools.cli import main
 
 DATA = ROOT / "tests" / "data" / "aerialist"
 HOVER = DATA / "hover_two_boxes.yaml"

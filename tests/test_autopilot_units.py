@@ -6,12 +6,12 @@ import math
 
 import pytest
 
-from conftest import ROOT
 from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction
 from autopilot.commander import DO_CHANGE_SPEED, MAIN_AUTO, NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
 from autopilot.estimator import Estimator, GpsFix
 from autopilot.params import SPECS, ParamError, Params, markdown_table
+from conftest import ROOT
 
 UNKNOWN = 65535
 

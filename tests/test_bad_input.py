@@ -8,7 +8,7 @@ import sqlite3
 import pytest
 
 from conftest import ROOT
-from harness.cli import main
+from harness.tools.cli import main
 
 FIG4 = str(ROOT / "scenarios" / "examples" / "fig4.json")
 
@@ -108,3 +108,14 @@ def test_a_file_that_is_no_store_is_left_as_it_was(files):
     assert main(["compare", files["OTHER_SQLITE"]]) == 2
     assert main(["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", files["OTHER_SQLITE"]]) == 2
     assert open(files["OTHER_SQLITE"], "rb").read() == before
+
+
+def test_a_reader_that_goes_away_ends_the_command_without_a_traceback():
+    import subprocess
+    import sys
+
+    command = subprocess.Popen([sys.executable, "-m", "harness.tools.cli", "faults", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)
+    command.stdout.close()  # before the command has written anything: its first write fails
+    stderr = command.communicate(timeout=60)[1].decode()
+    assert command.returncode == 141
+    assert stderr == ""

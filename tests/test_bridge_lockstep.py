@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT, port_bound
-from harness import logs
-from harness.ports import PortLease
+from harness.flight import logs
+from harness.flight.ports import PortLease
 
 SCRIPTED_SUT = ROOT / "tests" / "scripted_sut.py"
 BODY = {"length_m": 0.6, "width_m": 0.6, "height_m": 0.2}
@@ -127,7 +127,7 @@ def test_garbage_bytes_are_counted_and_skipped(tmp_path):
 def test_obstacles_are_injected_moved_and_removed_through_the_control_channel(tmp_path):
     """GIVEN a hovering vehicle WHEN the harness adds a pole 3 m away at t=2 s, moves it to 6 m at
     t=3 s and removes it at t=4 s THEN the recorded clearance follows exactly that."""
-    from harness.bridge_control import BridgeControl
+    from harness.flight.bridge_control import BridgeControl
 
     world_path = tmp_path / "world.json"
     world_path.write_text(json.dumps(world(time_limit_s=6.0)))

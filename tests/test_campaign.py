@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.campaign import least_explored, run_sequence
+from harness.campaigns.campaign import least_explored, run_sequence
+from harness.campaigns.problem import CampaignProblem
+from harness.campaigns.statistics import a12, compare, p_value, relative_performance, spread, table
+from harness.campaigns.store import Store
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.search.optimizers import parse_algorithm
-from harness.search.problem import CampaignProblem
 from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
-from harness.statistics import a12, compare, p_value, relative_performance, spread, table
-from harness.store import Store
 
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
 
@@ -180,7 +180,7 @@ def test_compare_counts_the_violations_that_did_not_come_back_in_every_re_flight
 def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_evaluation(tmp_path):
     scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
     def command(store):
-        return [sys.executable, "-m", "harness.cli", "campaign", str(scenario), "--algorithm", "NSGAII", "--evaluations", "8",
+        return [sys.executable, "-m", "harness.tools.cli", "campaign", str(scenario), "--algorithm", "NSGAII", "--evaluations", "8",
                 "--population", "4", "--executor", "sequential", "--store", str(store), "--json"]
     killed_store = tmp_path / "killed.db"
     campaign = subprocess.Popen(command(killed_store), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -222,8 +222,8 @@ def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_e
 def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_nothing(tmp_path, capsys, monkeypatch):
     import errno
 
-    from harness import logs
-    from harness.cli import main
+    from harness.flight import logs
+    from harness.tools.cli import main
 
     scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
 

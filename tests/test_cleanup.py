@@ -15,7 +15,7 @@ import time
 import pytest
 
 from conftest import ROOT, children, port_bound
-from harness.ports import API_BASE, CONTROL_BASE, SIM_BASE
+from harness.flight.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_05.json"
@@ -43,7 +43,7 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
     rng.shuffle(endings)
     outcomes = []
     for index, ending in enumerate(endings):
-        command = [sys.executable, "-m", "harness.cli", "run", str(SCENARIO), "--seed", str(index), "--out", str(tmp_path), "--json"]
+        command = [sys.executable, "-m", "harness.tools.cli", "run", str(SCENARIO), "--seed", str(index), "--out", str(tmp_path), "--json"]
         run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=ROOT)
         if ending == "finish":
             out, _ = run.communicate(timeout=120)
@@ -109,7 +109,7 @@ def test_a_campaign_killed_at_ten_random_moments_loses_nothing_repeats_nothing_a
     writing), each followed by a resume; defect 3 was its workers living on."""
     assert our_processes() == [], "processes of an earlier test are still running"
     def command(store):
-        return [sys.executable, "-m", "harness.cli", "campaign", str(SCENARIO), "--algorithm", "NSGAII", "--evaluations", "10", "--population", "4",
+        return [sys.executable, "-m", "harness.tools.cli", "campaign", str(SCENARIO), "--algorithm", "NSGAII", "--evaluations", "10", "--population", "4",
                 "--seed", "2", "--workers", "2", "--store", str(store), "--json"]
     store = tmp_path / "killed.db"
     rng = random.Random(18)

@@ -15,7 +15,7 @@ import pytest
 
 from autopilot import check_compiled
 from conftest import FIG4, ROOT
-from harness.evaluation import evaluate
+from harness.flight.evaluation import evaluate
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 
@@ -44,7 +44,7 @@ def test_a_compiled_module_older_than_its_source_is_refused(tmp_path):
         check_compiled(str(package / "__init__.py"))
 
 
-REPLAY = "import json, sys; from harness.bench import autopilot_step_bench; print(json.dumps(autopilot_step_bench(sys.argv[1])))"
+REPLAY = "import json, sys; from harness.tools.bench import autopilot_step_bench; print(json.dumps(autopilot_step_bench(sys.argv[1])))"
 
 
 @pytest.mark.slow

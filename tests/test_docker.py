@@ -12,8 +12,8 @@ import time
 import pytest
 
 from conftest import FIG4_SEED1_FITNESS, ROOT, SEEDED_CAMPAIGN, campaign_candidates, fig4_job, run_seeded_campaign
-from harness import logs
 from harness.errors import InfrastructureError
+from harness.flight import logs
 from test_executors import SILENT_SUT
 
 pytestmark = pytest.mark.slow
@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def engine():
-    from harness.docker_executor import IMAGE, engine, image_exists
+    from harness.execution.docker_executor import IMAGE, engine, image_exists
 
     try:
         client = engine()
@@ -38,7 +38,7 @@ def stella_containers(client) -> list:
 
 @pytest.fixture
 def executor(engine):
-    from harness.executors import make_executor
+    from harness.execution.registry import make_executor
 
     made = []
 

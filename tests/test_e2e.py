@@ -12,18 +12,18 @@ import pytest
 from mcap.reader import make_reader
 
 from conftest import ROOT
-from harness import logs
-from harness.bridge_control import BridgeControl
-from harness.evaluation import RunOptions, evaluate
-from harness.fitness import PENALTY
-from harness.inspect_log import summarize
-from harness.mavsdk_session import MavsdkSession, mission_items
-from harness.ports import PortLease
-from harness.processes import ManagedProcess
+from harness.flight import logs
+from harness.flight.bridge_control import BridgeControl
+from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.fitness import PENALTY
+from harness.flight.inspect_log import summarize
+from harness.flight.mavsdk_session import MavsdkSession, mission_items
+from harness.flight.ports import PortLease
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.recording import TOPICS
+from sut_adapter.processes import ManagedProcess
 
 pytestmark = pytest.mark.slow
 DATA = ROOT / "tests" / "data" / "scenarios"
@@ -145,7 +145,7 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
 @pytest.mark.slow
 def test_repeats_of_one_concrete_scenario_report_their_spread(tmp_path, capsys):
     from conftest import FIG4, FIG4_SEED1_FITNESS
-    from harness.cli import main
+    from harness.tools.cli import main
 
     assert main(["run", str(FIG4), "--seed", "1", "--repeat", "2", "--out", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
@@ -159,7 +159,7 @@ def test_repeats_of_one_concrete_scenario_report_their_spread(tmp_path, capsys):
 def test_confirm_re_flies_each_violation_and_stores_how_often_it_came_back(tmp_path, capsys):
     import sqlite3
 
-    from harness.cli import main
+    from harness.tools.cli import main
 
     store = tmp_path / "confirm.db"
     # Collision prevention off (CP_DIST < 0, as in PX4), and seed 13, whose first random sample

@@ -13,12 +13,13 @@ import time
 import pytest
 
 from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
-from harness.campaign import CampaignConfig, run_campaign
-from harness.cli import main
-from harness.evaluation import RunOptions
-from harness.executors import LocalExecutor, SequentialExecutor, make_executor
-from harness.ports import PortLease
-from harness.store import Store
+from harness.campaigns.campaign import CampaignConfig, run_campaign
+from harness.campaigns.store import Store
+from harness.execution.local import LocalExecutor, SequentialExecutor
+from harness.execution.registry import make_executor
+from harness.flight.evaluation import RunOptions
+from harness.flight.ports import PortLease
+from harness.tools.cli import main
 
 pytestmark = pytest.mark.slow
 SILENT_SUT = f"{sys.executable} -c 'import time; time.sleep(600)' {{sim_port}} {{api_port}}"

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.cli import main
-from harness.fault_bench import FAULT_FREE_CACHE, _key, detections, report
+from harness.campaigns.store import Store
+from harness.faults.bench import FAULT_FREE_CACHE, _key, detections, report
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
-from harness.store import Store
+from harness.tools.cli import main
 
 WALL = ROOT / "scenarios" / "examples" / "wall.json"
 

@@ -14,9 +14,9 @@ from autopilot.collision import BINS, ObstacleMap, constrain_velocity
 from autopilot.commander import NAV_WAYPOINT, Commander, MissionItem, VehicleEstimate
 from autopilot.faults import BY_NAME, FAULTS, markdown_table
 from autopilot.params import ParamError, Params
-from harness.cli import main
 from conftest import ROOT
-from harness.faults import witness_path
+from harness.faults.checks import witness_path
+from harness.tools.cli import main
 
 AREAS = {"collision prevention", "sensing", "estimation", "control", "commander"}
 

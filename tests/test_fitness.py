@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.fitness import CLEARANCE_CAP_M, PENALTY, infeasible_fitness, judge, min_clearance, mission_check
+from harness.flight.fitness import CLEARANCE_CAP_M, PENALTY, infeasible_fitness, judge, min_clearance, mission_check
 
 MISSION = {"waypoints": [{"north_m": 60.0, "east_m": 0.0, "altitude_m": 8.0}], "land": True}
 

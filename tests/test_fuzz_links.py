@@ -18,8 +18,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 import fuzz_frames
 from conftest import ROOT
-from harness import logs
-from harness.ports import PortLease
+from harness.flight import logs
+from harness.flight.ports import PortLease
 from test_bridge_lockstep import SCRIPTED_SUT, world
 
 pytestmark = pytest.mark.slow

@@ -6,10 +6,10 @@ from itertools import combinations, product
 
 import pytest
 
-from harness.cli import main
-from harness.scenario.generate import EMPTY, MAX_OBSTACLES, covering_rows, paper_factors, scenario_to_row
 from harness.scenario.documents import load_json
+from harness.scenario.generate import EMPTY, MAX_OBSTACLES, covering_rows, paper_factors, scenario_to_row
 from harness.scenario.logical import logical_problems
+from harness.tools.cli import main
 
 
 def slot_of(key: str) -> int | None:

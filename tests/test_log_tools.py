@@ -8,11 +8,11 @@ import json
 import pytest
 
 from conftest import ROOT
-from harness import logs
-from harness.cli import main
-from harness.evaluation import evaluate
+from harness.flight import logs
+from harness.flight.evaluation import evaluate
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
+from harness.tools.cli import main
 from sim_bridge.recording import TOPICS
 
 pytestmark = pytest.mark.slow
@@ -140,7 +140,7 @@ def test_the_foxglove_layout_refers_to_what_the_logs_hold(runs):
 
 
 def test_names_on_disk_are_slugs_of_whatever_a_scenario_is_called():
-    from harness.logs import slug
+    from harness.flight.logs import slug
 
     assert slug("Holdout 2: three static obstacles") == "Holdout_2_three_static_obstacles"
     assert slug("Test Scenario #1-seed0") == "Test_Scenario_1-seed0"  # the names logs had before

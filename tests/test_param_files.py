@@ -7,9 +7,9 @@ import argparse
 
 import pytest
 
-from harness.cli import _sut_spec, main
 from harness.errors import InputError
-from harness.param_files import load_params_file
+from harness.interop.param_files import load_params_file
+from harness.tools.cli import _sut_spec, main
 
 QGC = """# Onboard parameters for Vehicle 1
 #

@@ -11,11 +11,11 @@ from mcap.reader import make_reader
 from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
-from harness import logs
-from harness.cli import main
-from harness.evaluation import RunOptions, evaluate
-from harness.fitness import PENALTY
+from harness.flight import logs
+from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.fitness import PENALTY
 from harness.scenario.world import load_concrete
+from harness.tools.cli import main
 from sim_bridge.pilot import BLOCKED_AFTER_S, RC_PERIOD_S
 
 pytestmark = pytest.mark.slow

@@ -13,8 +13,8 @@ from autopilot.commander import MAIN_AUTO, MAIN_POSCTL, SUB_AUTO_LAND, SUB_AUTO_
 from autopilot.manual import PositionMode, Sticks, mode_slot, normalized_channel, sticks_from_rc
 from autopilot.params import Params
 from conftest import ROOT
-from harness.campaign import CampaignConfig
-from harness.regression import load_regression
+from harness.campaigns.campaign import CampaignConfig
+from harness.campaigns.regression import load_regression
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, world_spec
@@ -222,7 +222,7 @@ def test_the_drive_override_is_part_of_the_campaign_identity():
 def test_an_unknown_drive_is_a_located_error(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text(Path(WALL).read_text().replace('"system"', '"mission": {"drive": "autopilot"}, "system"'))
-    from harness.cli import main
+    from harness.tools.cli import main
 
     assert main(["validate", str(bad)]) == 2
 
@@ -261,7 +261,7 @@ def test_a_concrete_scenario_whose_recorded_drive_contradicts_its_logical_scenar
 
 @pytest.mark.parametrize("text", ['"not an object"', '{"name": "x", "mission": "pilot"}'])
 def test_a_malformed_scenario_with_drive_override_gets_a_located_error_not_a_traceback(tmp_path, capsys, text):
-    from harness.cli import main
+    from harness.tools.cli import main
 
     bad = tmp_path / "bad.json"
     bad.write_text(text)
@@ -270,7 +270,7 @@ def test_a_malformed_scenario_with_drive_override_gets_a_located_error_not_a_tra
 
 
 def test_bench_refuses_a_drive_it_would_not_use(capsys):
-    from harness.cli import main
+    from harness.tools.cli import main
 
     assert main(["bench", "--executor", "local", "--drive", "pilot"]) == 2
     assert "--drive" in capsys.readouterr().err

@@ -11,14 +11,15 @@ import time
 import numpy as np
 import pytest
 
-import sut_adapter
 from conftest import FIG4, fig4_job
-from harness.evaluation import RunOptions, simulation_stack
-from harness.executors import Executor, LocalExecutor
+from harness.execution.executor import Executor
+from harness.execution.local import LocalExecutor
+from harness.flight.evaluation import RunOptions, simulation_stack
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from simlink import codec
+import sut_adapter
 
 MACHINE_CORES = len(os.sched_getaffinity(0))
 
@@ -98,7 +99,7 @@ def test_one_core_puts_both_on_it_and_neither_polls(tmp_path, profile):
 def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
     import json
 
-    from harness.cli import main
+    from harness.tools.cli import main
 
     assert main(["bench", "--runs", "1", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)

@@ -12,16 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
 from autopilot.commander import NAV_DELAY, NAV_WAYPOINT, Commander, MissionItem, VehicleEstimate
 from autopilot.params import Params
-from harness.cli import main
+from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
 from harness.errors import InputError
-from harness.mavsdk_session import mission_items
+from harness.flight.mavsdk_session import mission_items
 from harness.scenario.logical import load_logical
 from harness.scenario.plan import load_plan, plan_from_document, plan_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from harness.tools.cli import main
 from sim_bridge.geo import geodetic_from_local
 
 PLAN = ROOT / "scenarios" / "examples" / "two_altitudes.plan"

@@ -12,11 +12,11 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
-from harness import logs
-from harness.cli import main
-from harness.fitness import PENALTY
-from harness.inspect_log import summarize
-from harness.store import Store
+from harness.campaigns.store import Store
+from harness.flight import logs
+from harness.flight.fitness import PENALTY
+from harness.flight.inspect_log import summarize
+from harness.tools.cli import main
 
 pytestmark = [
     pytest.mark.slow,

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.cli import main
+from harness.campaigns.regression import export_regressions, load_regression, verdict
+from harness.campaigns.store import Store
 from harness.errors import InputError
-from harness.regression import export_regressions, load_regression, verdict
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
-from harness.store import Store
+from harness.tools.cli import main
 
 CASES = ROOT / "tests" / "data" / "regressions"
 KNOWN_VIOLATION = json.loads((CASES / "known_violation.json").read_text())

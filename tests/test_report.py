@@ -18,11 +18,11 @@ CHROMIUM = shutil.which("chromium")
 def test_the_report_loads_in_chromium_and_every_plot_is_shown(tmp_path):
     assert CHROMIUM, "Debian's chromium is needed; `make test` installs it"
     store = tmp_path / "c.db"
-    campaign = [sys.executable, "-m", "harness.cli", "campaign", str(ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"),
+    campaign = [sys.executable, "-m", "harness.tools.cli", "campaign", str(ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"),
                 "--algorithm", "NSGAII", "--algorithm", "RANDOM", "--evaluations", "3", "--population", "2", "--executor", "sequential", "--store", str(store), "--json"]
     subprocess.run(campaign, cwd=ROOT, check=True, capture_output=True, timeout=300)
     report = tmp_path / "report.html"
-    subprocess.run([sys.executable, "-m", "harness.cli", "report", str(store), "--out", str(report), "--worst", "2"], cwd=ROOT, check=True, timeout=120)
+    subprocess.run([sys.executable, "-m", "harness.tools.cli", "report", str(store), "--out", str(report), "--worst", "2"], cwd=ROOT, check=True, timeout=120)
     browser = subprocess.run(
         [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
          "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", "--enable-logging=stderr", "--v=0",

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, TABLE3
-from harness.cli import main
 from harness.errors import InputError
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, sensor_range_m, world_spec
+from harness.tools.cli import main
 from sim_bridge.terrain import terrain_height_m
 
 SIZE_DIMS = {"cuboid": 3, "sphere": 1, "cylinder": 2}

@@ -13,13 +13,13 @@ import time
 import numpy as np
 import pytest
 
-import sut_adapter
 from conftest import ROOT
-from harness import logs
-from harness.cli import main
-from harness.evaluation import RunOptions, evaluate
+from harness.flight import logs
+from harness.flight.evaluation import RunOptions, evaluate
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
+from harness.tools.cli import main
+import sut_adapter
 from sut_adapter.command import CommandSut
 from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 

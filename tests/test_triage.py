@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.triage import SPEED_BANDS, _approach, _band, _phase, trajectory, trajectory_distance
+from harness.campaigns.triage import SPEED_BANDS, _approach, _band, _phase, trajectory, trajectory_distance
 
 
 def state(t: float, vn: float = 0.0, ve: float = 0.0, vd: float = 0.0, north: float = 0.0, east: float = 0.0, up: float = 8.0) -> dict:

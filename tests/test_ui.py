@@ -17,8 +17,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from conftest import ROOT
-from harness.ui.campaigns import MAX_UPLOAD_BYTES
-from harness.ui.server import create_app
+from harness.tools.ui.campaigns import MAX_UPLOAD_BYTES
+from harness.tools.ui.server import create_app
 
 CHROMIUM = "/usr/bin/chromium"
 ARTIFACTS = Path(os.environ.get("STELLA_TEST_ARTIFACTS", ROOT / "test-artifacts")) / "ui"
@@ -118,7 +118,7 @@ def free_port() -> int:
 @pytest.fixture
 def server(tmp_path):
     port = free_port()
-    process = subprocess.Popen([sys.executable, "-m", "harness.cli", "ui", "--store-dir", str(tmp_path / "store"), "--port", str(port)],
+    process = subprocess.Popen([sys.executable, "-m", "harness.tools.cli", "ui", "--store-dir", str(tmp_path / "store"), "--port", str(port)],
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline:

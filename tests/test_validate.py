@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from conftest import ROOT, TABLE3
-from harness.cli import main
+from harness.tools.cli import main
 
 MALFORMED = ROOT / "tests" / "data" / "malformed"
 EXPECTED = json.loads((ROOT / "tests" / "data" / "malformed_expected.json").read_text())
@@ -49,7 +49,7 @@ def test_table3_scenarios_and_examples_and_profile_are_valid(capsys):
 def test_console_script_exits_2_and_names_file_and_pointer():
     path = MALFORMED / "18_misspelt_wind.json"
     result = subprocess.run(
-        [sys.executable, "-m", "harness.cli", "validate", str(path)], capture_output=True, text=True, check=False
+        [sys.executable, "-m", "harness.tools.cli", "validate", str(path)], capture_output=True, text=True, check=False
     )
     assert result.returncode == 2
     assert f"{path}: /environment/weather/wind force:" in result.stdout

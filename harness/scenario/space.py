@@ -15,10 +15,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from harness.errors import InputError, Problem
+from harness.scenario import units
 from harness.scenario.documents import pointer
 from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
 from harness.scenario.plan import Plan
-from harness.scenario import units
 from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from sim_bridge.terrain import max_height_on_segment_m
 

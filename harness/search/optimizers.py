@@ -1,4 +1,4 @@
-"""Optimizer adapters, one per library; each sees only CampaignProblem.evaluate (vectors -> fitness).
+"""Optimizer adapters, one per library; each sees only Problem.evaluate (vectors -> fitness).
 
 jMetalPy's algorithms own their generation loop, so they are driven through a batch Evaluator
 instead of ask/tell; bayesian-optimization is ask/tell (`suggest` / `register`); random search is
@@ -26,7 +26,7 @@ from jmetal.util.evaluator import Evaluator
 from jmetal.util.generator import InjectorGenerator
 from jmetal.util.termination_criterion import StoppingByEvaluations
 
-from harness.search.problem import CampaignProblem
+from harness.search.problem import Problem
 
 # jMetalPy logs every generation at DEBUG through its own handler; keep campaigns' stderr readable.
 logging.getLogger("jmetal").setLevel(logging.WARNING)
@@ -38,7 +38,7 @@ class Optimizer(Protocol):
     letter: str
     name: str
 
-    def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
+    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
         """Evaluate candidates through problem.evaluate until it raises StopSearch."""
 
 
@@ -128,7 +128,7 @@ class NSGAIIOptimizer:
     letter: str = "N"
     name: str = "NSGAII"
 
-    def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
+    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
         streams = _OwnStreams(seed)
         jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
         algorithm = NSGAII(
@@ -152,7 +152,7 @@ class SMPSOOptimizer:
     letter: str = "P"
     name: str = "SMPSO"
 
-    def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
+    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
         streams = _OwnStreams(seed)
         jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
         algorithm = SMPSO(
@@ -176,7 +176,7 @@ class BOOptimizer:
     letter: str = "B"
     name: str = "BO"
 
-    def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
+    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
         from bayes_opt import BayesianOptimization
 
         space = problem.space
@@ -213,7 +213,7 @@ class RandomSearch:
     letter: str = "R"
     name: str = "RANDOM"
 
-    def search(self, problem: CampaignProblem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
+    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
         rng = np.random.default_rng(seed)
         if initial:
             problem.evaluate(list(initial))

@@ -14,14 +14,14 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from autopilot.faults import BY_NAME, FAULTS
 from harness.errors import InputError, Problem
-from harness.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import RunOptions, evaluate
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete
+from sut_adapter.bundled import seeded_faults
 
 WITNESS_SEED = 0  # the sensor-noise seed every witness is flown with
 REVEALING = ("violation", "mission_failed")
@@ -32,15 +32,16 @@ def witness_path(fault: str) -> Path:
 
 
 def checked_names(names: Iterable[str] | None) -> list[str]:
-    names = list(names or BY_NAME)
-    unknown = [n for n in names if n not in BY_NAME]
+    known = seeded_faults()
+    names = list(names or known)
+    unknown = [n for n in names if n not in known]
     if unknown:
-        raise InputError([Problem("--fault", "", f"no seeded fault {unknown[0]!r}; known: {', '.join(BY_NAME)}")])
+        raise InputError([Problem("--fault", "", f"no seeded fault {unknown[0]!r}; known: {', '.join(known)}")])
     return names
 
 
 def fault_list() -> list[dict[str, Any]]:
-    return [{**asdict(fault), "witness": str(witness_path(fault.name)) if witness_path(fault.name).is_file() else None} for fault in FAULTS]
+    return [{**asdict(fault), "witness": str(witness_path(fault.name)) if witness_path(fault.name).is_file() else None} for fault in seeded_faults().values()]
 
 
 def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
@@ -62,7 +63,8 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
           progress: Callable[[str], None] = lambda _line: None) -> list[dict[str, Any]]:
     """Each fault's witness flown with the fault and without (through the local executor, both
     flights of every witness at once); `revealed` when it tells them apart."""
-    from harness.executors import Job, make_executor
+    from harness.execution.executor import Job
+    from harness.execution.registry import make_executor
 
     names = checked_names(names)
     jobs, missing, witness_of = [], {}, {}

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 from scipy.stats import mannwhitneyu
 
-from harness.store import Store
+from harness.campaigns.store import Store
 
 
 def a12(candidate: Sequence[float], baseline: Sequence[float]) -> float:

@@ -1,4 +1,4 @@
-"""One try of one evaluation as a process of its own: `python -m harness.worker`.
+"""One try of one evaluation as a process of its own: `python -m harness.execution.worker`.
 
 Reads a job (JSON, `Job.to_json`) from a file or stdin, flies it, writes the result (JSON) to a
 file or stdout. The Dask and Docker executors run evaluations this way, so that each has its
@@ -12,11 +12,11 @@ import json
 import sys
 from pathlib import Path
 
-from harness.executors import Job, run_job
+from harness.execution.executor import Job, run_job
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m harness.worker", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m harness.execution.worker", description=__doc__.splitlines()[0])
     parser.add_argument("--job", help="job JSON file (default: stdin)")
     parser.add_argument("--result", help="where to write the result JSON (default: stdout)")
     args = parser.parse_args(argv)

@@ -20,14 +20,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.paths import scenarios_dir
-from harness.processes import die_with_parent
 from harness.scenario.documents import load_json
 from harness.scenario.logical import load_logical, logical_problems
 from harness.scenario.profile import load_profile
 from harness.search.optimizers import parse_algorithm
-from harness.store import Store
+from sut_adapter.processes import die_with_parent
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 UPLOADS = "uploads"
@@ -90,7 +90,7 @@ class Campaigns:
 
     def command(self, name: str) -> list[str]:
         spec = json.loads((self.store_dir / f"{name}.json").read_text())
-        argv = [sys.executable, "-m", "harness.cli", "campaign", *spec["scenario_paths"]]
+        argv = [sys.executable, "-m", "harness.tools.cli", "campaign", *spec["scenario_paths"]]
         for algorithm in spec["algorithms"]:
             argv += ["--algorithm", algorithm]
         argv += ["--evaluations", str(spec["evaluations"]), "--runs", str(spec["runs"]), "--seed", str(spec["seed"]),

@@ -21,13 +21,13 @@ from typing import Any, Iterable
 
 from scipy.stats import fisher_exact
 
-from harness.campaign import CampaignConfig, run_campaign
+from harness.campaigns.campaign import CampaignConfig, run_campaign
+from harness.campaigns.statistics import a12, p_value
+from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
-from harness.evaluation import RunOptions
-from harness.executors import Executor, Job
-from harness.faults import checked_names, options_for
-from harness.statistics import a12, p_value
-from harness.store import Store
+from harness.execution.executor import Executor, Job
+from harness.faults.checks import checked_names, options_for
+from harness.flight.evaluation import RunOptions
 
 CONTROL = "none"
 FAULT_FREE_CACHE = "fault_free.json"

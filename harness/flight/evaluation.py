@@ -23,19 +23,19 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-import sut_adapter
-from harness import fitness as scoring
-from harness import logs
-from harness.api_tap import ApiTap
-from harness.bridge_control import BridgeControl
 from harness.errors import InfrastructureError, InputError, Problem
-from harness.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
-from harness.ports import PortBlock, PortLease
-from harness.processes import ManagedProcess
+from harness.flight import fitness as scoring
+from harness.flight import logs
+from harness.flight.api_tap import ApiTap
+from harness.flight.bridge_control import BridgeControl
+from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
+from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
+import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
+from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
 

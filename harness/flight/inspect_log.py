@@ -11,9 +11,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from harness import logs
 from harness.errors import InputError, Problem
-from harness.evaluation import rescore
+from harness.flight import logs
+from harness.flight.evaluation import rescore
 
 
 def summarize(path: Path) -> dict[str, Any]:

@@ -11,6 +11,7 @@ import errno
 import json
 import logging
 import math
+import os
 import sqlite3
 import sys
 from pathlib import Path
@@ -19,6 +20,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from harness.errors import InputError, Problem, StellaError
+from harness.paths import scenarios_dir
 from harness.scenario.documents import load_json
 from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
 from harness.scenario.plan import plan_problems
@@ -198,7 +200,7 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
         raise InputError([Problem("--sut-fault", "", f"seeded faults live in the bundled autopilot, not in --sut {args.sut}")])
     params: dict[str, float] = {}
     if args.sut_params_file:
-        from harness.param_files import load_params_file
+        from harness.interop.param_files import load_params_file
 
         params.update(load_params_file(Path(args.sut_params_file)))
     for item in args.sut_param or []:
@@ -218,7 +220,7 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
 
 @command("run")
 def cmd_run(args: argparse.Namespace) -> int:
-    from harness.evaluation import RunOptions, evaluate
+    from harness.flight.evaluation import RunOptions, evaluate
     from harness.scenario.world import load_concrete
 
     sut, sut_config, sut_params = _sut_spec(args)
@@ -243,9 +245,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]:
     """The same concrete scenario flown --repeat times with the same seed: what differs is the SUT's."""
-    from harness.evaluation import evaluate
-    from harness.logs import slug
-    from harness.statistics import spread
+    from harness.flight.evaluation import evaluate
+    from harness.flight.logs import slug
+    from harness.campaigns.statistics import spread
 
     stem = slug(f"{space.logical.name}-seed{args.seed}")
     results = []
@@ -266,7 +268,7 @@ def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]
 
 @command("inspect")
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from harness.inspect_log import export_csv, plot, summarize, topics
+    from harness.flight.inspect_log import export_csv, plot, summarize, topics
 
     path = Path(args.log)
     if not path.is_file():
@@ -281,7 +283,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         return 0
     summary = summarize(path)
     if args.competition:
-        from harness.competition_score import competition_score
+        from harness.interop.competition_score import competition_score
 
         summary["competition"] = competition_score(path)
     if args.plot:
@@ -315,7 +317,7 @@ def _seconds(value: float | None) -> str:
 
 @command("diff")
 def cmd_diff(args: argparse.Namespace) -> int:
-    from harness.inspect_log import diff
+    from harness.flight.inspect_log import diff
 
     for name in (args.a, args.b):
         if not Path(name).is_file():
@@ -343,20 +345,20 @@ def cmd_diff(args: argparse.Namespace) -> int:
 
 @command("bench")
 def cmd_bench(args: argparse.Namespace) -> int:
-    from harness.bench import PLACEMENTS, bench_text, run_bench
-    from harness.evaluation import RunOptions
+    from harness.tools.bench import PLACEMENTS, bench_text, run_bench
+    from harness.flight.evaluation import RunOptions
 
     for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
         if given and (args.executor or args.campaign):
             raise InputError([Problem(option, "", f"the executor and campaign benchmarks fly the standard scenario's own mission; leave {option} out")])
     if args.executor:
-        from harness.bench import executor_bench_text, run_executor_bench
+        from harness.tools.bench import executor_bench_text, run_executor_bench
 
         report = run_executor_bench(args.executor, args.workers or 1, args.evaluations or 10, Path(args.scenario) if args.scenario else None)
         emit(args, report, executor_bench_text(report))
         return 0
     if args.campaign:
-        from harness.bench import campaign_bench_text, run_campaign_bench
+        from harness.tools.bench import campaign_bench_text, run_campaign_bench
 
         report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None)
         emit(args, report, campaign_bench_text(report))
@@ -371,11 +373,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 @command("campaign")
 def cmd_campaign(args: argparse.Namespace) -> int:
-    from harness.campaign import CampaignConfig, run_campaign
-    from harness.evaluation import RunOptions
-    from harness.executors import make_executor
+    from harness.campaigns.campaign import CampaignConfig, run_campaign
+    from harness.flight.evaluation import RunOptions
+    from harness.execution.registry import make_executor
     from harness.search.optimizers import parse_algorithm
-    from harness.store import Store
+    from harness.campaigns.store import Store
     from tqdm import tqdm
 
     for algorithm in args.algorithm:
@@ -423,8 +425,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 @command("compare")
 def cmd_compare(args: argparse.Namespace) -> int:
-    from harness.statistics import compare, table
-    from harness.store import Store
+    from harness.campaigns.statistics import compare, table
+    from harness.campaigns.store import Store
 
     with Store.existing(Path(args.store)) as store:
         report = compare(store, args.baseline)
@@ -434,8 +436,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 @command("report")
 def cmd_report(args: argparse.Namespace) -> int:
-    from harness.report import write_report
-    from harness.store import Store
+    from harness.campaigns.report import write_report
+    from harness.campaigns.store import Store
 
     with Store.existing(Path(args.store)) as store:
         write_report(store, Path(args.out), args.worst, args.baseline)
@@ -445,8 +447,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 @command("sut")
 def cmd_sut(args: argparse.Namespace) -> int:
-    from harness.evaluation import RunOptions
-    from harness.sut_check import as_dicts, check, report_text
+    from harness.flight.evaluation import RunOptions
+    from harness.tools.sut_check import as_dicts, check, report_text
 
     sut, sut_config, sut_params = _sut_spec(args)
     space = _space(args)
@@ -458,7 +460,7 @@ def cmd_sut(args: argparse.Namespace) -> int:
 
 @command("faults")
 def cmd_faults(args: argparse.Namespace) -> int:
-    from harness import faults
+    from harness.faults import checks as faults
 
     if args.action == "list":
         listed = faults.fault_list()
@@ -471,7 +473,7 @@ def cmd_faults(args: argparse.Namespace) -> int:
     if args.action == "bench":
         return _faults_bench(args)
     if args.action == "report":
-        from harness.fault_bench import report, report_text
+        from harness.faults.bench import report, report_text
 
         if not args.store:
             raise InputError([Problem("stella faults report", "", "give --store FOLDER (the one `stella faults bench` wrote)")])
@@ -496,8 +498,8 @@ def cmd_faults(args: argparse.Namespace) -> int:
 
 
 def _faults_bench(args: argparse.Namespace) -> int:
-    from harness.executors import make_executor
-    from harness.fault_bench import report, report_text, run_bench
+    from harness.execution.registry import make_executor
+    from harness.faults.bench import report, report_text, run_bench
     from harness.search.optimizers import parse_algorithm
 
     missing = [flag for flag, value in (("--fault", args.fault), ("--algorithm", args.algorithm), ("--scenario", args.scenario),
@@ -528,7 +530,7 @@ def _faults_bench(args: argparse.Namespace) -> int:
 
 @command("docker")
 def cmd_docker(args: argparse.Namespace) -> int:
-    from harness.docker_executor import BASE_IMAGE, build_image, image_exists, make_base
+    from harness.execution.docker_executor import BASE_IMAGE, build_image, image_exists, make_base
 
     base = args.base
     if args.make_base:
@@ -545,7 +547,7 @@ def cmd_docker(args: argparse.Namespace) -> int:
 
 @command("ui")
 def cmd_ui(args: argparse.Namespace) -> int:
-    from harness.ui.server import serve
+    from harness.tools.ui.server import serve
 
     serve(Path(args.store_dir), args.host, args.port, args.token)
     return 0
@@ -553,7 +555,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
 
 @command("export-regressions")
 def cmd_export_regressions(args: argparse.Namespace) -> int:
-    from harness.regression import export_regressions
+    from harness.campaigns.regression import export_regressions
 
     if args.format == "aerialist":
         return _export_aerialist(args)
@@ -564,8 +566,8 @@ def cmd_export_regressions(args: argparse.Namespace) -> int:
 
 
 def _export_aerialist(args: argparse.Namespace) -> int:
-    from harness.aerialist import export_aerialist
-    from harness.regression import chosen_cases
+    from harness.interop.aerialist import export_aerialist
+    from harness.campaigns.regression import chosen_cases
 
     sut, chosen = chosen_cases(Path(args.store), args.threshold, args.worst, args.per_mode)
     out = Path(args.out)
@@ -585,7 +587,7 @@ def _export_aerialist(args: argparse.Namespace) -> int:
 
 @command("triage")
 def cmd_triage(args: argparse.Namespace) -> int:
-    from harness.triage import triage, triage_text
+    from harness.campaigns.triage import triage, triage_text
 
     report = triage(Path(args.store))
     emit(args, report, triage_text(report))
@@ -594,7 +596,7 @@ def cmd_triage(args: argparse.Namespace) -> int:
 
 @command("import")
 def cmd_import(args: argparse.Namespace) -> int:
-    from harness.aerialist import import_aerialist
+    from harness.interop.aerialist import import_aerialist
 
     concrete, params = import_aerialist(Path(args.test), args.safety_distance)
     out = Path(args.out)
@@ -750,7 +752,7 @@ def parser() -> argparse.ArgumentParser:
     p = add("sut", "check that a SUT comes up against the simulator: each stage with its time")
     p.add_argument("action", choices=["check"])
     add_sut(p)
-    p.add_argument("--scenario", default=str(Path(__file__).resolve().parent.parent / "scenarios" / "examples" / "fig4.json"),
+    p.add_argument("--scenario", default=str(scenarios_dir() / "examples" / "fig4.json"),
                    help="logical scenario whose world the check starts (default: Fig. 4)")
     p.add_argument("--profile", default="default")
     p.add_argument("--timeout-s", type=positive_float, default=60.0, help="per stage")
@@ -826,6 +828,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (`stella faults list | head`): stop quietly, as other tools do;
+        # stdout is pointed at /dev/null so that closing it at exit raises nothing more.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except sqlite3.OperationalError as error:
         if "full" not in str(error):
             raise

@@ -24,7 +24,7 @@ from typing import Any, Mapping
 import yaml
 
 from harness.errors import InputError, Problem
-from harness.param_files import load_params_file
+from harness.interop.param_files import load_params_file
 from harness.scenario.documents import load_json, read_text
 from harness.scenario.logical import logical_from_document, logical_problems
 from harness.scenario.plan import AREA_MARGIN_M, plan_from_document, plan_problems
@@ -226,7 +226,7 @@ def not_expressible(world: Mapping[str, Any]) -> list[str]:
 
 def plan_of(world: Mapping[str, Any]) -> dict[str, Any]:
     """A QGroundControl plan of the mission the world's flight uploads."""
-    from harness.mavsdk_session import mission_items
+    from harness.flight.mavsdk_session import mission_items
 
     origin = world["origin"]
     items = []

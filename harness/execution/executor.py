@@ -12,9 +12,10 @@ The contract, the same for every executor:
 * `cancel()` drops what has not started (what runs finishes and is reported; on Dask it is
   abandoned); `close()` ends the workers.
 
-`sequential` flies in this process; `local` in a pool of worker processes, each evaluation with
-its own port block, temp dir and core (see evaluation.py); `dask` (harness/dask_executor.py)
-and `docker` (harness/docker_executor.py) elsewhere. Jobs carry the concrete scenario JSON,
+`sequential` and `local` (local.py) fly in this process or in a pool of worker processes on
+this machine, each evaluation with its own port block, temp dir and core (see
+harness/flight/evaluation.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
+elsewhere; registry.py makes one by name. Jobs carry the concrete scenario JSON,
 which embeds its logical scenario and profile, so a worker needs nothing but the job.
 """
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
-import multiprocessing
 import os
 import signal
 import threading
@@ -30,9 +30,8 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from harness.evaluation import EvaluationResult, RunOptions, evaluate
-from harness.fitness import PENALTY
-from harness.processes import die_with_parent
+from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.flight.fitness import PENALTY
 from harness.scenario.world import space_from_concrete
 
 log = logging.getLogger(__name__)
@@ -173,79 +172,3 @@ class Executor:
 
     def close(self) -> None:
         self.cancel()
-
-
-class SequentialExecutor(Executor):
-    name = "sequential"
-
-    def __init__(self, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
-        super().__init__(1, attempts, timeout_s)
-
-    def submit(self, job: Job) -> concurrent.futures.Future:
-        future: concurrent.futures.Future = concurrent.futures.Future()
-        future.set_result(run_job_with_watchdog(job, self.timeout_s))
-        return future
-
-
-class LocalExecutor(Executor):
-    """A pool of worker processes on this machine. A worker that dies (killed, out of memory)
-    breaks Python's pool for every try in flight: the pool is rebuilt and those tries count as
-    failed ones with the cause recorded."""
-
-    name = "local"
-
-    def __init__(self, workers: int | None = None, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
-        super().__init__(workers or len(os.sched_getaffinity(0)), attempts, timeout_s)
-        self._pool = self._new_pool()
-
-    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        # spawn, not fork: the parent may hold threads (MAVSDK, progress) that fork would copy half-way.
-        # A worker is killed with the campaign, however the campaign ends (even kill -9); its
-        # evaluation's processes follow it the same way (processes.die_with_parent).
-        return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                                      initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid()))
-
-    def submit(self, job: Job) -> concurrent.futures.Future:
-        try:
-            return self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
-        except concurrent.futures.process.BrokenProcessPool:
-            self.recover()
-            return self._pool.submit(run_job_with_watchdog, job, self.timeout_s)
-
-    def lost_worker(self, error: BaseException) -> bool:
-        return isinstance(error, concurrent.futures.process.BrokenProcessPool)
-
-    def recover(self) -> None:
-        if getattr(self._pool, "_broken", False):
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = self._new_pool()
-
-    def worker_pids(self) -> list[int]:
-        """The pool's worker processes (fault tests kill one)."""
-        return [process.pid for process in self._pool._processes.values()]
-
-    def close(self) -> None:
-        super().close()
-        self._pool.shutdown(wait=True, cancel_futures=True)
-
-
-EXECUTORS = ("sequential", "local", "dask", "docker")
-
-
-def make_executor(name: str, workers: int | None, *, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S,
-                  settings: Mapping[str, str] | None = None) -> Executor:
-    """settings: `scheduler` for dask (an address; none starts a LocalCluster), `image` for docker."""
-    settings = settings or {}
-    if name == "sequential":
-        return SequentialExecutor(attempts, timeout_s)
-    if name == "local":
-        return LocalExecutor(workers, attempts, timeout_s)
-    if name == "dask":
-        from harness.dask_executor import DaskExecutor
-
-        return DaskExecutor(workers, attempts, timeout_s, scheduler=settings.get("scheduler"))
-    if name == "docker":
-        from harness.docker_executor import DockerExecutor
-
-        return DockerExecutor(workers, attempts, timeout_s, image=settings.get("image"))
-    raise ValueError(f"unknown executor {name!r}; available: {', '.join(EXECUTORS)}")

@@ -2,7 +2,7 @@
 hand-written scenario tests.
 
 * Every `NAME.regression.json` file is collected as one item, `FILE::NAME`; it flies the case
-  through the harness and fails with what happened (`harness.regression.verdict`). The MCAP
+  through the harness and fails with what happened (`harness.campaigns.regression.verdict`). The MCAP
   log's path goes into the JUnit XML as the property `stella_log`.
 * `fly(scenario, seed=0, sut=None, sut_params=None, drive=None, **values)` flies a logical scenario (a
   concrete one sampled with the seed), a concrete scenario or a regression case and returns
@@ -22,11 +22,12 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 import pytest
 
+from harness.campaigns.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, verdict
 from harness.errors import InputError
-from harness.evaluation import EvaluationResult, RunOptions, evaluate
-from harness.executors import Executor, Job, LocalExecutor, run_job
-from harness.logs import slug
-from harness.regression import EXPECTATIONS, SUFFIX, Regression, load_regression, verdict
+from harness.execution.executor import Executor, Job, run_job
+from harness.execution.local import LocalExecutor
+from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.flight.logs import slug
 from harness.scenario.documents import load_json
 from harness.scenario.logical import DRIVES, load_logical
 from harness.scenario.profile import load_profile

@@ -13,8 +13,8 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from harness import logs
 from harness.errors import InputError, Problem
+from harness.flight import logs
 
 RESAMPLE_S = 0.5
 HALF_WIDTH_M = 0.125

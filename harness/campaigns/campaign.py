@@ -18,16 +18,17 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from harness.evaluation import RunOptions
-from harness.executors import Executor
+from harness.campaigns.problem import CampaignProblem
+from harness.campaigns.store import Store
+from harness.execution.executor import Executor
+from harness.flight.evaluation import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
-from harness.search.problem import CampaignProblem, StopSearch
+from harness.search.problem import StopSearch
 from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
-from harness.store import Store
 
 log = logging.getLogger(__name__)
 

@@ -17,12 +17,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from harness.campaigns.store import Store, is_flaky
 from harness.errors import InputError, Problem
-from harness.logs import slug
+from harness.flight.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete, with_drive_recorded
-from harness.store import Store, is_flaky
 
 FORMAT = "stella.regression/1"
 SUFFIX = ".regression.json"
@@ -101,12 +101,12 @@ def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) ->
 def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
     """The campaign's SUT and (name, case) for each distinct concrete scenario with fitness below
     `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes
-    once. `per_mode`: only the worst violation of each failure mode (harness/triage.py)."""
+    once. `per_mode`: only the worst violation of each failure mode (harness/campaigns/triage.py)."""
     with Store.existing(store_path) as store:
         sut = store.campaign_sut()
         cases = store.worst_cases(threshold, worst)
     if per_mode:
-        from harness.triage import triage
+        from harness.campaigns.triage import triage
 
         wanted = {(m["worst"]["scenario_file"], m["worst"]["algorithm"], m["worst"]["run"], m["worst"]["evaluation"]) for m in triage(store_path)["modes"]}
         cases = [c for c in cases if (c["scenario_file"], c["algorithm"], c["run_index"], c["ordinal"]) in wanted]

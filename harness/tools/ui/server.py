@@ -22,7 +22,7 @@ from fastapi import FastAPI, File, HTTPException, Request, UploadFile
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response, StreamingResponse
 
 from harness.errors import InputError
-from harness.ui.campaigns import MAX_UPLOAD_BYTES, Campaigns
+from harness.tools.ui.campaigns import MAX_UPLOAD_BYTES, Campaigns
 
 STATIC = Path(__file__).resolve().parent / "static"
 COOKIE = "stella_token"
@@ -138,7 +138,7 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
     @app.get("/api/campaigns/{name}")
     def details(name: str) -> dict[str, Any]:
-        from harness.statistics import compare
+        from harness.campaigns.statistics import compare
 
         store = campaigns.store(known(name))
         console = campaigns.console_tail(name)
@@ -174,7 +174,7 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
     @app.get("/api/campaigns/{name}/evaluations/{evaluation}/plot.png")
     def plot(name: str, evaluation: int) -> FileResponse:
-        from harness.inspect_log import plot as draw
+        from harness.flight.inspect_log import plot as draw
 
         log_path = log_of(name, evaluation)
         target = campaigns.store_dir / f"{name}-plots" / f"evaluation{evaluation}.png"
@@ -185,7 +185,7 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
     @app.get("/api/campaigns/{name}/report.html")
     def report(name: str) -> FileResponse:
-        from harness.report import write_report
+        from harness.campaigns.report import write_report
 
         store = campaigns.store(known(name))
         if store is None:

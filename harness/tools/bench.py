@@ -21,11 +21,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from harness.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import RunOptions, evaluate
+from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
-from harness.paths import scenarios_dir
 
 import numpy as np
 
@@ -125,9 +125,9 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
     """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
     import time
 
-    from harness.campaign import CampaignConfig, run_campaign
-    from harness.executors import LocalExecutor
-    from harness.store import Store
+    from harness.campaigns.campaign import CampaignConfig, run_campaign
+    from harness.execution.local import LocalExecutor
+    from harness.campaigns.store import Store
 
     path = scenario or scenarios_dir() / "table3" / "scenario_09.json"
     executor = LocalExecutor(workers)
@@ -176,7 +176,9 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
     (process or container start, teardown, bringing the log back) per evaluation."""
     import time
 
-    from harness.executors import Job, make_executor
+    from harness.execution.executor import Job
+
+    from harness.execution.registry import make_executor
 
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
@@ -219,53 +221,11 @@ def executor_bench_text(report: dict[str, Any]) -> str:
 
 
 def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
-    """The bundled autopilot's cost per lockstep step (parse, estimate, control, encode), replaying
-    the simulator-to-SUT stream of a recorded flight into an in-process autopilot flying the same
-    mission. What is measured is its computation, without sockets; its answers are kept only
-    as a digest, equal wherever the autopilot computes the same commands (compiled or not)."""
-    import hashlib
-    import time
-
-    from autopilot.app import Autopilot
-    from autopilot.commander import NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, MissionItem
-    from autopilot.params import Params
-    from harness import logs
-    from pymavlink.dialects.v20 import common as mavlink
-    from simlink import codec
+    """The bundled autopilot's cost per lockstep step, replaying a recorded flight's
+    simulator-to-SUT stream into it in this process (sut_adapter.bundled.step_bench)."""
+    from harness.flight import logs
+    from sut_adapter.bundled import step_bench
 
     world = logs.json_metadata(log_path, "world")
     stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
-
-    class DigestSocket:
-        def __init__(self):
-            self.digest = hashlib.sha256()
-
-        def sendall(self, data: bytes) -> None:
-            self.digest.update(data)
-
-    autopilot = Autopilot(Params())
-    crc_extras = {m: c.crc_extra for m, c in mavlink.mavlink_map.items()}
-    frames = codec.FrameSplitter(crc_extras).feed(stream)
-    splitter = codec.FrameSplitter(crc_extras)
-    decoder = mavlink.MAVLink(None)
-    mission = world["mission"]
-    items = [MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, mission["takeoff_altitude_m"])]
-    items += [MissionItem(i + 1, NAV_WAYPOINT, w["north_m"], w["east_m"], w["altitude_m"], 0.0, 2.0) for i, w in enumerate(mission["waypoints"])]
-    items.append(MissionItem(len(items), NAV_LAND, mission["waypoints"][-1]["north_m"], mission["waypoints"][-1]["east_m"], 0.0))
-    durations = []
-    armed = False
-    sock = DigestSocket()
-    for msgid, _payload, frame in frames:
-        started = time.perf_counter()
-        autopilot._on_sim_data(sock, splitter, decoder, frame)
-        if msgid == codec.HIL_SENSOR_ID:
-            durations.append(time.perf_counter() - started)
-        if not armed and autopilot.now_s >= 3.0 and autopilot.ready_to_arm()[0]:
-            autopilot.commander.set_mission(items)
-            autopilot.commander.arm(autopilot.now_s, True, "")
-            autopilot.on_armed()
-            autopilot.commander.start_mission(autopilot.vehicle_estimate())
-            armed = True
-    durations.sort()
-    return {"log": str(log_path), "steps": len(durations), "median_step_us": 1e6 * durations[len(durations) // 2], "answers_sha256": sock.digest.hexdigest(),
-            "p90_step_us": 1e6 * durations[int(0.9 * len(durations))], "flew_mission": armed}
+    return {"log": str(log_path), **step_bench(stream, world["mission"])}

@@ -17,8 +17,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from harness.statistics import compare
-from harness.store import Store, is_flaky
+from harness.campaigns.statistics import compare
+from harness.campaigns.store import Store, is_flaky
 
 PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
@@ -104,7 +104,7 @@ def _comparison_table(report: dict[str, Any]) -> str:
 
 
 def _worst(store: Store, count: int) -> list[str]:
-    from harness.inspect_log import plot
+    from harness.flight.inspect_log import plot
 
     query = (
         "SELECT r.scenario, r.algorithm, r.run_index, e.ordinal, e.fitness, e.status, e.min_clearance_m, e.log_path, e.concrete"
@@ -146,8 +146,8 @@ def _violations(store: Store) -> str:
 
 
 def _failure_modes(store: Store) -> str:
-    """The violations grouped by what happened (harness/triage.py)."""
-    from harness.triage import triage
+    """The violations grouped by what happened (harness/campaigns/triage.py)."""
+    from harness.campaigns.triage import triage
 
     report = triage(store.path)
     if not report["modes"]:

@@ -21,10 +21,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from harness import logs
+from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
-from harness.fitness import min_clearance
-from harness.store import Store
+from harness.flight import logs
+from harness.flight.fitness import min_clearance
 from sim_bridge.obstacles import Obstacle
 
 TRAJECTORY_POINTS = 50  # a trajectory is compared at this many instants spread over its flight

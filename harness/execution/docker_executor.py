@@ -1,6 +1,6 @@
 """The Docker executor: every try flies in a container of its own, through the Docker Engine API.
 
-Each container runs `python -m harness.worker` from the worker image (docker/Dockerfile) with
+Each container runs `python -m harness.execution.worker` from the worker image (docker/Dockerfile) with
 no network (the bridge, the SUT and MAVSDK talk over the container's own loopback), one CPU
 (its own core where there are enough), a memory and a process limit, and the host's user id;
 the job goes in and the result, the MCAP log and the SUT's artifacts come out through a
@@ -28,11 +28,12 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from harness.errors import InfrastructureError
-from harness.executors import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from harness.paths import project_root
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = project_root()
 IMAGE = "stella-worker:latest"
 BASE_IMAGE = "stella-base:bookworm"
 DEBIAN_MIRROR = "http://deb.debian.org/debian"
@@ -150,7 +151,7 @@ class DockerExecutor(Executor):
         import requests
 
         container = self.client.containers.run(
-            self.image, ["python", "-m", "harness.worker", "--job", "/job/job.json", "--result", "/job/result.json"],
+            self.image, ["python", "-m", "harness.execution.worker", "--job", "/job/job.json", "--result", "/job/result.json"],
             detach=True, network_mode="none", nano_cpus=1_000_000_000, mem_limit=MEMORY_LIMIT, pids_limit=PIDS_LIMIT,
             cpuset_cpus=str(core) if core is not None else None, user=f"{os.getuid()}:{os.getgid()}",
             volumes={str(folder): {"bind": "/job", "mode": "rw"}}, labels={"stella.job": job.name},

@@ -2,7 +2,7 @@
 
 Connects to a scheduler (`--dask-scheduler tcp://HOST:8786`) or starts a LocalCluster of
 `--workers` processes with one thread each. A task runs the evaluation as a process of its own
-(`python -m harness.worker`), which dies with the task's worker and is killed whole when it
+(`python -m harness.execution.worker`), which dies with the task's worker and is killed whole when it
 overruns the executor's limit. Dask reschedules the task of a worker that is lost; a task that
 keeps losing its workers ends as KilledWorker and counts as a failed try here.
 
@@ -24,8 +24,8 @@ import uuid
 from pathlib import Path
 from typing import Any, Mapping
 
-from harness.executors import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
-from harness.processes import die_with_parent
+from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from sut_adapter.processes import die_with_parent
 
 
 def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str, Any]:
@@ -34,7 +34,7 @@ def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str
     with tempfile.TemporaryDirectory(prefix="stella-task-") as folder:
         job_file, result_file = Path(folder) / "job.json", Path(folder) / "result.json"
         job_file.write_text(json.dumps(document))
-        process = subprocess.Popen([sys.executable, "-m", "harness.worker", "--job", str(job_file), "--result", str(result_file)],
+        process = subprocess.Popen([sys.executable, "-m", "harness.execution.worker", "--job", str(job_file), "--result", str(result_file)],
                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                    start_new_session=True, preexec_fn=die_with_parent)
         try:

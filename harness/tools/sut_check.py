@@ -19,15 +19,15 @@ from typing import Any, Callable
 
 from mavsdk.plugins.telemetry import FlightMode
 
-import sut_adapter
-from harness.bridge_control import BridgeControl
 from harness.errors import InfrastructureError
-from harness.evaluation import RunOptions, Stack, simulation_stack
-from harness.mavsdk_session import mission_items
+from harness.flight.bridge_control import BridgeControl
+from harness.flight.evaluation import RunOptions, Stack, simulation_stack
+from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.pilot import SLOT_POSITION
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
+import sut_adapter
 
 STAGES = ("process started", "simulator connected", "lockstep running", "API heartbeat", "health ok", "armable")
 LAST_STAGE = {"mission": "mission upload ok", "pilot": "position mode with stick input accepted"}

@@ -1,0 +1,2 @@
+"""Campaigns: searches over logical scenarios, their store, statistics, report, triage and
+regression cases."""

@@ -1,0 +1,2 @@
+"""The bundled autopilot's seeded faults put to use: witnesses flown both ways, and the
+benchmark of how often a search reveals them."""

@@ -1,0 +1,2 @@
+"""Other tools' formats: the UAV Testing Competition's tests and score, QGroundControl and
+CSV parameter files."""

@@ -1,0 +1,32 @@
+"""SUTs by name: the built-in ones, and any other a user registers."""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping
+
+from sut_adapter.base import SutError, SystemUnderTest
+from sut_adapter.bundled import BundledAutopilot
+from sut_adapter.command import CommandSut
+from sut_adapter.px4 import Px4Sitl
+
+_REGISTRY: dict[str, Callable[[Mapping[str, str]], SystemUnderTest]] = {}
+
+
+def register(name: str, factory: Callable[[Mapping[str, str]], SystemUnderTest]) -> None:
+    _REGISTRY[name] = factory
+
+
+def names() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def get(name: str, config: Mapping[str, str] | None = None) -> SystemUnderTest:
+    """The SUT called name, configured by config (e.g. {"px4_bin": PATH}, {"command": TEMPLATE})."""
+    if name not in _REGISTRY:
+        raise SutError(name, f"unknown SUT; available: {', '.join(names())}")
+    return _REGISTRY[name](config or {})
+
+
+register("bundled", BundledAutopilot)
+register("command", CommandSut)
+register("px4", Px4Sitl)
