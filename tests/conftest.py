@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from harness.flight.evaluation import EvaluationResult
+from harness.flight.fitness import Status
 from harness.scenario.profile import Profile, load_profile
 
 pytest_plugins = ["pytester"]
@@ -101,6 +103,13 @@ def wait_until_flying(pid: int, timeout_s: float = 60.0) -> None:
 
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
 FIG4_SEED1_FITNESS = 9.882575416238263  # the bundled autopilot's fitness on Fig. 4 sampled with seed 1
+
+
+def stored_result(fitness: float, status: str, seed: int = 0, *, min_clearance_m: float | None = None, log_path: str | None = None,
+                  confirmations: dict | None = None) -> EvaluationResult:
+    """An evaluation's result as a campaign stores it, for tests that fill a store by hand."""
+    return EvaluationResult(Status(status), fitness, None, min_clearance_m, None, None, 0.0, 0.0, None, seed, log_path, "test", "bundled",
+                            confirmations=confirmations)
 
 
 def fig4_job(out_dir, profile: Profile, key: int = 0, **options):

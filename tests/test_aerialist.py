@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import ROOT
+from conftest import ROOT, stored_result
 from harness.campaigns.store import Store
 from harness.errors import InputError
 from harness.flight import logs
@@ -203,7 +203,7 @@ def wall_store(path: Path, profile) -> None:
         space = SearchSpace(load_logical(ROOT / "scenarios" / "examples" / f"{name}.json", profile), profile)
         run_id, _ = store.run(campaign, f"/somewhere/{name}.json", space.logical.name, "RANDOM", index, 1)
         x = space.sample_feasible(np.random.default_rng(3), 1)[0]
-        store.add_evaluation(run_id, ordinal=0, step=0, optimizer="RANDOM", vector=x, result={"fitness": -0.5, "status": "violation", "seed": 1},
+        store.add_evaluation(run_id, ordinal=0, step=0, optimizer="RANDOM", vector=x, result=stored_result(-0.5, "violation", 1),
                              concrete=space.to_concrete(x))
     store.close()
 

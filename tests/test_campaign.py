@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, stored_result
 from harness.campaigns.campaign import least_explored, run_sequence
 from harness.campaigns.problem import CampaignProblem
 from harness.campaigns.statistics import a12, compare, p_value, relative_performance, spread, table
@@ -42,7 +42,7 @@ class AnalyticExecutor:
                 np.random.random(3)
             position = job.concrete["obstacles"][0]["position"]
             d = float(np.hypot(position["north_m"] - 30.0, position["east_m"] - 3.0)) - 2.0
-            yield job, {"fitness": d, "status": "violation" if d < 0 else "ok", "seed": job.seed, "why": None}
+            yield job, stored_result(d, "violation" if d < 0 else "ok", job.seed)
 
     def close(self):
         pass
@@ -157,7 +157,7 @@ def test_compare_lays_out_median_best_fitness_per_scenario_and_overall(tmp_path)
         for algorithm, bests in (("NSGAII", [1.0, 2.0, 3.0]), ("BO", [4.0, 5.0, 6.0])):
             for index, best in enumerate(bests):
                 run_id, _ = store.run(campaign, "s.json", "s", algorithm, index, index)
-                store.add_evaluation(run_id, ordinal=0, step=0, optimizer=algorithm, vector=np.array([best]), result={"fitness": best, "status": "ok", "seed": 0}, concrete=None)
+                store.add_evaluation(run_id, ordinal=0, step=0, optimizer=algorithm, vector=np.array([best]), result=stored_result(best, "ok"), concrete=None)
         report = compare(store, "NSGAII")
     bo = next(r for r in report["scenarios"] if r["algorithm"] == "BO")
     assert bo["median_best_fitness"] == 5.0 and bo["relative_performance_pct"] == pytest.approx(-150.0)
@@ -170,7 +170,7 @@ def test_compare_counts_the_violations_that_did_not_come_back_in_every_re_flight
         for ordinal, reproduced in enumerate((2, 1, None)):
             confirmations = {"repeats": 2, "violations": reproduced} if reproduced is not None else None
             store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="NSGAII", vector=np.array([float(ordinal)]),
-                                 result={"fitness": -0.1 * (ordinal + 1), "status": "violation", "seed": 0, "confirmations": confirmations}, concrete=None)
+                                 result=stored_result(-0.1 * (ordinal + 1), "violation", confirmations=confirmations), concrete=None)
         report = compare(store, "NSGAII")
     assert (report["overall"][0]["violations"], report["overall"][0]["flaky"]) == (3, 1)
     assert "NSGAII 1 of its 3 violations did not come back" in table(report)

@@ -67,9 +67,9 @@ def test_a_container_flies_a_scenario_with_limits_and_its_log_comes_back(engine,
     watcher.start()
     [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile)]))
     watcher.join()
-    assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
-    assert result["log_path"] == str(tmp_path / "job0.mcap")
-    assert sum(len(m["d"]) for _t, _ns, m in logs.messages(result["log_path"], ["/clearance"])) > 1000
+    assert result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS
+    assert result.log_path == str(tmp_path / "job0.mcap")
+    assert sum(len(m["d"]) for _t, _ns, m in logs.messages(result.log_path, ["/clearance"])) > 1000
     assert (seen["NetworkMode"], seen["NanoCpus"], seen["Memory"], seen["PidsLimit"]) == ("none", 1_000_000_000, 2 * 1024**3, 512)
 
 
@@ -85,15 +85,15 @@ def test_a_killed_container_is_retried(engine, executor, tmp_path, profile):
     engine.containers.get(next(iter(docker.running.values()))).kill()
     runner.join(timeout=180.0)
     [(_job, result)] = results
-    assert result["attempts"][0]["status"] == "sim_crashed" and "exited with 137 (killed)" in result["attempts"][0]["why"]
-    assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
+    assert result.attempts[0]["status"] == "sim_crashed" and "exited with 137 (killed)" in result.attempts[0]["why"]
+    assert result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS
 
 
 def test_a_container_that_overruns_is_ended_as_a_timeout(executor, tmp_path, profile):
     docker = executor(attempts=1, timeout_s=8.0)
     silent = SILENT_SUT.replace(sys.executable, "python")  # the image's python
     [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": silent})]))
-    assert result["status"] == "timeout" and "the executor's limit per try" in result["why"]
+    assert result.status == "timeout" and "the executor's limit per try" in result.why
 
 
 def test_the_same_seeded_campaign_flies_the_same_candidates_in_containers(engine, tmp_path, sequential_candidates):

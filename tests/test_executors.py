@@ -41,9 +41,9 @@ def no_leftovers() -> None:
 def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
     [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)]))
-    assert result["status"] == "timeout"
-    assert [a["status"] for a in result["attempts"]] == ["timeout", "timeout"]
-    assert all("no autopilot heartbeat" in a["why"] for a in result["attempts"])
+    assert result.status == "timeout"
+    assert [a["status"] for a in result.attempts] == ["timeout", "timeout"]
+    assert all("no autopilot heartbeat" in a["why"] for a in result.attempts)
     no_leftovers()
 
 
@@ -51,8 +51,8 @@ def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
     options = {"sut": "command", "sut_config": {"command": HANGING_SUT, "hold": "frozen"}, "setup_timeout_s": 5.0}
     [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, **options)]))
-    assert len(result["attempts"]) == 2
-    assert {a["status"] for a in result["attempts"]} <= {"timeout", "sut_crashed"}
+    assert len(result.attempts) == 2
+    assert {a["status"] for a in result.attempts} <= {"timeout", "sut_crashed"}
     no_leftovers()
 
 
@@ -61,7 +61,7 @@ def test_the_hard_limit_per_try_ends_a_try_and_frees_everything(tmp_path, profil
     started = time.monotonic()
     [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT})]))
     assert time.monotonic() - started < 10.0
-    assert result["status"] == "timeout" and "the executor's limit per try" in result["why"]
+    assert result.status == "timeout" and "the executor's limit per try" in result.why
     no_leftovers()
 
 
@@ -79,9 +79,9 @@ def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_aga
         os.kill(worker, signal.SIGKILL)
         runner.join(timeout=120.0)
         [(_job, result)] = results
-        assert result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS
-        assert result["attempts"][0]["status"] == "sim_crashed" and "the worker died" in result["attempts"][0]["why"]
-        assert result["attempts"][1]["status"] == "ok"
+        assert result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS
+        assert result.attempts[0]["status"] == "sim_crashed" and "the worker died" in result.attempts[0]["why"]
+        assert result.attempts[1]["status"] == "ok"
     finally:
         executor.close()
     no_leftovers()
@@ -120,7 +120,7 @@ def test_dask_retries_the_task_of_a_lost_worker(tmp_path, profile):
         os.kill(worker_pids[0], signal.SIGKILL)
         runner.join(timeout=180.0)
         assert len(results) == 2
-        assert all(result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS for _job, result in results)
+        assert all(result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS for _job, result in results)
     finally:
         executor.close()
 
@@ -146,5 +146,5 @@ def test_cancel_drops_what_has_not_started_and_reports_what_ran(tmp_path, profil
         executor.close()
     # Python's pool queues up to two tries beyond the one its worker runs: they count as started.
     assert 1 <= len(results) <= 4
-    assert all(result["status"] == "ok" and result["fitness"] == FIG4_SEED1_FITNESS for result in results)
+    assert all(result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS for result in results)
     no_leftovers()

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, stored_result
 from harness.campaigns.store import Store
 from harness.faults.bench import FAULT_FREE_CACHE, _key, detections, report
 from harness.scenario.logical import load_logical
@@ -33,7 +33,7 @@ def bench_folder(tmp_path, profile, runs: dict[str, list[list[tuple[str, str | N
                 x = next(xs)
                 concrete = space.to_concrete(x)
                 store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer=algorithm, vector=x,
-                                     result={"fitness": -0.5 if status == "violation" else 2.0, "status": status, "seed": 3}, concrete=concrete)
+                                     result=stored_result(-0.5 if status == "violation" else 2.0, status, 3), concrete=concrete)
                 if fault_free:
                     cache[_key(json.dumps(concrete), 3)] = {"status": fault_free, "fitness": 0.0, "min_clearance_m": 1.0}
             store.finish_run(run_id)

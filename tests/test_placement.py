@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import FIG4, fig4_job
+from conftest import FIG4, fig4_job, stored_result
 from harness.execution.executor import Executor
 from harness.execution.local import LocalExecutor
 from harness.flight.evaluation import RunOptions, simulation_stack
@@ -49,7 +49,7 @@ class RecordingExecutor(Executor):
     def submit(self, job):
         self.submitted.append(job)
         future = concurrent.futures.Future()
-        future.set_result({"status": "ok", "why": None})
+        future.set_result(stored_result(1.0, "ok"))
         return future
 
 

@@ -9,10 +9,12 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, stored_result
 from harness.campaigns.regression import export_regressions, load_regression, verdict
 from harness.campaigns.store import Store
 from harness.errors import InputError
+from harness.flight.evaluation import EvaluationResult
+from harness.flight.fitness import Status
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -34,12 +36,12 @@ def make_store(path, profile) -> Store:
     run_id, _ = store.run(campaign, "/somewhere/fig4.json", space.logical.name, "NSGAII", 0, 7)
     xs = space.sample(np.random.default_rng(0), 4)
     for ordinal, (fitness, status) in enumerate([(2.5, "ok"), (-0.4, "violation"), (1000.0, "infeasible"), (0.7, "ok")]):
-        result = {"fitness": fitness, "status": status, "seed": 7, "min_clearance_m": fitness + 1.0 if status != "infeasible" else None, "log_path": None}
+        result = stored_result(fitness, status, 7, min_clearance_m=fitness + 1.0 if status != "infeasible" else None)
         store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="NSGAII", vector=xs[ordinal], result=result,
                              concrete=space.to_concrete(xs[ordinal]))
     # The same candidate found again by a second run is exported once.
     run_2, _ = store.run(campaign, "/somewhere/fig4.json", space.logical.name, "NSGAII", 1, 8)
-    store.add_evaluation(run_2, ordinal=0, step=0, optimizer="NSGAII", vector=xs[1], result={"fitness": -0.4, "status": "violation", "seed": 7},
+    store.add_evaluation(run_2, ordinal=0, step=0, optimizer="NSGAII", vector=xs[1], result=stored_result(-0.4, "violation", 7),
                          concrete=space.to_concrete(xs[1]))
     return store
 
@@ -99,7 +101,7 @@ def test_a_malformed_case_names_the_file_the_field_and_the_fix(tmp_path):
     ],
 )
 def test_verdicts(expect, status, failure):
-    result = {"status": status, "fitness": 0.25, "min_clearance_m": 1.25, "min_clearance_at_s": 3.0, "min_clearance_obstacle": "obstacle_1", "why": None, "log_path": "x.mcap"}
+    result = EvaluationResult(Status(status), 0.25, None, 1.25, 3.0, "obstacle_1", 30.0, 1.0, 30.0, 0, "x.mcap", "s", "bundled")
     message = verdict(expect, result, 1.0)
     assert message == failure if failure is None else message.startswith(failure)
     if message:

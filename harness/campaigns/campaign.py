@@ -21,7 +21,7 @@ import numpy as np
 from harness.campaigns.problem import CampaignProblem
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
-from harness.flight.evaluation import RunOptions
+from harness.flight.evaluation import EvaluationResult, RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
@@ -139,7 +139,7 @@ def termination_for(config: CampaignConfig) -> Termination:
 
 
 def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
-                 on_result: Callable[[dict[str, Any]], None] = lambda r: None) -> CampaignSummary:
+                 on_result: Callable[[EvaluationResult], None] = lambda r: None) -> CampaignSummary:
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity())
     profile = load_profile(config.profile)

@@ -12,14 +12,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from harness.campaigns.store import Store, vector_key
 from harness.execution.executor import Executor, Job
-from harness.flight.evaluation import RunOptions
-from harness.flight.fitness import infeasible_fitness
+from harness.flight.evaluation import EvaluationResult, RunOptions, infeasible
+from harness.flight.fitness import Status
 from harness.scenario.space import SearchSpace
 from harness.search.problem import StopSearch
 from harness.search.termination import Progress, Termination
@@ -35,7 +35,7 @@ class CampaignProblem:
     termination: Termination
     out_dir: Path
     options: RunOptions = field(default_factory=RunOptions)
-    on_result: Callable[[dict[str, Any]], None] = lambda result: None
+    on_result: Callable[[EvaluationResult], None] = lambda result: None
     step: int = 0
     optimizer: str = ""
     step_limit: int | None = None
@@ -70,10 +70,10 @@ class CampaignProblem:
         if self.step_limit is not None and self.spent >= self.step_limit:
             raise StopSearch(campaign_done=False)
 
-    def _record(self, ordinal: int, key: str, x: np.ndarray, fitness: float, status: str) -> None:
+    def _record(self, ordinal: int, key: str, x: np.ndarray, fitness: float, status: Status) -> None:
         self._memory[key] = fitness
         self._history[ordinal] = (x, fitness)
-        if status == "violation":
+        if status == Status.VIOLATION:
             self.violations += 1
 
     def evaluate(self, vectors: list[np.ndarray]) -> list[float]:
@@ -102,22 +102,20 @@ class CampaignProblem:
                 self._record(ordinal, key, x, stored.fitness, stored.status)
                 results[index] = stored.fitness
                 continue
-            violations = self.space.violations(x)
-            if violations:
-                total = -sum(min(0.0, float(m[0])) for m in self.space.constraint_margins(x[None, :]).values())
-                result = {"fitness": infeasible_fitness(total), "status": "infeasible", "why": "; ".join(violations), "seed": self.seed}
-                self._finish(ordinal, x, key, result, None)
-                results[index] = result["fitness"]
+            refused = infeasible(self.space, x, seed=self.seed, sut=self.options.sut)
+            if refused is not None:
+                self._finish(ordinal, x, key, refused, None)
+                results[index] = refused.fitness
                 continue
             concrete = self.space.to_concrete(x)
             name = f"run{self.run_id}-eval{ordinal:05d}"
             jobs.append((index, Job(ordinal, concrete, self.seed, str(self.out_dir), name, self.options), x, key, ordinal))
         by_ordinal = {job.key: (index, x, key) for index, job, x, key, _ in jobs}
-        to_confirm: list[tuple[Job, dict[str, Any]]] = []
+        to_confirm: list[tuple[Job, EvaluationResult]] = []
         for job, result in self.executor.run([job for _, job, _, _, _ in jobs]):
             index, x, key = by_ordinal[job.key]
-            results[index] = result["fitness"]
-            if result["status"] == "violation" and self.confirm:
+            results[index] = result.fitness
+            if result.status == Status.VIOLATION and self.confirm:
                 to_confirm.append((job, result))
             else:
                 self._finish(job.key, x, key, result, job.concrete)
@@ -134,24 +132,26 @@ class CampaignProblem:
             raise stop or StopSearch(campaign_done=True)
         return results  # type: ignore[return-value]
 
-    def _confirmed(self, violations: list[tuple[Job, dict[str, Any]]]) -> list[tuple[Job, dict[str, Any]]]:
+    def _confirmed(self, violations: list[tuple[Job, EvaluationResult]]) -> list[tuple[Job, EvaluationResult]]:
         """Each violation with the outcome of flying it `confirm` more times (same scenario and
         seed); stored with it, the evaluation counts as flown once, costing one of the budget."""
         if not violations:
             return []
         again = {f"{job.name}-confirm{i + 1}": job for job, _result in violations for i in range(self.confirm)}
-        outcomes: dict[str, list[dict[str, Any]]] = {job.name: [] for job, _result in violations}
+        outcomes: dict[str, list[EvaluationResult]] = {job.name: [] for job, _result in violations}
         jobs = [replace(job, key=number, name=name) for number, (name, job) in enumerate(again.items())]
         for job, result in self.executor.run(jobs):
             outcomes[again[job.name].name].append(result)
+        confirmed = []
         for job, result in violations:
             flights = outcomes[job.name]
-            result["confirmations"] = {"repeats": len(flights), "violations": sum(r["status"] == "violation" for r in flights),
-                                       "fitness": [r["fitness"] for r in flights], "statuses": [r["status"] for r in flights]}
-        return violations
+            confirmations = {"repeats": len(flights), "violations": sum(r.status == Status.VIOLATION for r in flights),
+                             "fitness": [r.fitness for r in flights], "statuses": [str(r.status) for r in flights]}
+            confirmed.append((job, replace(result, confirmations=confirmations)))
+        return confirmed
 
-    def _finish(self, ordinal: int, x: np.ndarray, key: str, result: dict[str, Any], concrete) -> None:
+    def _finish(self, ordinal: int, x: np.ndarray, key: str, result: EvaluationResult, concrete) -> None:
         self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self.step, optimizer=self.optimizer, vector=x, result=result, concrete=concrete)
-        self.flown += 1 if result["status"] != "infeasible" else 0
-        self._record(ordinal, key, x, result["fitness"], result["status"])
+        self.flown += 1 if result.status != Status.INFEASIBLE else 0
+        self._record(ordinal, key, x, result.fitness, result.status)
         self.on_result(result)

@@ -19,6 +19,8 @@ import numpy as np
 
 from harness.campaigns.store import Store, is_flaky
 from harness.errors import InputError, Problem
+from harness.flight.evaluation import EvaluationResult
+from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
@@ -69,31 +71,31 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
                       document["sut"].get("fault"), concrete, document.get("found", {}), space, x)
 
 
-def describe(result: Mapping[str, Any], safety_distance_m: float) -> str:
+def describe(result: EvaluationResult, safety_distance_m: float) -> str:
     """What happened in one flight, in the words the failure messages use."""
-    text = f"status {result['status']}, fitness {result['fitness']:.3f}"
-    if result.get("min_clearance_m") is not None:
-        relation = "<" if result["min_clearance_m"] < safety_distance_m else ">="
-        inside = " (inside the obstacle)" if result["min_clearance_m"] < 0 else ""
-        text += (f"; min clearance {result['min_clearance_m']:.3f} m{inside} {relation} safety distance {safety_distance_m:.3f} m"
-                 f" at t={result['min_clearance_at_s']:.2f} s to {result['min_clearance_obstacle']}")
-    if result.get("why"):
-        text += f" ({result['why']})"
-    if result.get("log_path"):
-        text += f"; log: {result['log_path']}"
+    text = f"status {result.status}, fitness {result.fitness:.3f}"
+    if result.min_clearance_m is not None:
+        relation = "<" if result.min_clearance_m < safety_distance_m else ">="
+        inside = " (inside the obstacle)" if result.min_clearance_m < 0 else ""
+        text += (f"; min clearance {result.min_clearance_m:.3f} m{inside} {relation} safety distance {safety_distance_m:.3f} m"
+                 f" at t={result.min_clearance_at_s:.2f} s to {result.min_clearance_obstacle}")
+    if result.why:
+        text += f" ({result.why})"
+    if result.log_path:
+        text += f"; log: {result.log_path}"
     return text
 
 
-def verdict(expect: str, result: Mapping[str, Any], safety_distance_m: float) -> str | None:
+def verdict(expect: str, result: EvaluationResult, safety_distance_m: float) -> str | None:
     """None when the flight meets the expectation, else the failure message."""
     what = describe(result, safety_distance_m)
     if expect == "safe":
-        if result["status"] == "ok":
+        if result.status == Status.OK:
             return None
-        if result["status"] == "violation":
+        if result.status == Status.VIOLATION:
             return f"safety distance violated: {what}"
         return f"the mission was not flown safely to its end: {what}"
-    if result["status"] == "violation":
+    if result.status == Status.VIOLATION:
         return None
     return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
 

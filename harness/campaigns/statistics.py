@@ -18,6 +18,7 @@ from typing import Any, Sequence
 from scipy.stats import mannwhitneyu
 
 from harness.campaigns.store import Store
+from harness.flight.fitness import Status
 
 
 def a12(candidate: Sequence[float], baseline: Sequence[float]) -> float:
@@ -106,7 +107,7 @@ def spread(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     def summary(values: list[float]) -> dict[str, float] | None:
         return {"min": min(values), "median": statistics.median(values), "max": max(values)} if values else None
 
-    violations = sum(r["status"] == "violation" for r in results)
+    violations = sum(r["status"] == Status.VIOLATION for r in results)
     return {
         "repeats": len(results),
         "statuses": {status: sum(r["status"] == status for r in results) for status in sorted({r["status"] for r in results})},

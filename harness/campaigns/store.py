@@ -13,11 +13,14 @@ import time
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
 from harness.errors import InputError, Problem
+
+if TYPE_CHECKING:
+    from harness.flight.evaluation import EvaluationResult
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS campaigns (
@@ -181,17 +184,17 @@ class Store:
         rows = self.db.execute("SELECT ordinal, vector, vector_key, fitness, status, log_path FROM evaluations WHERE run_id = ?", (run_id,))
         return {key: StoredEvaluation(ordinal, np.array(json.loads(vector)), fitness, status, log) for ordinal, vector, key, fitness, status, log in rows}
 
-    def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: Mapping[str, Any], concrete: Mapping[str, Any] | None) -> None:
+    def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult, concrete: Mapping[str, Any] | None) -> None:
         with self.db:
             self.db.execute(
                 "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations)"
                 " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
-                    json.dumps(concrete) if concrete is not None else None, result["fitness"], result["status"], result.get("why"),
-                    result.get("min_clearance_m"), result.get("sim_time_s"), result.get("wall_time_s"), result.get("log_path"), result["seed"], time.time(),
-                    json.dumps(result["attempts"]) if result.get("attempts") else None,
-                    json.dumps(result["confirmations"]) if result.get("confirmations") else None,
+                    json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
+                    result.min_clearance_m, result.sim_time_s, result.wall_time_s, result.log_path, result.seed, time.time(),
+                    json.dumps(result.attempts) if result.attempts else None,
+                    json.dumps(result.confirmations) if result.confirmations else None,
                 ),
             )
 

@@ -25,11 +25,14 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from harness.flight.evaluation import EvaluationResult
+from harness.flight.fitness import Status
 from sut_adapter.processes import die_with_parent
 
 
 def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str, Any]:
-    """The task: one try in its own process group, ended after timeout_s."""
+    """The task: one try in its own process group, ended after timeout_s; its result as JSON data
+    (the cluster's workers may run another build of this package than the client)."""
     job = Job.from_json(document)
     with tempfile.TemporaryDirectory(prefix="stella-task-") as folder:
         job_file, result_file = Path(folder) / "job.json", Path(folder) / "result.json"
@@ -42,10 +45,10 @@ def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str
         except subprocess.TimeoutExpired:
             os.killpg(process.pid, signal.SIGKILL)
             process.communicate()
-            return failed_try(job, "timeout", f"no result within {timeout_s:.0f} s wall time (the executor's limit per try)")
+            return failed_try(job, Status.TIMEOUT, f"no result within {timeout_s:.0f} s wall time (the executor's limit per try)").as_dict()
         if process.returncode != 0 or not result_file.exists():
             tail = err.decode(errors="replace").strip().splitlines()[-5:]
-            return failed_try(job, "sim_crashed", f"the evaluation process exited with {process.returncode}: {' | '.join(tail)}")
+            return failed_try(job, Status.SIM_CRASHED, f"the evaluation process exited with {process.returncode}: {' | '.join(tail)}").as_dict()
         return json.loads(result_file.read_text())
 
 
@@ -83,7 +86,7 @@ class DaskExecutor(Executor):
             if outer.done():  # cancelled from this side
                 return
             if done.status == "finished":
-                outer.set_result(done.result())
+                outer.set_result(EvaluationResult.from_dict(done.result()))
             elif done.status == "cancelled":
                 outer.cancel() or outer.set_exception(WorkerLost("the task was cancelled"))
             else:

@@ -29,6 +29,8 @@ from typing import Any, Iterator
 
 from harness.errors import InfrastructureError
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from harness.flight.evaluation import EvaluationResult
+from harness.flight.fitness import Status
 from harness.paths import project_root
 
 log = logging.getLogger(__name__)
@@ -132,7 +134,7 @@ class DockerExecutor(Executor):
     def submit(self, job: Job) -> concurrent.futures.Future:
         return self._threads.submit(self._try, job)
 
-    def _try(self, job: Job) -> dict[str, Any]:
+    def _try(self, job: Job) -> EvaluationResult:
         with self._lock:
             core = self._free_cores.pop(0) if self._free_cores else None
         folder = Path(tempfile.mkdtemp(prefix=f"stella-{job.name}-"))
@@ -147,7 +149,7 @@ class DockerExecutor(Executor):
                 with self._lock:
                     self._free_cores.append(core)
 
-    def _fly(self, job: Job, folder: Path, core: int | None) -> dict[str, Any]:
+    def _fly(self, job: Job, folder: Path, core: int | None) -> EvaluationResult:
         import requests
 
         container = self.client.containers.run(
@@ -162,18 +164,18 @@ class DockerExecutor(Executor):
                 exit_code = container.wait(timeout=self.timeout_s)["StatusCode"]
             except (requests.exceptions.ReadTimeout, requests.exceptions.ConnectionError):
                 container.kill()
-                return failed_try(job, "timeout", f"no result within {self.timeout_s:.0f} s wall time (the executor's limit per try)")
+                return failed_try(job, Status.TIMEOUT, f"no result within {self.timeout_s:.0f} s wall time (the executor's limit per try)")
             result_file = folder / "result.json"
             if exit_code != 0 or not result_file.exists():
                 tail = container.logs(tail=5).decode(errors="replace").strip().replace("\n", " | ")
                 raise WorkerLost(f"container {container.short_id} exited with {exit_code}" + (" (killed)" if exit_code == 137 else "") + (f": {tail}" if tail else ""))
-            return self._bring_back(json.loads(result_file.read_text()), folder / "out", Path(job.out_dir))
+            return self._bring_back(EvaluationResult.from_dict(json.loads(result_file.read_text())), folder / "out", Path(job.out_dir))
         finally:
             self.running.pop(job.name, None)
             container.remove(force=True)
 
     @staticmethod
-    def _bring_back(result: dict[str, Any], inside: Path, outside: Path) -> dict[str, Any]:
+    def _bring_back(result: EvaluationResult, inside: Path, outside: Path) -> EvaluationResult:
         """Move the log and artifacts out of the container's folder; point the result at them."""
         outside.mkdir(parents=True, exist_ok=True)
         for entry in inside.iterdir():
@@ -185,9 +187,7 @@ class DockerExecutor(Executor):
         def moved(path: str | None) -> str | None:
             return str(outside / Path(path).relative_to("/job/out")) if path else None
 
-        result["log_path"] = moved(result.get("log_path"))
-        result["artifacts"] = [moved(a) for a in result.get("artifacts", [])]
-        return result
+        return replace(result, log_path=moved(result.log_path), artifacts=[moved(a) for a in result.artifacts])
 
     def cancel(self) -> None:
         super().cancel()

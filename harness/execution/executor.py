@@ -5,7 +5,7 @@ The contract, the same for every executor:
 * `run(jobs)` yields `(job, result)` as evaluations finish, in any order.
 * A try that ends `sut_crashed`, `sim_crashed` or `timeout`, or whose worker died on the way
   (a killed worker process, a killed container, a lost Dask worker), is tried again, up to
-  `attempts` tries in all; every try's status and cause are in `result["attempts"]` and the
+  `attempts` tries in all; every try's status and cause are in the result's `attempts` and the
   last try's result stands. A SUT that crashes in every try is then a finding, not bad luck.
 * Each try has a hard wall-clock limit, `timeout_s`: past it the try is ended and is a
   `timeout`.
@@ -31,12 +31,11 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
 from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
-from harness.flight.fitness import PENALTY
+from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.world import space_from_concrete
 
 log = logging.getLogger(__name__)
 
-RETRIED_STATUSES = ("sut_crashed", "sim_crashed", "timeout")
 DEFAULT_ATTEMPTS = 2
 DEFAULT_TIMEOUT_S = 600.0
 
@@ -58,23 +57,23 @@ class Job:
         return cls(**{**document, "options": RunOptions(**document["options"])})
 
 
-def run_job(job: Job) -> dict[str, Any]:
+def run_job(job: Job) -> EvaluationResult:
     """One try of one evaluation, in this process."""
     space = space_from_concrete(job.concrete, job.name)
     x = space.from_concrete(job.concrete, job.name)
-    return evaluate(space, x, seed=job.seed, out_dir=Path(job.out_dir), options=job.options, name=job.name).as_dict()
+    return evaluate(space, x, seed=job.seed, out_dir=Path(job.out_dir), options=job.options, name=job.name)
 
 
-def failed_try(job: Job, status: str, why: str) -> dict[str, Any]:
+def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.concrete.get("scenario", job.name), job.options.sut).as_dict()
+    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.concrete.get("scenario", job.name), job.options.sut)
 
 
 class _TryTimedOut(BaseException):
     """Raised into the evaluation by the watchdog; a BaseException so nothing swallows it."""
 
 
-def run_job_with_watchdog(job: Job, timeout_s: float) -> dict[str, Any]:
+def run_job_with_watchdog(job: Job, timeout_s: float) -> EvaluationResult:
     """run_job under a wall-clock limit. The limit is a SIGALRM, so it needs the main thread
     (pool workers and the sequential executor run there); the evaluation's context managers
     stop its processes and free its ports on the way out."""
@@ -89,7 +88,7 @@ def run_job_with_watchdog(job: Job, timeout_s: float) -> dict[str, Any]:
     try:
         return run_job(job)
     except _TryTimedOut:
-        return failed_try(job, "timeout", f"no result within {timeout_s:.0f} s wall time (the executor's limit per try)")
+        return failed_try(job, Status.TIMEOUT, f"no result within {timeout_s:.0f} s wall time (the executor's limit per try)")
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
@@ -113,7 +112,7 @@ class Executor:
         self._cancelled = threading.Event()
 
     def submit(self, job: Job) -> concurrent.futures.Future:
-        """Start one try; the future holds its result dict, or raises what lost_worker() knows."""
+        """Start one try; the future holds its EvaluationResult, or raises what lost_worker() knows."""
         raise NotImplementedError
 
     def lost_worker(self, error: BaseException) -> bool:
@@ -128,11 +127,11 @@ class Executor:
         RunOptions.cores), else one."""
         return 2 if len(os.sched_getaffinity(0)) >= 2 * self.workers else 1
 
-    def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, dict[str, Any]]]:
+    def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, EvaluationResult]]:
         self._cancelled.clear()
         cores = self.cores_per_evaluation()
         jobs = [replace(job, options=replace(job.options, cores=cores)) for job in jobs]
-        pending: dict[concurrent.futures.Future, tuple[Job, list[dict[str, Any]]]] = {self.submit(job): (job, []) for job in jobs}
+        pending: dict[concurrent.futures.Future, tuple[Job, list[dict[str, str]]]] = {self.submit(job): (job, []) for job in jobs}
         try:
             while pending:
                 if self._cancelled.is_set():
@@ -155,14 +154,13 @@ class Executor:
                             continue
                         log.warning("%s: its worker died: %s", job.name, error)
                         self.recover()
-                        result = failed_try(job, "sim_crashed", f"the worker died: {error}")
-                    tries.append({"status": result["status"], "why": result["why"]})
-                    if result["status"] in RETRIED_STATUSES and len(tries) < self.attempts and not self._cancelled.is_set():
-                        log.warning("%s: try %d ended %s (%s); trying again", job.name, len(tries), result["status"], result["why"])
+                        result = failed_try(job, Status.SIM_CRASHED, f"the worker died: {error}")
+                    tries.append({"status": result.status, "why": result.why})
+                    if result.status in COULD_NOT_FINISH and len(tries) < self.attempts and not self._cancelled.is_set():
+                        log.warning("%s: try %d ended %s (%s); trying again", job.name, len(tries), result.status, result.why)
                         pending[self.submit(job)] = (job, tries)
                         continue
-                    result["attempts"] = tries
-                    yield job, result
+                    yield job, replace(result, attempts=tries)
         finally:
             for future in pending:
                 future.cancel()

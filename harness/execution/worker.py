@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     document = json.loads(Path(args.job).read_text() if args.job else sys.stdin.read())
     result = run_job(Job.from_json(document))
-    text = json.dumps(result)
+    text = json.dumps(result.as_dict())
     if args.result:
         temporary = Path(args.result).with_suffix(".tmp")
         temporary.write_text(text)

@@ -28,6 +28,7 @@ from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
 from harness.flight.evaluation import RunOptions
+from harness.flight.fitness import Status
 
 CONTROL = "none"
 FAULT_FREE_CACHE = "fault_free.json"
@@ -87,7 +88,7 @@ def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:
         jobs.append(Job(len(jobs), json.loads(violation["concrete"]), violation["seed"], str(folder / "logs" / "fault_free"), f"fault-free-{key[:12]}",
                         RunOptions()))
     for job, result in executor.run(jobs):
-        cache[keys[job.key]] = {"status": result["status"], "fitness": result["fitness"], "min_clearance_m": result.get("min_clearance_m")}
+        cache[keys[job.key]] = {"status": str(result.status), "fitness": result.fitness, "min_clearance_m": result.min_clearance_m}
         _save_cache(folder, cache)
 
 
@@ -104,7 +105,7 @@ def detections(folder: Path) -> list[dict[str, Any]]:
             clean = cache.get(_key(violation["concrete"], violation["seed"]))
             if clean is None:
                 unflown += 1
-            elif clean["status"] != "violation" and violation["run_id"] not in found:
+            elif clean["status"] != Status.VIOLATION and violation["run_id"] not in found:
                 found[violation["run_id"]] = violation["ordinal"] + 1
         with Store.existing(store_path) as store:
             for run in store.run_rows():

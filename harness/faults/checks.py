@@ -15,7 +15,8 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from harness.errors import InputError, Problem
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
@@ -24,7 +25,7 @@ from harness.scenario.world import load_concrete
 from sut_adapter.bundled import seeded_faults
 
 WITNESS_SEED = 0  # the sensor-noise seed every witness is flown with
-REVEALING = ("violation", "mission_failed")
+REVEALING = (Status.VIOLATION, Status.MISSION_FAILED)
 
 
 def witness_path(fault: str) -> Path:
@@ -45,7 +46,7 @@ def fault_list() -> list[dict[str, Any]]:
 
 
 def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
-    return faulty["status"] in REVEALING and clean is not None and clean["status"] == "ok"
+    return faulty["status"] in REVEALING and clean is not None and clean["status"] == Status.OK
 
 
 def options_for(fault: str | None) -> RunOptions:
@@ -55,8 +56,11 @@ def options_for(fault: str | None) -> RunOptions:
 
 def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:
     options = options_for(fault)
-    result = evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options, name=name).as_dict()
-    return {key: result[key] for key in ("status", "fitness", "why", "min_clearance_m", "log_path")}
+    return _outcome(evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options, name=name))
+
+
+def _outcome(result: EvaluationResult) -> dict[str, Any]:
+    return {"status": str(result.status), "fitness": result.fitness, "why": result.why, "min_clearance_m": result.min_clearance_m, "log_path": result.log_path}
 
 
 def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None,
@@ -82,7 +86,7 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
     executor = make_executor("local", workers)
     try:
         for job, result in executor.run(jobs):
-            flown[job.name] = {key: result.get(key) for key in ("status", "fitness", "why", "min_clearance_m", "log_path")}
+            flown[job.name] = _outcome(result)
             name = witness_of[job.key]
             if f"{name}-with-fault" in flown and f"{name}-without" in flown:
                 progress(_line(_entry(name, flown)))

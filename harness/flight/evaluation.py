@@ -25,6 +25,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight import fitness as scoring
+from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight import logs
 from harness.flight.api_tap import ApiTap
 from harness.flight.bridge_control import BridgeControl
@@ -66,9 +67,12 @@ class RunOptions:
     cores: int = 1
 
 
-@dataclass
+@dataclass(frozen=True)
 class EvaluationResult:
-    status: str
+    """One try's outcome, from the flight to the store, the report and a regression test; JSON
+    (as_dict / from_dict) only where it crosses a process boundary or is written out."""
+
+    status: Status
     fitness: float
     why: str | None
     min_clearance_m: float | None
@@ -86,9 +90,15 @@ class EvaluationResult:
     artifacts: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     mavsdk: dict[str, Any] = field(default_factory=dict)
+    attempts: list[dict[str, str]] = field(default_factory=list)  # every try's status and why, when an executor retried
+    confirmations: dict[str, Any] | None = None  # a violation flown again: how often it came back
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, document: Mapping[str, Any]) -> "EvaluationResult":
+        return cls(**{**document, "status": Status(document["status"])})
 
 
 def _reported_position_mode(log_path: Path) -> bool:
@@ -109,12 +119,12 @@ def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any],
     what was recorded, as whether the mission was flown cannot be told from part of it."""
     if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(log_path):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
-        failure = ("mission_failed", "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
+        failure = (Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
     if failure is None and clearance.samples and not partial:
         states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
         why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary, world.get("drive", "mission"))
-        failure = ("mission_failed", why) if why else None
+        failure = (Status.MISSION_FAILED, why) if why else None
     status, value, why = scoring.judge(clearance, world["safety_distance_m"], failure)
     return status, value, why, clearance
 
@@ -130,21 +140,30 @@ def rescore(log_path: Path) -> dict[str, Any]:
     summary = logs.json_metadata(log_path, "bridge_summary") or {}
     recorded = logs.json_metadata(log_path, "result") or {}
     failure = None
-    if recorded.get("status") in ("timeout", "sut_crashed", "sim_crashed"):
+    if recorded.get("status") in COULD_NOT_FINISH:
         failure = (recorded["status"], recorded.get("why") or "")
     status, value, why, clearance = _score(log_path, world, summary, failure, partial=cut is not None)
     return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
             "truncation": cut}
 
 
+def infeasible(space: SearchSpace, x: np.ndarray, *, seed: int, sut: str) -> EvaluationResult | None:
+    """The result of a point that breaks a realism constraint (never flown), or None if it breaks none."""
+    violations = space.violations(x)
+    if not violations:
+        return None
+    total = -sum(min(0.0, float(m[0])) for m in space.constraint_margins(np.asarray(x)[None, :]).values())
+    return EvaluationResult(Status.INFEASIBLE, scoring.infeasible_fitness(total), "; ".join(violations), None, None, None, 0.0, 0.0, None, seed, None,
+                            space.logical.name, sut, violations)
+
+
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
     """Fly the concrete scenario x; never raises for a failed run, only reports it."""
     wall_start = time.monotonic()
     stem = logs.slug(name or f"{space.logical.name}-seed{seed}")
-    violations = space.violations(x)
-    if violations:
-        total = -sum(min(0.0, float(m[0])) for m in space.constraint_margins(np.asarray(x)[None, :]).values())
-        return EvaluationResult("infeasible", scoring.infeasible_fitness(total), "; ".join(violations), None, None, None, 0.0, 0.0, None, seed, None, space.logical.name, options.sut, violations)
+    refused = infeasible(space, x, seed=seed, sut=options.sut)
+    if refused is not None:
+        return refused
     world = world_spec(space, x, seed)
     concrete = space.to_concrete(x)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -160,7 +179,7 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         with simulation_stack(world, options, system, workdir) as stack:
             failure, summary, mavsdk_info = _fly(world, options, stack, timings)
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
-            failure = ("sut_crashed", f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
+            failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
         artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
         api_records = list(stack.tap.records)
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
@@ -175,11 +194,11 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         timings["score_s"] = time.monotonic() - t0
     except sut_adapter.SutError as error:
         log.warning("evaluation %s: the SUT failed to start: %s", stem, error)
-        status, value, why, clearance = "sut_crashed", scoring.PENALTY, str(error), None
+        status, value, why, clearance = Status.SUT_CRASHED, scoring.PENALTY, str(error), None
         log_path = None
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
-        status, value, why, clearance = "sim_crashed", scoring.PENALTY, str(error), None
+        status, value, why, clearance = Status.SIM_CRASHED, scoring.PENALTY, str(error), None
         log_path = None
     finally:
         if not options.keep_workdir:
@@ -317,7 +336,7 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
             if _unanswered(error):
                 return _setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {}
-            return ("sut_crashed" if not sut.alive() else "mission_failed", f"setup: the SUT refused: {error}"), control_summary(control), {}
+            return (Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}"), control_summary(control), {}
         timings["setup_s"] = time.monotonic() - t0
         control.send({"op": "run"})
         deadline = world["time_limit_s"] / options.min_real_time_factor + 30.0
@@ -326,10 +345,10 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}
         if finished is None:
             if bridge.poll() is not None:
-                return ("sim_crashed", f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
+                return (Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
             control.send({"op": "stop"})
             finished = control.wait_for("finished", 10.0, lambda: bridge.poll() is None)
-            return ("timeout", f"no end within {deadline:.0f} s wall time"), finished or {}, info
+            return (Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), finished or {}, info
         return None, finished, info
     finally:
         control.close()
@@ -347,7 +366,7 @@ def _unanswered(error: Exception) -> bool:
 
 def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> tuple[str, str]:
     if bridge.poll() is not None:
-        return "sim_crashed", f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"
+        return Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"
     if not sut.alive():
-        return "sut_crashed", f"{what}: SUT exited: {sut.stderr_tail()}"
-    return "timeout", what
+        return Status.SUT_CRASHED, f"{what}: SUT exited: {sut.stderr_tail()}"
+    return Status.TIMEOUT, what

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, Iterable, Mapping, Sequence
 
 from sim_bridge.pilot import BLOCKED_AFTER_S
@@ -28,7 +29,24 @@ from sim_bridge.pilot import BLOCKED_AFTER_S
 CLEARANCE_CAP_M = 100.0
 PENALTY = 1000.0
 LANDING_TOLERANCE_M = 3.0
-STATUSES = ("ok", "violation", "mission_failed", "infeasible", "sut_crashed", "sim_crashed", "timeout")
+
+
+class Status(StrEnum):
+    """An evaluation's outcome (the policy above). A str, so it is its own JSON and SQLite value."""
+
+    OK = "ok"
+    VIOLATION = "violation"
+    MISSION_FAILED = "mission_failed"
+    INFEASIBLE = "infeasible"
+    SUT_CRASHED = "sut_crashed"
+    SIM_CRASHED = "sim_crashed"
+    TIMEOUT = "timeout"
+
+
+
+STATUSES = tuple(Status)
+# The run ended before its flight did; executors try these again.
+COULD_NOT_FINISH = frozenset({Status.SUT_CRASHED, Status.SIM_CRASHED, Status.TIMEOUT})
 
 
 @dataclass(frozen=True)
@@ -89,20 +107,20 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any
     return None
 
 
-def judge(clearance: Clearance | None, safety_distance_m: float, failure: tuple[str, str] | None) -> tuple[str, float, str | None]:
+def judge(clearance: Clearance | None, safety_distance_m: float, failure: tuple[Status, str] | None) -> tuple[Status, float, str | None]:
     """(status, fitness, why) from the clearance and the first failure found, if any.
 
     failure is (status, why) with status one of mission_failed, timeout, sut_crashed, sim_crashed.
     """
     if clearance is None or clearance.samples == 0:
-        status, why = failure or ("sim_crashed", "nothing was recorded")
-        return status, PENALTY, why
+        status, why = failure or (Status.SIM_CRASHED, "nothing was recorded")
+        return Status(status), PENALTY, why
     f = clearance.fitness(safety_distance_m)
     if f < 0.0:
-        return "violation", f, failure[1] if failure else None
+        return Status.VIOLATION, f, failure[1] if failure else None
     if failure is not None:
-        return failure[0], f + PENALTY, failure[1]
-    return "ok", f, None
+        return Status(failure[0]), f + PENALTY, failure[1]
+    return Status.OK, f, None
 
 
 def infeasible_fitness(total_violation_m: float) -> float:

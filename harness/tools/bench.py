@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
@@ -141,7 +142,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
                 executor.close()
             wall = time.monotonic() - started
             rows = store.db.execute("SELECT status, wall_time_s, sim_time_s FROM evaluations").fetchall()
-    flown = [r for r in rows if r[0] != "infeasible"]
+    flown = [r for r in rows if r[0] != Status.INFEASIBLE]
     busy = sum(r[1] or 0.0 for r in flown)
     return {
         "scenario": str(path),
@@ -153,7 +154,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         "mean_evaluation_wall_s": busy / len(flown) if flown else None,
         "simulated_s": sum(r[2] or 0.0 for r in flown),
         "outside_evaluations_share": 1.0 - busy / (wall * executor.workers),
-        "violations": sum(1 for r in rows if r[0] == "violation"),
+        "violations": sum(1 for r in rows if r[0] == Status.VIOLATION),
     }
 
 
@@ -177,7 +178,6 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
     import time
 
     from harness.execution.executor import Job
-
     from harness.execution.registry import make_executor
 
     profile = load_profile("default")
@@ -193,13 +193,13 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
         finally:
             executor.close()
         wall = time.monotonic() - started
-    inside = [r["wall_time_s"] for r in results]
+    inside = [r.wall_time_s for r in results]
     return {
         "executor": executor_name,
         "workers": executor.workers,
         "scenario": str(path),
         "evaluations": evaluations,
-        "statuses": sorted({r["status"] for r in results}),
+        "statuses": sorted({str(r.status) for r in results}),
         "wall_time_s": wall,
         "evaluations_per_hour": 3600.0 * evaluations / wall,
         "median_evaluation_wall_s": statistics.median(inside),

@@ -221,6 +221,7 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
 @command("run")
 def cmd_run(args: argparse.Namespace) -> int:
     from harness.flight.evaluation import RunOptions, evaluate
+    from harness.flight.fitness import COULD_NOT_FINISH, Status
     from harness.scenario.world import load_concrete
 
     sut, sut_config, sut_params = _sut_spec(args)
@@ -238,9 +239,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         results = [result]
     else:
         results = _repeat(args, space, x, options)
-    if any(r["status"] in ("sim_crashed", "sut_crashed", "timeout") for r in results):
+    if any(r["status"] in COULD_NOT_FINISH for r in results):
         return 3
-    return 1 if args.fail_on_violation and any(r["status"] == "violation" for r in results) else 0
+    return 1 if args.fail_on_violation and any(r["status"] == Status.VIOLATION for r in results) else 0
 
 
 def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]:
@@ -374,7 +375,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 @command("campaign")
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import CampaignConfig, run_campaign
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.evaluation import EvaluationResult, RunOptions
     from harness.execution.registry import make_executor
     from harness.search.optimizers import parse_algorithm
     from harness.campaigns.store import Store
@@ -406,9 +407,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     # A bar on stderr for people; nothing with --json, where a script reads stdout.
     bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
 
-    def progress(result: dict[str, Any]) -> None:
+    def progress(result: EvaluationResult) -> None:
         bar.update(1)
-        bar.set_postfix_str(f"last {result['status']} f={result['fitness']:.2f}", refresh=False)
+        bar.set_postfix_str(f"last {result.status} f={result.fitness:.2f}", refresh=False)
 
     try:
         with store:

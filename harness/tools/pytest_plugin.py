@@ -101,9 +101,9 @@ class RegressionItem(pytest.Item):
         self.user_properties.append(("stella_expect", self.regression.expect))
         for index, result in enumerate(results):
             suffix = "" if len(results) == 1 else f"_{index + 1}"
-            self.user_properties.append((f"stella_log{suffix}", result["log_path"] or ""))
-            self.user_properties.append((f"stella_fitness{suffix}", repr(result["fitness"])))
-        fitnesses = [result["fitness"] for result in results]
+            self.user_properties.append((f"stella_log{suffix}", result.log_path or ""))
+            self.user_properties.append((f"stella_fitness{suffix}", repr(result.fitness)))
+        fitnesses = [result.fitness for result in results]
         if len(results) > 1:
             spread = max(fitnesses) - min(fitnesses)
             flights.spreads[self.nodeid] = (spread, fitnesses)
@@ -184,7 +184,7 @@ class Flights:
         self._thread = threading.Thread(target=fly_all, name="stella-flights", daemon=True)
         self._thread.start()
 
-    def results(self, item: RegressionItem) -> list[dict[str, Any]]:
+    def results(self, item: RegressionItem) -> list[EvaluationResult]:
         if item.nodeid in self._futures:
             return [future.result() for future in self._futures[item.nodeid]]
         return [run_job(job) for job in self.jobs(item)]
