@@ -123,7 +123,7 @@ def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
 
     space = SearchSpace(load_logical(FIG4, profile), profile)
     x = space.sample_feasible(np.random.default_rng(1), 1)[0]
-    return Job(key, space.to_concrete(x), 1, str(out_dir), f"job{key}", RunOptions(**options))
+    return Job.of(key, space, x, seed=1, out_dir=out_dir, name=f"job{key}", options=RunOptions(**options))
 
 
 PLAN_SCENARIO = ROOT / "scenarios" / "examples" / "plan_mission.json"

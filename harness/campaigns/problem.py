@@ -107,9 +107,8 @@ class CampaignProblem:
                 self._finish(ordinal, x, key, refused, None)
                 results[index] = refused.fitness
                 continue
-            concrete = self.space.to_concrete(x)
             name = f"run{self.run_id}-eval{ordinal:05d}"
-            jobs.append((index, Job(ordinal, concrete, self.seed, str(self.out_dir), name, self.options), x, key, ordinal))
+            jobs.append((index, Job.of(ordinal, self.space, x, seed=self.seed, out_dir=self.out_dir, name=name, options=self.options), x, key, ordinal))
         by_ordinal = {job.key: (index, x, key) for index, job, x, key, _ in jobs}
         to_confirm: list[tuple[Job, EvaluationResult]] = []
         for job, result in self.executor.run([job for _, job, _, _, _ in jobs]):

@@ -15,8 +15,9 @@ The contract, the same for every executor:
 `sequential` and `local` (local.py) fly in this process or in a pool of worker processes on
 this machine, each evaluation with its own port block, temp dir and core (see
 harness/flight/evaluation.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
-elsewhere; registry.py makes one by name. Jobs carry the concrete scenario JSON,
-which embeds its logical scenario and profile, so a worker needs nothing but the job.
+elsewhere; registry.py makes one by name. Jobs carry the world spec the simulator
+loads and the concrete scenario it came from, so a worker needs nothing but the job and
+derives nothing again.
 """
 
 from __future__ import annotations
@@ -30,9 +31,12 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+import numpy as np
+
+from harness.flight.evaluation import EvaluationResult, RunOptions, fly
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
-from harness.scenario.world import space_from_concrete
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +46,11 @@ DEFAULT_TIMEOUT_S = 600.0
 
 @dataclass(frozen=True)
 class Job:
+    """One flight to make: the world spec the simulator loads and the concrete scenario it came
+    from, both made where the search space is, so that a worker derives nothing again."""
+
     key: int
+    world: Mapping[str, Any]
     concrete: Mapping[str, Any]
     seed: int
     out_dir: str
@@ -56,17 +64,20 @@ class Job:
     def from_json(cls, document: Mapping[str, Any]) -> "Job":
         return cls(**{**document, "options": RunOptions(**document["options"])})
 
+    @classmethod
+    def of(cls, key: int, space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path | str, name: str, options: RunOptions) -> "Job":
+        """The job for point x of space, which must be feasible (evaluation.infeasible says)."""
+        return cls(key, world_spec(space, x, seed), space.to_concrete(x), seed, str(out_dir), name, options)
+
 
 def run_job(job: Job) -> EvaluationResult:
     """One try of one evaluation, in this process."""
-    space = space_from_concrete(job.concrete, job.name)
-    x = space.from_concrete(job.concrete, job.name)
-    return evaluate(space, x, seed=job.seed, out_dir=Path(job.out_dir), options=job.options, name=job.name)
+    return fly(job.world, job.concrete, seed=job.seed, out_dir=Path(job.out_dir), options=job.options, name=job.name)
 
 
 def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.concrete.get("scenario", job.name), job.options.sut)
+    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world["scenario"], job.options.sut)
 
 
 class _TryTimedOut(BaseException):

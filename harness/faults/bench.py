@@ -29,6 +29,7 @@ from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
 from harness.flight.evaluation import RunOptions
 from harness.flight.fitness import Status
+from harness.scenario.world import space_from_concrete
 
 CONTROL = "none"
 FAULT_FREE_CACHE = "fault_free.json"
@@ -85,8 +86,10 @@ def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:
         if key in cache or key in keys.values():
             continue
         keys[len(jobs)] = key
-        jobs.append(Job(len(jobs), json.loads(violation["concrete"]), violation["seed"], str(folder / "logs" / "fault_free"), f"fault-free-{key[:12]}",
-                        RunOptions()))
+        concrete = json.loads(violation["concrete"])
+        space = space_from_concrete(concrete, str(store_path))
+        jobs.append(Job.of(len(jobs), space, space.from_concrete(concrete, str(store_path)), seed=violation["seed"], out_dir=folder / "logs" / "fault_free",
+                           name=f"fault-free-{key[:12]}", options=RunOptions()))
     for job, result in executor.run(jobs):
         cache[keys[job.key]] = {"status": str(result.status), "fitness": result.fitness, "min_clearance_m": result.min_clearance_m}
         _save_cache(folder, cache)

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from harness.errors import InputError, Problem
-from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate, infeasible
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
@@ -71,17 +71,20 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
     from harness.execution.registry import make_executor
 
     names = checked_names(names)
-    jobs, missing, witness_of = [], {}, {}
+    jobs, unflown, witness_of = [], {}, {}
     for name in names:
         path = witness_path(name)
         if not path.is_file():
-            missing[name] = {"fault": name, "witness": None, "revealed": False, "why": f"no witness: {path} is missing"}
+            unflown[name] = {"fault": name, "witness": None, "revealed": False, "why": f"no witness: {path} is missing"}
             continue
         space, x = load_concrete(path)
-        concrete = space.to_concrete(x)
+        refused = infeasible(space, x, seed=WITNESS_SEED, sut="bundled")
+        if refused is not None:
+            unflown[name] = {"fault": name, "witness": str(path), "revealed": False, "why": f"the witness is infeasible: {refused.why}"}
+            continue
         for fault, suffix in ((name, "with-fault"), (None, "without")):
             witness_of[len(jobs)] = name
-            jobs.append(Job(len(jobs), concrete, WITNESS_SEED, str(out_dir), f"{name}-{suffix}", options_for(fault)))
+            jobs.append(Job.of(len(jobs), space, x, seed=WITNESS_SEED, out_dir=out_dir, name=f"{name}-{suffix}", options=options_for(fault)))
     flown: dict[str, dict[str, Any]] = {}
     executor = make_executor("local", workers)
     try:
@@ -92,7 +95,7 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
                 progress(_line(_entry(name, flown)))
     finally:
         executor.close()
-    return [missing[name] if name in missing else _entry(name, flown) for name in names]
+    return [unflown[name] if name in unflown else _entry(name, flown) for name in names]
 
 
 def _entry(name: str, flown: dict[str, dict[str, Any]]) -> dict[str, Any]:
@@ -101,7 +104,7 @@ def _entry(name: str, flown: dict[str, dict[str, Any]]) -> dict[str, Any]:
 
 
 def _line(entry: dict[str, Any]) -> str:
-    if entry["witness"] is None:
+    if "with_fault" not in entry:  # no witness, or one that cannot be flown
         return f"{entry['fault']:<28} {entry['why']}"
     a, b = entry["with_fault"], entry["without"]
     return (f"{entry['fault']:<28} {'revealed' if entry['revealed'] else 'NOT REVEALED':<13} with it: {a['status']} "

@@ -158,14 +158,21 @@ def infeasible(space: SearchSpace, x: np.ndarray, *, seed: int, sut: str) -> Eva
 
 
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
-    """Fly the concrete scenario x; never raises for a failed run, only reports it."""
-    wall_start = time.monotonic()
-    stem = logs.slug(name or f"{space.logical.name}-seed{seed}")
+    """Fly the concrete scenario x of space (unless it is infeasible); never raises for a failed
+    run, only reports it."""
     refused = infeasible(space, x, seed=seed, sut=options.sut)
     if refused is not None:
         return refused
-    world = world_spec(space, x, seed)
-    concrete = space.to_concrete(x)
+    return fly(world_spec(space, x, seed), space.to_concrete(x), seed=seed, out_dir=out_dir, options=options, name=name)
+
+
+def fly(world: Mapping[str, Any], concrete: Mapping[str, Any], *, seed: int, out_dir: Path, options: RunOptions = RunOptions(),
+        name: str | None = None) -> EvaluationResult:
+    """Fly a feasible concrete scenario from the world spec the simulator loads (world.world_spec);
+    the concrete scenario is recorded with the log. Needs no search space, so a worker flies a
+    job as the campaign made it."""
+    wall_start = time.monotonic()
+    stem = logs.slug(name or f"{world['scenario']}-seed{seed}")
     out_dir.mkdir(parents=True, exist_ok=True)
     workdir = Path(tempfile.mkdtemp(prefix=f"stella-{stem}-"))
     log_path = out_dir / f"{stem}.mcap"
@@ -218,7 +225,7 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
         real_time_factor=(run_time / in_run) if in_run > 0 else None,
         seed=seed,
         log_path=str(log_path) if log_path else None,
-        scenario=space.logical.name,
+        scenario=world["scenario"],
         sut=options.sut,
         sut_fault=options.sut_config.get("fault"),
         artifacts=artifacts,

@@ -183,10 +183,10 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile), profile)
-    concrete = space.to_concrete(space.sample_feasible(np.random.default_rng(seed), 1)[0])
+    x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     executor = make_executor(executor_name, workers)
     with tempfile.TemporaryDirectory(prefix="stella-bench-executor-") as out:
-        jobs = [Job(index, concrete, seed, out, f"bench-{index}", RunOptions()) for index in range(evaluations)]
+        jobs = [Job.of(index, space, x, seed=seed, out_dir=out, name=f"bench-{index}", options=RunOptions()) for index in range(evaluations)]
         started = time.monotonic()
         try:
             results = [result for _job, result in executor.run(jobs)]

@@ -26,7 +26,7 @@ from harness.campaigns.regression import EXPECTATIONS, SUFFIX, Regression, load_
 from harness.errors import InputError
 from harness.execution.executor import Executor, Job, run_job
 from harness.execution.local import LocalExecutor
-from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate
+from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate, infeasible
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json
 from harness.scenario.logical import DRIVES, load_logical
@@ -156,10 +156,17 @@ class Flights:
             config["fault"] = fault
         return RunOptions(sut=sut, sut_config=config, sut_params=params)
 
+    def names(self, regression: Regression) -> list[str]:
+        return [regression.name] if self.repeat == 1 else [f"{regression.name}-repeat{i + 1}" for i in range(self.repeat)]
+
+    def refusal(self, regression: Regression) -> EvaluationResult | None:
+        """The infeasible result of a case that breaks a realism constraint: it is not flown."""
+        return infeasible(regression.space, regression.x, seed=regression.seed, sut=self.options(regression).sut)
+
     def jobs(self, item: RegressionItem, first_key: int = 0) -> list[Job]:
         regression = item.regression
-        names = [regression.name] if self.repeat == 1 else [f"{regression.name}-repeat{i + 1}" for i in range(self.repeat)]
-        return [Job(first_key + i, regression.concrete, regression.seed, str(self.out_dir), name, self.options(regression)) for i, name in enumerate(names)]
+        return [Job.of(first_key + i, regression.space, regression.x, seed=regression.seed, out_dir=self.out_dir, name=name, options=self.options(regression))
+                for i, name in enumerate(self.names(regression))]
 
     def start(self, items: list[RegressionItem]) -> None:
         if self.workers == 1 or not items:
@@ -167,6 +174,8 @@ class Flights:
         jobs: list[Job] = []
         futures: dict[int, Future] = {}
         for item in items:
+            if self.refusal(item.regression) is not None:
+                continue
             item_jobs = self.jobs(item, len(jobs))
             jobs.extend(item_jobs)
             self._futures[item.nodeid] = [futures.setdefault(job.key, Future()) for job in item_jobs]
@@ -185,6 +194,9 @@ class Flights:
         self._thread.start()
 
     def results(self, item: RegressionItem) -> list[EvaluationResult]:
+        refused = self.refusal(item.regression)
+        if refused is not None:
+            return [refused] * len(self.names(item.regression))
         if item.nodeid in self._futures:
             return [future.result() for future in self._futures[item.nodeid]]
         return [run_job(job) for job in self.jobs(item)]
