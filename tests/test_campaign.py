@@ -20,7 +20,10 @@ from harness.campaigns.statistics import a12, compare, p_value, relative_perform
 from harness.campaigns.store import Store
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
-from harness.search.optimizers import parse_algorithm
+from harness.search.optimizers import OPTIMIZERS, _OwnStreams, nsgaii, parse_algorithm, smpso
+from jmetal.util.evaluator import Evaluator
+from jmetal.util.termination_criterion import StoppingByEvaluations
+
 from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
 
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
@@ -73,6 +76,45 @@ def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combina
     assert [r[1] for r in first] != [r[1] for r in other]
     assert len(first) == 20 and [r[0] for r in first] == list(range(20))
     assert problem.best[1] == min(r[2] for r in first)
+
+
+def bowl(x: np.ndarray, space) -> float:
+    """A smooth stand-in fitness over the unit cube of the space."""
+    return float(np.sum(((x - space.lower) / np.where(space.upper > space.lower, space.upper - space.lower, 1.0) - 0.3) ** 2))
+
+
+@pytest.mark.parametrize(("letter", "make"), [("N", nsgaii), ("P", smpso)])
+def test_the_ask_tell_search_asks_what_jmetalpys_own_run_loop_evaluates(space, letter, make):
+    population, generations, seed = 6, 5, 11
+    initial = list(space.sample(np.random.default_rng(1), 2))
+    evaluated: list[np.ndarray] = []
+
+    class Recording(Evaluator):
+        def evaluate(self, solution_list, problem):
+            for solution in solution_list:
+                x = np.array(solution.variables, dtype=float)
+                evaluated.append(x)
+                solution.objectives[0] = bowl(x, space)
+            return solution_list
+
+    algorithm = make(space, population, initial)
+    algorithm.termination_criterion = StoppingByEvaluations(max_evaluations=population * generations)
+    algorithm.observable.register(algorithm.termination_criterion)  # it learns the evaluations as an observer
+    if letter == "N":
+        algorithm.population_evaluator = Recording()
+    else:
+        algorithm.swarm_evaluator = Recording()
+    with _OwnStreams(seed).installed():
+        algorithm.run()
+
+    search = OPTIMIZERS[letter].start(space, seed=seed, population=population, batch=4, initial=initial)
+    asked: list[np.ndarray] = []
+    while len(asked) < len(evaluated):
+        vectors = search.ask()
+        asked += vectors
+        search.tell(vectors, [bowl(x, space) for x in vectors])
+    assert len(evaluated) == population * generations
+    assert all(np.array_equal(a, b) for a, b in zip(asked, evaluated))
 
 
 def test_nsga2_runs_with_an_odd_population(space, tmp_path):

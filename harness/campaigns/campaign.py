@@ -18,7 +18,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from harness.campaigns.problem import CampaignProblem
+from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.evaluation import EvaluationResult, RunOptions
@@ -27,7 +27,6 @@ from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
-from harness.search.problem import StopSearch
 from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
 
 log = logging.getLogger(__name__)
@@ -114,8 +113,11 @@ def run_sequence(combination: str, problem: CampaignProblem, *, budget: int, see
             initial += least_explored(problem.space, [x for x, _ in problem.history], population - len(initial), rng)
         problem.step, problem.optimizer = step, optimizer.name
         problem.step_limit = problem.spent + step_budget
+        search = optimizer.start(problem.space, seed=seed * 1000 + step, population=population, batch=batch, initial=initial)
         try:
-            optimizer.search(problem, seed=seed * 1000 + step, population=population, batch=batch, initial=initial)
+            while True:
+                vectors = search.ask()
+                search.tell(vectors, problem.evaluate(vectors))
         except StopSearch as stop:
             if stop.campaign_done and problem.spent < problem.step_limit:
                 return

@@ -1,5 +1,5 @@
-"""The campaign's side of the search problem (harness/search/problem.py): a function from batches of
-vectors to fitness values.
+"""The campaign's evaluation of an optimizer's candidates: a function from batches of vectors to
+fitness values, which the campaign's search loop (campaign.run_sequence) calls between ask and tell.
 
 It owns the loop's side effects: the store (replay of finished evaluations on resume), the
 executor, the budgets. Within a run each distinct vector is flown at most once; asking again
@@ -21,8 +21,16 @@ from harness.execution.executor import Executor, Job
 from harness.flight.evaluation import EvaluationResult, RunOptions, infeasible
 from harness.flight.fitness import Status
 from harness.scenario.space import SearchSpace
-from harness.search.problem import StopSearch
 from harness.search.termination import Progress, Termination
+
+
+class StopSearch(Exception):
+    """Raised by CampaignProblem.evaluate once the step's budget or the run's termination is reached
+    (what it could evaluate of the batch is stored); ends the step's search loop."""
+
+    def __init__(self, campaign_done: bool):
+        self.campaign_done = campaign_done
+        super().__init__("campaign termination reached" if campaign_done else "step budget reached")
 
 
 @dataclass

@@ -1,7 +1,9 @@
-"""Optimizer adapters, one per library; each sees only Problem.evaluate (vectors -> fitness).
+"""Optimizer adapters, one per library, each an ask/tell search over a search space: the
+campaign owns the loop (asks, evaluates through its store and executor, tells), and an
+optimizer knows nothing of stores, executors or budgets.
 
-jMetalPy's algorithms own their generation loop, so they are driven through a batch Evaluator
-instead of ask/tell; bayesian-optimization is ask/tell (`suggest` / `register`); random search is
+jMetalPy's NSGA-II and SMPSO are driven by their own methods, their run loop taken apart at the
+evaluation; bayesian-optimization is ask/tell already (`suggest` / `register`); random search is
 the baseline. Each is registered by the letter the paper uses in its sequential combinations.
 """
 
@@ -10,9 +12,10 @@ from __future__ import annotations
 import copy
 import logging
 import random
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from jmetal.algorithm.multiobjective.nsgaii import NSGAII
@@ -22,11 +25,10 @@ from jmetal.operator.crossover import SBXCrossover
 from jmetal.operator.mutation import PolynomialMutation
 from jmetal.operator.selection import BinaryTournamentSelection
 from jmetal.util.archive import CrowdingDistanceArchive
-from jmetal.util.evaluator import Evaluator
 from jmetal.util.generator import InjectorGenerator
 from jmetal.util.termination_criterion import StoppingByEvaluations
 
-from harness.search.problem import Problem
+from harness.scenario.space import SearchSpace
 
 # jMetalPy logs every generation at DEBUG through its own handler; keep campaigns' stderr readable.
 logging.getLogger("jmetal").setLevel(logging.WARNING)
@@ -34,12 +36,21 @@ logging.getLogger("jmetal").setLevel(logging.WARNING)
 BO_TARGET_CAP = 100.0  # BO's Gaussian process sees min(fitness, cap): penalties rank last without wrecking its scale
 
 
+class Search(Protocol):
+    """One optimizer's search, driven by the campaign: ask for candidates, tell their fitness."""
+
+    def ask(self) -> list[np.ndarray]: ...
+
+    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None: ...
+
+
 class Optimizer(Protocol):
     letter: str
     name: str
 
-    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        """Evaluate candidates through problem.evaluate until it raises StopSearch."""
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+        """A search over space, beginning with the initial candidates (fewer than population: the
+        rest is the optimizer's own)."""
 
 
 class _JMetalProblem(FloatProblem):
@@ -63,15 +74,14 @@ class _JMetalProblem(FloatProblem):
 
 class _OwnStreams:
     """jMetalPy's operators draw from the global `random` stream (SMPSO from numpy's as well), and so
-    may whatever runs between two generations: a Dask client, a process pool, a library. So an
-    optimizer keeps its own seeded copy of both streams, installed while jMetalPy runs and put aside
-    while the harness evaluates; one seed then gives the same candidates on every executor, and the
-    rest of the program's streams are left as they were."""
+    may whatever runs between two generations: a Dask client, a process pool, a library. So a
+    search keeps its own seeded copy of both streams, installed only while jMetalPy's code runs
+    (in ask and tell); one seed then gives the same candidates on every executor, and the rest of
+    the program's streams are left as they were."""
 
     def __init__(self, seed: int):
         self._random = random.Random(seed).getstate()
         self._numpy = np.random.RandomState(seed % 2**32).get_state()
-        self._outside: tuple | None = None
 
     def _swap(self, state: tuple) -> tuple:
         mine = (random.getstate(), np.random.get_state())
@@ -81,32 +91,11 @@ class _OwnStreams:
 
     @contextmanager
     def installed(self):
-        self._outside = self._swap((self._random, self._numpy))
+        outside = self._swap((self._random, self._numpy))
         try:
             yield
         finally:
-            self._random, self._numpy = self._swap(self._outside)
-
-    @contextmanager
-    def put_aside(self):
-        mine = self._swap(self._outside)
-        try:
-            yield
-        finally:
-            self._outside = self._swap(mine)
-
-
-class _BatchEvaluator(Evaluator):
-    def __init__(self, evaluate: Callable[[list[np.ndarray]], list[float]], streams: _OwnStreams):
-        self._evaluate = evaluate
-        self._streams = streams
-
-    def evaluate(self, solution_list, problem):
-        with self._streams.put_aside():
-            values = self._evaluate([np.array(s.variables, dtype=float) for s in solution_list])
-        for solution, value in zip(solution_list, values):
-            solution.objectives[0] = value
-        return solution_list
+            self._random, self._numpy = self._swap(outside)
 
 
 def _injected(jproblem: _JMetalProblem, initial: list[np.ndarray]):
@@ -123,28 +112,116 @@ def _mutation(n: int) -> PolynomialMutation:
     return PolynomialMutation(probability=1.0 / n, distribution_index=20.0)
 
 
+def nsgaii(space: SearchSpace, population: int, initial: list[np.ndarray]) -> NSGAII:
+    """jMetalPy's NSGA-II with the paper's settings, its population starting with initial."""
+    jproblem = _JMetalProblem(space.lower, space.upper)
+    return NSGAII(
+        problem=jproblem,
+        population_size=population,
+        # SBX makes two children of two parents: an odd population's last child would lack a partner.
+        offspring_population_size=population + population % 2,
+        mutation=_mutation(space.n_dimensions),
+        crossover=SBXCrossover(probability=0.9, distribution_index=20.0),
+        selection=BinaryTournamentSelection(),
+        termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
+        population_generator=_injected(jproblem, initial),
+    )
+
+
+def smpso(space: SearchSpace, population: int, initial: list[np.ndarray]) -> SMPSO:
+    """jMetalPy's SMPSO with the paper's settings, its swarm starting with initial."""
+    jproblem = _JMetalProblem(space.lower, space.upper)
+    return SMPSO(
+        problem=jproblem,
+        swarm_size=population,
+        mutation=_mutation(space.n_dimensions),
+        leaders=CrowdingDistanceArchive(100),
+        termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
+        swarm_generator=_injected(jproblem, initial),
+    )
+
+
+def _vectors(solutions) -> list[np.ndarray]:
+    return [np.array(solution.variables, dtype=float) for solution in solutions]
+
+
+def _told(solutions, fitness: list[float]) -> None:
+    for solution, value in zip(solutions, fitness):
+        solution.objectives[0] = value
+
+
+class _NSGAIISearch:
+    """jMetalPy's NSGA-II generation loop (EvolutionaryAlgorithm.run and step) taken apart at its
+    evaluation: ask makes a generation's offspring (the initial population first), tell ranks them in."""
+
+    def __init__(self, algorithm: NSGAII, streams: _OwnStreams):
+        self._algorithm, self._streams = algorithm, streams
+        self._started = False
+        self._offspring: list = []
+        with streams.installed():
+            algorithm.start_computing_time = time.time()
+            algorithm.solutions = algorithm.create_initial_solutions()
+
+    def ask(self) -> list[np.ndarray]:
+        if not self._started:
+            return _vectors(self._algorithm.solutions)
+        with self._streams.installed():
+            self._offspring = self._algorithm.reproduction(self._algorithm.selection(self._algorithm.solutions))
+        return _vectors(self._offspring)
+
+    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+        algorithm = self._algorithm
+        with self._streams.installed():
+            if not self._started:
+                _told(algorithm.solutions, fitness)
+                algorithm.init_progress()
+                self._started = True
+            else:
+                _told(self._offspring, fitness)
+                algorithm.solutions = algorithm.replacement(algorithm.solutions, self._offspring)
+                algorithm.update_progress()
+
+
+class _SMPSOSearch:
+    """jMetalPy's SMPSO loop (ParticleSwarmOptimization.run and step) taken apart at its
+    evaluation: ask moves the swarm (the initial swarm first), tell updates the bests."""
+
+    def __init__(self, algorithm: SMPSO, streams: _OwnStreams):
+        self._algorithm, self._streams = algorithm, streams
+        self._started = False
+        with streams.installed():
+            algorithm.start_computing_time = time.time()
+            algorithm.solutions = algorithm.create_initial_solutions()
+
+    def ask(self) -> list[np.ndarray]:
+        if self._started:
+            algorithm = self._algorithm
+            with self._streams.installed():
+                algorithm.update_velocity(algorithm.solutions)
+                algorithm.update_position(algorithm.solutions)
+                algorithm.perturbation(algorithm.solutions)
+        return _vectors(self._algorithm.solutions)
+
+    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+        algorithm = self._algorithm
+        _told(algorithm.solutions, fitness)
+        with self._streams.installed():
+            if not self._started:
+                algorithm.init_progress()
+                self._started = True
+            else:
+                algorithm.update_global_best(algorithm.solutions)
+                algorithm.update_particle_best(algorithm.solutions)
+                algorithm.update_progress()
+
+
 @dataclass(frozen=True)
 class NSGAIIOptimizer:
     letter: str = "N"
     name: str = "NSGAII"
 
-    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        streams = _OwnStreams(seed)
-        jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
-        algorithm = NSGAII(
-            problem=jproblem,
-            population_size=population,
-            # SBX makes two children of two parents: an odd population's last child would lack a partner.
-            offspring_population_size=population + population % 2,
-            mutation=_mutation(problem.space.n_dimensions),
-            crossover=SBXCrossover(probability=0.9, distribution_index=20.0),
-            selection=BinaryTournamentSelection(),
-            termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
-            population_generator=_injected(jproblem, initial),
-            population_evaluator=_BatchEvaluator(problem.evaluate, streams),
-        )
-        with streams.installed():
-            algorithm.run()
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+        return _NSGAIISearch(nsgaii(space, population, initial), _OwnStreams(seed))
 
 
 @dataclass(frozen=True)
@@ -152,60 +229,69 @@ class SMPSOOptimizer:
     letter: str = "P"
     name: str = "SMPSO"
 
-    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        streams = _OwnStreams(seed)
-        jproblem = _JMetalProblem(problem.space.lower, problem.space.upper)
-        algorithm = SMPSO(
-            problem=jproblem,
-            swarm_size=population,
-            mutation=_mutation(problem.space.n_dimensions),
-            leaders=CrowdingDistanceArchive(100),
-            termination_criterion=StoppingByEvaluations(max_evaluations=10**9),
-            swarm_generator=_injected(jproblem, initial),
-            swarm_evaluator=_BatchEvaluator(problem.evaluate, streams),
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+        return _SMPSOSearch(smpso(space, population, initial), _OwnStreams(seed))
+
+
+class _BOSearch:
+    """Bayesian optimization; maximizes -fitness. The initial set (the seeds, then random points,
+    `population` in all) goes first, `batch` at a time; then batches for parallel workers by the
+    constant liar: suggestions are drawn from a copy that is told the best value so far at each one."""
+
+    def __init__(self, space: SearchSpace, seed: int, population: int, batch: int, initial: list[np.ndarray]):
+        from bayes_opt import BayesianOptimization
+
+        self._names = [f"x{i:03d}" for i in range(space.n_dimensions)]
+        self._optimizer = BayesianOptimization(
+            f=None, pbounds={n: (float(lo), float(hi)) for n, lo, hi in zip(self._names, space.lower, space.upper)},
+            random_state=seed % 2**32, verbose=0, allow_duplicate_points=True,
         )
-        with streams.installed():
-            algorithm.run()
+        self._batch = batch
+        self._queue = list(initial) + [self._vector(p) for p in self._optimizer.random_sample(max(0, population - len(initial)))]
+
+    def _vector(self, params) -> np.ndarray:
+        return np.array([params[n] for n in self._names], dtype=float)
+
+    def ask(self) -> list[np.ndarray]:
+        if self._queue:
+            asked, self._queue = self._queue[: self._batch], self._queue[self._batch :]
+            return asked
+        liar = copy.deepcopy(self._optimizer)
+        lie = self._optimizer.max["target"] if self._optimizer.max else 0.0
+        suggestions = []
+        for _ in range(self._batch):
+            params = liar.suggest()
+            suggestions.append(self._vector(params))
+            liar.register(params=params, target=lie)
+        return suggestions
+
+    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+        for x, value in zip(vectors, fitness):
+            self._optimizer.register(params=dict(zip(self._names, x.tolist())), target=-min(value, BO_TARGET_CAP))
 
 
 @dataclass(frozen=True)
 class BOOptimizer:
-    """Bayesian optimization; maximizes -fitness. Batches for parallel workers by the constant
-    liar: suggestions are drawn from a copy that is told the best value so far at each one."""
-
     letter: str = "B"
     name: str = "BO"
 
-    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        from bayes_opt import BayesianOptimization
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+        return _BOSearch(space, seed, population, batch, initial)
 
-        space = problem.space
-        names = [f"x{i:03d}" for i in range(space.n_dimensions)]
-        optimizer = BayesianOptimization(
-            f=None, pbounds={n: (float(lo), float(hi)) for n, lo, hi in zip(names, space.lower, space.upper)},
-            random_state=seed % 2**32, verbose=0, allow_duplicate_points=True,
-        )
 
-        def to_vector(params) -> np.ndarray:
-            return np.array([params[n] for n in names], dtype=float)
+class _RandomSearch:
+    def __init__(self, space: SearchSpace, seed: int, batch: int, initial: list[np.ndarray]):
+        self._space, self._rng, self._batch = space, np.random.default_rng(seed), batch
+        self._initial = list(initial)
 
-        def tell(vectors: list[np.ndarray]) -> None:
-            for x, fitness in zip(vectors, problem.evaluate(vectors)):
-                optimizer.register(params=dict(zip(names, x.tolist())), target=-min(fitness, BO_TARGET_CAP))
+    def ask(self) -> list[np.ndarray]:
+        if self._initial:
+            asked, self._initial = self._initial, []
+            return asked
+        return list(self._space.sample(self._rng, self._batch))
 
-        # The initial set: the seeds (BO's probes) and then random points, `population` in all.
-        start = list(initial) + [to_vector(p) for p in optimizer.random_sample(max(0, population - len(initial)))]
-        for offset in range(0, len(start), batch):
-            tell(start[offset : offset + batch])
-        while True:
-            liar = copy.deepcopy(optimizer)
-            lie = optimizer.max["target"] if optimizer.max else 0.0
-            suggestions = []
-            for _ in range(batch):
-                params = liar.suggest()
-                suggestions.append(to_vector(params))
-                liar.register(params=params, target=lie)
-            tell(suggestions)
+    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+        pass
 
 
 @dataclass(frozen=True)
@@ -213,12 +299,8 @@ class RandomSearch:
     letter: str = "R"
     name: str = "RANDOM"
 
-    def search(self, problem: Problem, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> None:
-        rng = np.random.default_rng(seed)
-        if initial:
-            problem.evaluate(list(initial))
-        while True:
-            problem.evaluate(list(problem.space.sample(rng, batch)))
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+        return _RandomSearch(space, seed, batch, initial)
 
 
 OPTIMIZERS: dict[str, Optimizer] = {o.letter: o for o in (NSGAIIOptimizer(), SMPSOOptimizer(), BOOptimizer(), RandomSearch())}
