@@ -90,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 bridge.run(sut, control)
             except KeyboardInterrupt:
+                bridge.settle_outcome()
                 bridge.summary.end_reason = "interrupted"
             finally:
                 sut.close()

@@ -13,7 +13,9 @@ from typing import Any, BinaryIO, Mapping
 
 from mcap.writer import CompressionType, Writer
 
+from sim_bridge.obstacles import Obstacle
 from sim_bridge.sensors import rotation_ned_from_body
+from sim_bridge.terrain import is_water, terrain_height_m
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _VECTOR3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -260,3 +262,65 @@ class Recorder:
 
     def metadata(self, name: str, values: Mapping[str, str]) -> None:
         self._writer.add_metadata(name, dict(values))
+
+
+def scene_entity(obstacle: Obstacle, time_ns: int) -> dict[str, Any]:
+    """An obstacle as a Foxglove SceneEntity: moving ones orange, static ones grey."""
+    n, e, u = obstacle.position
+    pose = {"position": enu(n, e, u), "orientation": yaw_orientation(obstacle.yaw_rad)}
+    color = {"r": 0.9, "g": 0.4, "b": 0.1, "a": 0.8} if obstacle.moving else {"r": 0.5, "g": 0.5, "b": 0.55, "a": 0.9}
+    size = obstacle.size
+    entity: dict[str, Any] = {
+        "timestamp": stamp(time_ns),
+        "frame_id": "world",
+        "id": obstacle.id,
+        "lifetime": stamp(0),
+        "frame_locked": False,
+        "metadata": [{"key": "form", "value": obstacle.form}],
+        "cubes": [],
+        "spheres": [],
+        "cylinders": [],
+        "triangles": [],
+    }
+    if obstacle.form == "cuboid":
+        entity["cubes"].append({"pose": pose, "size": {"x": size["length_m"], "y": size["width_m"], "z": size["height_m"]}, "color": color})
+    elif obstacle.form == "sphere":
+        d = size["diameter_m"]
+        entity["spheres"].append({"pose": pose, "size": {"x": d, "y": d, "z": d}, "color": color})
+    else:
+        d = size["diameter_m"]
+        entity["cylinders"].append(
+            {"pose": pose, "size": {"x": d, "y": d, "z": size["height_m"]}, "bottom_scale": 1.0, "top_scale": 1.0, "color": color}
+        )
+    return entity
+
+
+def terrain_entity(terrain: Mapping[str, Any], water: Any) -> dict[str, Any]:
+    """The terrain around the route as a Foxglove triangle list, water in blue."""
+    area = 120.0
+    cells = 24
+    step = 2 * area / cells
+    points, colors = [], []
+
+    def vertex(n: float, e: float) -> None:
+        points.append(enu(n, e, terrain_height_m(terrain, n, e)))
+        colors.append({"r": 0.2, "g": 0.4, "b": 0.8, "a": 1.0} if is_water(water, n, e) else {"r": 0.35, "g": 0.55, "b": 0.3, "a": 1.0})
+
+    for i in range(cells):
+        for j in range(cells):
+            n0, e0 = -area + 30 + i * step, -area + j * step
+            for n, e in ((n0, e0), (n0 + step, e0), (n0 + step, e0 + step), (n0, e0), (n0 + step, e0 + step), (n0, e0 + step)):
+                vertex(n, e)
+    identity = {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+    return {
+        "timestamp": stamp(0),
+        "frame_id": "world",
+        "id": "terrain",
+        "lifetime": stamp(0),
+        "frame_locked": False,
+        "metadata": [{"key": "landform", "value": terrain["kind"]}],
+        "cubes": [],
+        "spheres": [],
+        "cylinders": [],
+        "triangles": [{"pose": identity, "points": points, "color": {"r": 0.35, "g": 0.55, "b": 0.3, "a": 1.0}, "colors": colors, "indices": []}],
+    }

@@ -1,0 +1,249 @@
+"""The simulated world, stepped in lockstep: the vehicle's physics (JSBSim) over the terrain and in
+the wind, the obstacles and their motion, what the sensors read, the simulated pilot, the
+clearance between the vehicle and every obstacle, and when a flight has ended.
+
+No sockets, no wall clock and no MAVLink framing: sim_bridge/bridge.py serves the world to a
+SUT over PX4's simulator protocol, holds it while the harness sets up, and records it. Its
+readings draw sensor noise from the world's seed, so the same calls in the same order give the
+same flight to the last bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from sim_bridge.obstacles import Obstacle, ObstacleField
+from sim_bridge.physics import Multirotor, VehicleState
+from sim_bridge.pilot import Pilot, RcFrame
+from sim_bridge.sensors import SensorModel
+from sim_bridge.terrain import is_water, terrain_height_m
+
+SECTORS = 72
+SECTOR_DEG = 5.0
+LANDED_HOLD_S = 1.0
+CRASH_SPEED_M_S = 4.0
+NO_READING = 65535  # UINT16_MAX: a sector the sensor does not cover, as OBSTACLE_DISTANCE has it
+
+
+def _ignore_event(time_s: float, event: str, detail: dict[str, Any]) -> None:
+    pass
+
+
+def _ignore_change(time_s: float, removed_id: str | None) -> None:
+    pass
+
+
+class World:
+    """The world of one flight, built from its world spec (what the harness's world_spec makes)."""
+
+    def __init__(self, spec: Mapping[str, Any], rate_hz: float, *,
+                 on_event: Callable[[float, str, dict[str, Any]], None] = _ignore_event,
+                 on_obstacles_changed: Callable[[float, str | None], None] = _ignore_change):
+        self.spec = spec
+        self.on_event = on_event
+        self.on_obstacles_changed = on_obstacles_changed
+        origin = spec["origin"]
+        start = spec["uav"]["start"]
+        atmosphere = spec["atmosphere"]
+        self.terrain = spec["terrain"]
+        self.water = spec["surface"]["water"]
+        self.wind = (atmosphere["wind_north_m_s"], atmosphere["wind_east_m_s"])
+        self.vehicle = Multirotor(
+            lat_deg=origin["lat_deg"],
+            lon_deg=origin["lon_deg"],
+            ground_msl_m=origin["alt_m"] + start["up_m"],
+            rate_hz=rate_hz,
+            temperature_c=atmosphere["temperature_c"],
+        )
+        self.sensors = SensorModel(spec["seed"], atmosphere["temperature_c"])
+        self.field = ObstacleField([Obstacle.from_spec(o) for o in spec["obstacles"]], spec["uav"]["body"])
+        sensor = spec["sensor"]
+        self.range_m = float(sensor["range_m"])
+        self.min_range_m = float(sensor["min_range_m"])
+        half_fov = sensor["fov_deg"] / 2.0
+        self.sector_visible = np.array([min(i * SECTOR_DEG, 360.0 - i * SECTOR_DEG) <= half_fov + 1e-9 for i in range(SECTORS)])
+        self._sector_angles = np.radians(np.arange(SECTORS) * SECTOR_DEG)[self.sector_visible]
+        # The sensors sit on the body's edge: each ray's range starts at the hull, not the centre.
+        body = spec["uav"]["body"]
+        half_l, half_w = body["length_m"] / 2.0, body["width_m"] / 2.0
+        with np.errstate(divide="ignore"):
+            self._hull_offsets = np.minimum(half_l / np.abs(np.cos(self._sector_angles)), half_w / np.abs(np.sin(self._sector_angles)))
+        self.dt = 1.0 / rate_hz
+        self.dt_us = int(round(1e6 / rate_hz))
+        self.steps = 0
+        self.motors = (0.0, 0.0, 0.0, 0.0)  # the SUT's last answer
+        self.run_start_s: float | None = None
+        self.end_reason = "running"
+        self.airborne = False
+        self.touchdown: dict[str, Any] | None = None
+        self.injections: list[dict[str, Any]] = []
+        self.forced_slot: int | None = None
+        self._pending_ops: list[Mapping[str, Any]] = []
+        self._landed_since: float | None = None
+        self.pilot: Pilot | None = None
+        if spec.get("drive") == "pilot":
+            mission = spec["mission"]
+            self.pilot = Pilot(start, mission["waypoints"], mission["takeoff_altitude_m"], spec["pilot"]["max_stick"], spec["pilot"]["aim_offset_m"])
+
+    @property
+    def state(self) -> VehicleState:
+        return self.vehicle.state
+
+    @property
+    def time_s(self) -> float:
+        return self.steps * self.dt
+
+    @property
+    def running(self) -> bool:
+        return self.end_reason == "running"
+
+    def run_time(self, time_s: float) -> float:
+        """Simulation seconds since the run began (0 before): obstacles move and the time limit counts in it."""
+        return 0.0 if self.run_start_s is None else time_s - self.run_start_s
+
+    def start_run(self, time_s: float) -> None:
+        if self.run_start_s is None:
+            self.run_start_s = time_s
+            self.on_event(time_s, "run", {})
+
+    def end(self, reason: str) -> None:
+        self.end_reason = reason
+
+    # -- readings ----------------------------------------------------------------------------
+
+    def imu(self) -> tuple:
+        """This step's HIL_SENSOR values (accelerometer, gyro, magnetometer, barometer), with noise."""
+        return self.sensors.hil_sensor_values(self.vehicle.state)
+
+    def gps(self) -> dict[str, Any]:
+        return self.sensors.hil_gps(self.vehicle.state, self.vehicle.local_to_geodetic)
+
+    def range_cm(self) -> list[int]:
+        """The range sensor's reading per 5-degree sector in body FRD (OBSTACLE_DISTANCE's
+        convention): centimetres from the hull, range + 1 cm where nothing is in reach, NO_READING
+        outside its field of view."""
+        s = self.vehicle.state
+        distances = [NO_READING] * SECTORS
+        reach_cm = int(self.range_m * 100)
+        nearest = self.field.sector_distances(s.north_m, s.east_m, s.up_m, self._sector_angles + s.yaw_rad) - self._hull_offsets
+        visible = np.flatnonzero(self.sector_visible)
+        for index, distance in zip(visible.tolist(), nearest.tolist()):
+            if distance <= self.range_m:
+                distances[index] = max(int(self.min_range_m * 100), int(distance * 100))
+            else:
+                distances[index] = reach_cm + 1
+        return distances
+
+    def pilot_frame(self, time_s: float) -> RcFrame:
+        """The simulated pilot's sticks and switch now (its mode switch held where the harness asked)."""
+        frame = self.pilot.update(time_s, self.vehicle.state)
+        return frame if self.forced_slot is None else replace(frame, slot=self.forced_slot)
+
+    def clearance(self) -> tuple[float | None, str | None]:
+        """The clearance from the vehicle's body to the nearest obstacle and which one (None, None
+        with no obstacle); negative when they overlap."""
+        s = self.vehicle.state
+        self.field.place_body(s.north_m, s.east_m, s.up_m, s.roll_rad, s.pitch_rad, s.yaw_rad)
+        clearances = self.field.clearances()
+        if not clearances:
+            return None, None
+        nearest = min(range(len(clearances)), key=clearances.__getitem__)
+        return clearances[nearest], self.field.obstacles[nearest].id
+
+    # -- stepping ----------------------------------------------------------------------------
+
+    def step(self, motors: tuple[float, float, float, float]) -> None:
+        """One physics step with these motor commands, then the obstacles' changes and motion due
+        by the new time. check_end() follows once the step's control messages are handled."""
+        s = self.vehicle.state
+        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind)
+        self.steps += 1
+        time_s = self.time_s
+        run_time = self.run_time(time_s)
+        while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
+            self.apply(self._pending_ops.pop(0), time_s)
+        self.field.move_to(run_time)
+
+    def schedule(self, op: Mapping[str, Any]) -> None:
+        """An obstacle change to make at run time op["at_s"]."""
+        self._pending_ops.append(op)
+        self._pending_ops.sort(key=lambda o: o["at_s"])
+
+    def apply(self, op: Mapping[str, Any], time_s: float) -> None:
+        """An obstacle change now: add_obstacle, move_obstacle or remove_obstacle (sim_bridge/bridge.py)."""
+        kind = op.get("op")
+        record = {"op": kind, "t": time_s}
+        removed = None
+        if kind == "add_obstacle":
+            obstacle = Obstacle.from_spec(op["obstacle"])
+            obstacle.move_to(self.run_time(time_s))
+            self.field.add(obstacle)
+            record["id"] = obstacle.id
+        elif kind == "move_obstacle":
+            current = next((o for o in self.field.obstacles if o.id == op["id"]), None)
+            if current is None:
+                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op['id']!r}"})
+                return
+            spec = {"id": current.id, "form": current.form, "size": current.size, "yaw_rad": op.get("yaw_rad", current.yaw_rad),
+                    "a": op["a"], "b": op.get("b"), "speed_m_s": op.get("speed_m_s", 0.0)}
+            obstacle = Obstacle.from_spec(spec)
+            obstacle.move_to(self.run_time(time_s))
+            self.field.add(obstacle)
+            record["id"] = obstacle.id
+        elif kind == "remove_obstacle":
+            record["id"] = op["id"]
+            if not self.field.remove(op["id"]):
+                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op['id']!r}"})
+                return
+            removed = op["id"]
+        else:
+            self.on_event(time_s, "injection_rejected", {"reason": f"unknown op {kind!r}"})
+            return
+        self.injections.append(record)
+        self.on_event(time_s, "injection", record)
+        self.on_obstacles_changed(time_s, removed)
+
+    def check_end(self) -> None:
+        """Whether the flight has ended: landed (still, motors idle, for a second), crashed (a
+        touchdown faster than CRASH_SPEED_M_S), the pilot blocked, or out of time."""
+        time_s = self.time_s
+        s = self.vehicle.state
+        run_time = self.run_time(time_s)
+        if s.agl_m > 1.0:
+            self.airborne = True
+        speed = math.sqrt(s.v_north_m_s**2 + s.v_east_m_s**2 + s.v_down_m_s**2)
+        if self.airborne and s.on_ground:
+            if self.touchdown is None:
+                self.touchdown = {
+                    "t": time_s,
+                    "north_m": s.north_m,
+                    "east_m": s.east_m,
+                    "speed_m_s": speed,
+                    "surface": "water" if is_water(self.water, s.north_m, s.east_m) else "land",
+                }
+                self.on_event(time_s, "touchdown", dict(self.touchdown))
+                if speed > CRASH_SPEED_M_S:
+                    self.end_reason = "crashed"
+                    return
+            if speed < 0.3 and max(self.motors) < 0.15:
+                if self._landed_since is None:
+                    self._landed_since = time_s
+                elif time_s - self._landed_since >= LANDED_HOLD_S:
+                    self.end_reason = "landed"
+                    return
+            else:
+                self._landed_since = None
+        else:
+            self._landed_since = None
+            if not s.on_ground:
+                self.touchdown = None
+        if self.pilot is not None and self.pilot.blocked:
+            self.end_reason = "blocked"
+            self.on_event(time_s, "blocked", {"remaining_m": self.pilot.remaining_m, "north_m": s.north_m, "east_m": s.east_m})
+            return
+        if self.run_start_s is not None and run_time >= self.spec["time_limit_s"]:
+            self.end_reason = "time_limit"
