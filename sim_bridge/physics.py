@@ -8,6 +8,7 @@ counter-clockwise seen from above, front-left and aft-right clockwise.
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import shutil
@@ -69,12 +70,15 @@ def _model_dir() -> str:
 
 @contextlib.contextmanager
 def _stdout_silenced():
+    """JSBSim prints a banner: at the file descriptor where stdout is a file, through sys.stdout
+    where that is none (a caller capturing output, as `stella bench --json` under pytest)."""
     sys.stdout.flush()
     saved = os.dup(1)
     with open(os.devnull, "wb") as devnull:
         os.dup2(devnull.fileno(), 1)
     try:
-        yield
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
     finally:
         os.dup2(saved, 1)
         os.close(saved)

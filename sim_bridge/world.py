@@ -37,6 +37,18 @@ def _ignore_change(time_s: float, removed_id: str | None) -> None:
     pass
 
 
+def vehicle_for(spec: Mapping[str, Any], rate_hz: float) -> Multirotor:
+    """JSBSim's F450 at the world's start point and temperature, stepped at rate_hz."""
+    origin = spec["origin"]
+    return Multirotor(
+        lat_deg=origin["lat_deg"],
+        lon_deg=origin["lon_deg"],
+        ground_msl_m=origin["alt_m"] + spec["uav"]["start"]["up_m"],
+        rate_hz=rate_hz,
+        temperature_c=spec["atmosphere"]["temperature_c"],
+    )
+
+
 class World:
     """The world of one flight, built from its world spec (what the harness's world_spec makes)."""
 
@@ -46,19 +58,12 @@ class World:
         self.spec = spec
         self.on_event = on_event
         self.on_obstacles_changed = on_obstacles_changed
-        origin = spec["origin"]
         start = spec["uav"]["start"]
         atmosphere = spec["atmosphere"]
         self.terrain = spec["terrain"]
         self.water = spec["surface"]["water"]
         self.wind = (atmosphere["wind_north_m_s"], atmosphere["wind_east_m_s"])
-        self.vehicle = Multirotor(
-            lat_deg=origin["lat_deg"],
-            lon_deg=origin["lon_deg"],
-            ground_msl_m=origin["alt_m"] + start["up_m"],
-            rate_hz=rate_hz,
-            temperature_c=atmosphere["temperature_c"],
-        )
+        self.vehicle = vehicle_for(spec, rate_hz)
         self.sensors = SensorModel(spec["seed"], atmosphere["temperature_c"])
         self.field = ObstacleField([Obstacle.from_spec(o) for o in spec["obstacles"]], spec["uav"]["body"])
         sensor = spec["sensor"]

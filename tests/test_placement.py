@@ -110,3 +110,12 @@ def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
         median = placement["median"]
         assert median["real_time_factor"] > 1.0 and median["step_us"] > 0
         assert placement["workers"] == MACHINE_CORES // placement["cores_per_evaluation"]
+        # The ratios to JSBSim stepped alone: a lockstep flight is slower than its physics alone,
+        # an evaluation (with setup) slower still, and the two follow from the absolute figures.
+        alone = report["jsbsim_alone"]
+        assert 0.0 < placement["flight_speed_of_jsbsim_alone"] < 1.0
+        assert placement["flight_speed_of_jsbsim_alone"] == pytest.approx(median["real_time_factor"] / alone["real_time_factor"])
+        assert placement["evaluation_cost_in_jsbsim_alone"] == pytest.approx(median["wall_time_s"] * alone["real_time_factor"] / median["sim_time_s"])
+        assert placement["evaluation_cost_in_jsbsim_alone"] > 1.0 / placement["flight_speed_of_jsbsim_alone"]
+    # Every step of the flight is replayed, with the SUT's own motor commands.
+    assert report["jsbsim_alone"]["steps"] == round(report["placements"][0]["median"]["sim_time_s"] * report["rate_hz"])

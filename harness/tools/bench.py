@@ -48,6 +48,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     machine_cores = len(os.sched_getaffinity(0))
     report_placements = []
     autopilot = None
+    physics_alone = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         for cores in [c for c in placements if c <= machine_cores]:
             rows = []
@@ -59,10 +60,16 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                 rows.append(_run_figures(result, rate_hz))
                 if autopilot is None and sut.sut == "bundled":
                     autopilot = autopilot_step_bench(Path(result.log_path))
+                if physics_alone is None:
+                    physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
             median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
             workers = machine_cores // cores
+            alone_s = median["sim_time_s"] / physics_alone["real_time_factor"]
             report_placements.append({"cores_per_evaluation": cores, "workers": workers, "median": median,
-                                      "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows})
+                                      "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows,
+                                      # Comparable across machines: the flight's speed and an evaluation's cost against JSBSim stepped alone.
+                                      "flight_speed_of_jsbsim_alone": median["real_time_factor"] / physics_alone["real_time_factor"],
+                                      "evaluation_cost_in_jsbsim_alone": median["wall_time_s"] / alone_s})
     fitnesses = {r["fitness"] for p in report_placements for r in p["per_run"]}
     return {
         "scenario": str(path),
@@ -75,6 +82,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         "placements": report_placements,
         "deterministic": len(fitnesses) == 1,
         "autopilot_step": autopilot,
+        "jsbsim_alone": physics_alone,
     }
 
 
@@ -92,22 +100,64 @@ def _run_figures(result, rate_hz: float) -> dict[str, Any]:
         "physics_us": 1e6 * timings["physics_s"] / run_steps,
         "world_us": 1e6 * timings["world_s"] / run_steps,
         "step_us": 1e6 * in_run / run_steps,
+        "sim_time_s": result.sim_time_s,
         "fitness": result.fitness,
     }
     figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "world_us"))
     return figures
 
 
+def jsbsim_alone(log_path: Path, rate_hz: float, repeats: int = 3) -> dict[str, Any]:
+    """JSBSim's F450 alone: the recorded flight's motor commands (zero before the SUT's first
+    answer) stepped through the flight model at the bench's rate, over the terrain and in the wind
+    it flew in, with nothing else: no SUT, sockets, sensors, obstacles or recording. The median
+    of `repeats` replays, each on a fresh model."""
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from harness.flight import logs
+    from sim_bridge.terrain import terrain_height_m
+    from sim_bridge.world import vehicle_for
+    from simlink import codec
+
+    world = logs.json_metadata(log_path, "world")
+    steps = logs.json_metadata(log_path, "bridge_summary")["steps"]
+    splitter = codec.FrameSplitter({m: c.crc_extra for m, c in mavlink.mavlink_map.items()})
+    answers = [codec.decode_hil_actuator_controls(payload)[2][:4]
+               for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut"
+               for msgid, payload, _frame in splitter.feed(bytes.fromhex(m["hex"])) if msgid == codec.HIL_ACTUATOR_CONTROLS_ID]
+    commands = [(0.0, 0.0, 0.0, 0.0)] * max(0, steps - len(answers)) + answers[:steps]
+    terrain = world["terrain"]
+    wind = (world["atmosphere"]["wind_north_m_s"], world["atmosphere"]["wind_east_m_s"])
+    durations = []
+    for _ in range(max(1, repeats)):
+        vehicle = vehicle_for(world, rate_hz)
+        started = time.perf_counter()
+        for motors in commands:
+            s = vehicle.state
+            vehicle.step(motors, terrain_height_m(terrain, s.north_m, s.east_m), *wind)
+        durations.append(time.perf_counter() - started)
+    wall = statistics.median(durations)
+    sim_time = len(commands) / rate_hz
+    return {"steps": len(commands), "sim_time_s": sim_time, "wall_time_s": wall, "step_us": 1e6 * wall / max(1, len(commands)),
+            "real_time_factor": sim_time / wall}
+
+
 def bench_text(report: dict[str, Any]) -> str:
     lines = [f"{report['runs']} runs of {report['scenario']} (seed {report['seed']}, {report['drive']} drive) against {report['sut']} "
              f"at {report['rate_hz']:.0f} Hz lockstep, medians:"]
+    alone = report["jsbsim_alone"]
+    lines.append(f"  JSBSim's F450 alone           {alone['real_time_factor']:.0f}x real time ({alone['step_us']:.0f} us per step; the flight's "
+                 f"motor commands replayed, nothing else)")
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]
         lines += [
             f"  {PLACEMENT_NAMES[placement['cores_per_evaluation']]}:",
-            f"    real-time factor (flight)   {m['real_time_factor']:.1f}x",
-            f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s)",
+            f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's",
+            f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s), "
+            f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
             f"      waiting for the SUT       {m['sut_wait_us']:.0f} us",
