@@ -108,6 +108,7 @@ class ApiLink:
         self.link_lost_reported = False
         self._reported_health = -1
         self._home_reported = False
+        self._client_greeted = False
 
     # -- sending ------------------------------------------------------------------------------
 
@@ -426,6 +427,12 @@ class ApiLink:
         self.send(self.mav.command_ack_encode(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
     def _command(self, msg) -> None:
+        if not self._client_greeted:
+            # A client's first command (MAVSDK's telemetry plugin asks for messages as it starts)
+            # means it listens now: every stream goes out at once, so that it need not wait up to
+            # a period for the health and position it waits on before arming.
+            self._client_greeted = True
+            self._next = {name: 0.0 for name in self._next}
         ap = self.ap
         c = ap.commander
         command = msg.command

@@ -274,3 +274,43 @@ def test_garbage_datagrams_from_another_port_do_not_divert_the_telemetry():
         link.receive()
         assert link.remote == stranger.getsockname() and link.last_gcs_heartbeat is not None  # heard, but the partner stays
         link.sock.close()
+
+
+def test_a_clients_first_command_gets_every_stream_at_once():
+    """MAVSDK waits for SYS_STATUS's health before arming: a client that starts asking must not
+    wait up to a stream's period for it."""
+    import socket
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from autopilot.api import ApiLink
+    from autopilot.app import Autopilot
+
+    def received(sock) -> set[str]:
+        kinds = set()
+        sock.setblocking(False)
+        while True:
+            try:
+                kinds |= {m.get_type() for m in mavlink.MAVLink(None).parse_buffer(sock.recv(65536)) or []}
+            except BlockingIOError:
+                return kinds
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        gcs.bind(("127.0.0.1", 0))
+        link = ApiLink(Autopilot(Params()), gcs.getsockname())
+        link.telemetry(100.0)
+        time.sleep(0.05)
+        assert "SYS_STATUS" in received(gcs)
+        link.telemetry(100.1)  # within every stream's period: nothing periodic is due but the fastest
+        time.sleep(0.05)
+        assert "SYS_STATUS" not in received(gcs)
+        client = mavlink.MAVLink(None, srcSystem=245)
+        request = client.command_long_encode(1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, mavlink.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0)
+        gcs.sendto(request.pack(client), link.sock.getsockname())
+        time.sleep(0.05)
+        link.receive()
+        link.telemetry(100.15)
+        time.sleep(0.05)
+        assert {"SYS_STATUS", "HEARTBEAT", "EXTENDED_SYS_STATE"} <= received(gcs)
+        link.sock.close()
