@@ -39,7 +39,7 @@ FORCE_DISARM_MAGIC = 21196
 # Wall-clock periods of the telemetry streams, seconds.
 STREAMS = {
     "heartbeat": 1.0,
-    "sys_status": 0.5,
+    "sys_status": 0.1,  # the health a client checks before arming: it should not wait for it
     "extended_sys_state": 0.5,
     "attitude": 0.1,
     "position": 0.1,

@@ -18,7 +18,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -101,23 +101,31 @@ class EvaluationResult:
         return cls(**{**document, "status": Status(document["status"])})
 
 
-def _reported_position_mode(log_path: Path) -> bool:
-    """Whether the SUT's heartbeats on the API link ever said Position mode (PX4 custom main mode 3)."""
+def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
+    """Whether the SUT's heartbeats on the API link (its datagrams) ever said Position mode (PX4
+    custom main mode 3)."""
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
-    for _t, _ns, record in logs.messages(log_path, ["/mavlink/api"]):
-        if record["direction"] == "from_sut":
-            for message in parser.parse_buffer(bytes.fromhex(record["hex"])) or []:
-                if message.get_type() == "HEARTBEAT" and (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
-                    return True
+    for datagram in from_sut:
+        for message in parser.parse_buffer(datagram) or []:
+            if message.get_type() == "HEARTBEAT" and (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
+                return True
     return False
 
 
+def _logged_api_traffic(log_path: Path) -> Iterator[bytes]:
+    """What the SUT sent on the API link, as recorded in an evaluation's log."""
+    for _t, _ns, record in logs.messages(log_path, ["/mavlink/api"]):
+        if record["direction"] == "from_sut":
+            yield bytes.fromhex(record["hex"])
+
+
 def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None,
-           partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
-    """Status and fitness of a flight from its log; of a partial (truncated) log, the clearance of
+           api_from_sut: Iterable[bytes], partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
+    """Status and fitness of a flight from the simulator's recording (the bridge's or the merged
+    log) and what the SUT sent on the API link; of a partial (truncated) log, the clearance of
     what was recorded, as whether the mission was flown cannot be told from part of it."""
-    if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(log_path):
+    if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(api_from_sut):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
         failure = (Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
@@ -142,7 +150,7 @@ def rescore(log_path: Path) -> dict[str, Any]:
     failure = None
     if recorded.get("status") in COULD_NOT_FINISH:
         failure = (recorded["status"], recorded.get("why") or "")
-    status, value, why, clearance = _score(log_path, world, summary, failure, partial=cut is not None)
+    status, value, why, clearance = _score(log_path, world, summary, failure, _logged_api_traffic(log_path), partial=cut is not None)
     return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
             "truncation": cut}
 
@@ -181,6 +189,30 @@ def fly(world: Mapping[str, Any], concrete: Mapping[str, Any], *, seed: int, out
     summary: dict[str, Any] = {}
     mavsdk_info: dict[str, Any] = {}
     artifacts: list[str] = []
+
+    def finish(status: Status, value: float, why: str | None, clearance: scoring.Clearance | None, log_path: Path | None) -> EvaluationResult:
+        in_run = summary.get("wall_in_run_s") or 0.0
+        run_time = summary.get("run_time_s") or 0.0
+        return EvaluationResult(
+            status=status,
+            fitness=value,
+            why=why,
+            min_clearance_m=clearance.min_clearance_m if clearance else None,
+            min_clearance_at_s=clearance.at_s if clearance else None,
+            min_clearance_obstacle=clearance.obstacle if clearance else None,
+            sim_time_s=summary.get("sim_time_s", 0.0),
+            wall_time_s=time.monotonic() - wall_start,
+            real_time_factor=(run_time / in_run) if in_run > 0 else None,
+            seed=seed,
+            log_path=str(log_path) if log_path else None,
+            scenario=world["scenario"],
+            sut=options.sut,
+            sut_fault=options.sut_config.get("fault"),
+            artifacts=artifacts,
+            timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
+            mavsdk=mavsdk_info,
+        )
+
     try:
         system = sut_adapter.get(options.sut, options.sut_config)
         with simulation_stack(world, options, system, workdir) as stack:
@@ -192,49 +224,25 @@ def fly(world: Mapping[str, Any], concrete: Mapping[str, Any], *, seed: int, out
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
             raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
         t0 = time.monotonic()
-        result_stub = {"status": failure[0] if failure else None, "why": failure[1] if failure else None}
+        # Scored from the simulator's own recording; the log is then written once, result included.
+        api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
+        status, value, why, clearance = _score(stack.bridge_log, world, summary, failure, api_from_sut)
+        timings["score_s"] = time.monotonic() - t0
+        result = finish(status, value, why, clearance, log_path)
         logs.merge(stack.bridge_log, log_path, api_records=api_records, extra_metadata={
-            "concrete_scenario": concrete, "result": result_stub,
+            "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": {"name": options.sut, "params": dict(options.sut_params), **({"fault": options.sut_config["fault"]} if "fault" in options.sut_config else {})},
         })
-        status, value, why, clearance = _score(log_path, world, summary, failure)
-        timings["score_s"] = time.monotonic() - t0
+        return result
     except sut_adapter.SutError as error:
         log.warning("evaluation %s: the SUT failed to start: %s", stem, error)
-        status, value, why, clearance = Status.SUT_CRASHED, scoring.PENALTY, str(error), None
-        log_path = None
+        return finish(Status.SUT_CRASHED, scoring.PENALTY, str(error), None, None)
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
-        status, value, why, clearance = Status.SIM_CRASHED, scoring.PENALTY, str(error), None
-        log_path = None
+        return finish(Status.SIM_CRASHED, scoring.PENALTY, str(error), None, None)
     finally:
         if not options.keep_workdir:
             shutil.rmtree(workdir, ignore_errors=True)
-    wall = time.monotonic() - wall_start
-    in_run = summary.get("wall_in_run_s") or 0.0
-    run_time = summary.get("run_time_s") or 0.0
-    result = EvaluationResult(
-        status=status,
-        fitness=value,
-        why=why,
-        min_clearance_m=clearance.min_clearance_m if clearance else None,
-        min_clearance_at_s=clearance.at_s if clearance else None,
-        min_clearance_obstacle=clearance.obstacle if clearance else None,
-        sim_time_s=summary.get("sim_time_s", 0.0),
-        wall_time_s=wall,
-        real_time_factor=(run_time / in_run) if in_run > 0 else None,
-        seed=seed,
-        log_path=str(log_path) if log_path else None,
-        scenario=world["scenario"],
-        sut=options.sut,
-        sut_fault=options.sut_config.get("fault"),
-        artifacts=artifacts,
-        timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
-        mavsdk=mavsdk_info,
-    )
-    if log_path is not None:
-        _append_result(log_path, result)
-    return result
 
 
 @dataclass
@@ -303,13 +311,6 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             os.sched_setaffinity(pid, {core})
         except OSError as error:  # a process that already exited, or a restricted container
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
-
-
-def _append_result(log_path: Path, result: EvaluationResult) -> None:
-    """Rewrite the log with the final result as metadata (MCAP files are append-once)."""
-    temporary = log_path.with_suffix(".tmp.mcap")
-    logs.merge(log_path, temporary, api_records=[], extra_metadata={"result": result.as_dict()})
-    temporary.replace(log_path)
 
 
 def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
