@@ -236,6 +236,9 @@ def test_cancel_is_ctrl_c_and_resume_finishes_the_campaign_without_repeating_any
         pass
     cancel.join(timeout=90)
     assert replies == [{"state": "stopped"}]
+    # Stopped by its own Ctrl-C handling (exit 130), not killed after the cancel's grace period,
+    # also where the page was started with SIGINT ignored (the background of a script).
+    assert campaigns._processes["c1"].returncode == 130
     stopped_at = campaigns.progress("c1")["done"]
     assert frozen_at <= stopped_at < 6
     assert client.post("/api/campaigns/c1/resume").json() == {"state": "running"}

@@ -12,6 +12,7 @@ import json
 import logging
 import math
 import os
+import signal
 import sqlite3
 import sys
 from pathlib import Path
@@ -816,6 +817,11 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # Started in the background of a script (which ignores SIGINT for its & jobs), or by such a
+        # process: Ctrl-C is still how a campaign stops with nothing lost, and how the campaign
+        # page's Cancel stops one.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
     try:
