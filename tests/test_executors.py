@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
+from conftest import FIG4, FIG4_SEED1_FITNESS, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
 from harness.campaigns.campaign import CampaignConfig, run_campaign
 from harness.campaigns.store import Store
 from harness.execution.local import LocalExecutor, SequentialExecutor

@@ -18,7 +18,7 @@ from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
 from harness.errors import InputError
 from harness.flight.mavsdk_session import mission_items
 from harness.scenario.logical import load_logical
-from harness.scenario.plan import load_plan, plan_from_document, plan_problems
+from harness.scenario.plan import plan_from_document, plan_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from harness.tools.cli import main

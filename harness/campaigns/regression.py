@@ -10,7 +10,6 @@ these files; `verdict` is the judgement both it and `stella` use.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping

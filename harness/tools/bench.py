@@ -116,7 +116,6 @@ def jsbsim_alone(log_path: Path, rate_hz: float, repeats: int = 3) -> dict[str, 
     answer) stepped through the flight model at the bench's rate, over the terrain and in the wind
     it flew in, with nothing else: no SUT, sockets, sensors, obstacles or recording. The median
     of `repeats` replays, each on a fresh model."""
-
     from pymavlink.dialects.v20 import common as mavlink
 
     from harness.flight import logs
@@ -227,7 +226,6 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
     """The standard scenario flown `evaluations` times through an executor: evaluations per hour,
     and, as the executor's overhead per evaluation, the workers' time spent outside evaluations
     (process or container start, teardown, bringing the log back) per evaluation."""
-
     from harness.execution.executor import Job
     from harness.execution.registry import make_executor
 
