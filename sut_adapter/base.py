@@ -69,3 +69,7 @@ class SystemUnderTest(Protocol):
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
         """Start the SUT so that it connects to the simulator on sim_port and sends its API link to api_port."""
+
+    def check_params(self, params: Mapping[str, float]) -> None:
+        """Raise SutError for a parameter the SUT does not have or a value outside its range, before
+        any flight; a SUT that only knows its parameters once running lets them all pass."""

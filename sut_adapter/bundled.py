@@ -24,6 +24,14 @@ class BundledAutopilot:
         if self.fault is not None and self.fault not in seeded_faults():
             raise SutError(self.name, f"no seeded fault {self.fault!r}; `stella faults list` names them")
 
+    def check_params(self, params: Mapping[str, float]) -> None:
+        from autopilot.params import ParamError, Params
+
+        try:
+            Params(dict(params))
+        except ParamError as error:
+            raise SutError(self.name, f"{error} (`python -m autopilot.params` lists its parameters)") from None
+
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
         argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", "--api", f"udp:127.0.0.1:{api_port}"]

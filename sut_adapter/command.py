@@ -64,6 +64,9 @@ class CommandSut:
         values = {"sim_port": sim_port, "api_port": api_port, "instance": instance, "workdir": str(workdir)}
         return [word.format(**values) for word in self.words]
 
+    def check_params(self, params: Mapping[str, float]) -> None:
+        """Its parameters are known only to the running SUT, which reports a bad one when set."""
+
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
         process = ManagedProcess("sut", self.argv(sim_port=sim_port, api_port=api_port, instance=instance, workdir=workdir), log_dir=workdir, cwd=workdir)

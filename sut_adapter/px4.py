@@ -65,6 +65,9 @@ class Px4Sitl:
         env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": SPEED_FACTOR}
         return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
 
+    def check_params(self, params: Mapping[str, float]) -> None:
+        """Its parameters are known only to the running SUT, which reports a bad one when set."""
+
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
         if (sim_port, api_port) != (4560 + instance, 14540 + instance):

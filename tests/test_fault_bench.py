@@ -11,6 +11,7 @@ import pytest
 from conftest import ROOT, stored_result
 from harness.campaigns.store import Store
 from harness.faults.bench import FAULT_FREE_CACHE, _key, detections, report
+from harness.flight import logs
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -18,7 +19,7 @@ from harness.tools.cli import main
 WALL = ROOT / "scenarios" / "examples" / "wall.json"
 
 
-def bench_folder(tmp_path, profile, runs: dict[str, list[list[tuple[str, str | None]]]]):
+def bench_folder(tmp_path, profile, runs: dict[str, list[list[tuple[str, str | None]]]], sut_params=None):
     """A benchmark folder as `faults bench` leaves it. runs: per fault store, per (algorithm) run,
     per evaluation (status, fault-free status of a violation or None when not yet re-flown)."""
     space = SearchSpace(load_logical(WALL, profile), profile)
@@ -26,7 +27,7 @@ def bench_folder(tmp_path, profile, runs: dict[str, list[list[tuple[str, str | N
     cache = {}
     for fault, algorithm_runs in runs.items():
         store = Store(tmp_path / f"{fault}.db")
-        campaign = store.campaign({"scenarios": [str(WALL)], "algorithms": ["RANDOM", "NSGAII"], "sut_fault": fault})
+        campaign = store.campaign({"scenarios": [str(WALL)], "algorithms": ["RANDOM", "NSGAII"], "sut_fault": fault, "sut_params": sut_params or {}})
         for index, (algorithm, evaluations) in enumerate(algorithm_runs):
             run_id, _ = store.run(campaign, str(WALL), space.logical.name, algorithm, index, index)
             for ordinal, (status, fault_free) in enumerate(evaluations):
@@ -35,7 +36,7 @@ def bench_folder(tmp_path, profile, runs: dict[str, list[list[tuple[str, str | N
                 store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer=algorithm, vector=x,
                                      result=stored_result(-0.5 if status == "violation" else 2.0, status, 3), concrete=concrete)
                 if fault_free:
-                    cache[_key(json.dumps(concrete), 3)] = {"status": fault_free, "fitness": 0.0, "min_clearance_m": 1.0}
+                    cache[_key(json.dumps(concrete), 3, sut_params or {})] = {"status": fault_free, "fitness": 0.0, "min_clearance_m": 1.0}
             store.finish_run(run_id)
         store.close()
     (tmp_path / FAULT_FREE_CACHE).write_text(json.dumps(cache))
@@ -51,6 +52,16 @@ def test_only_a_violation_that_the_fault_free_autopilot_avoids_detects_the_fault
     # the first violation is unsafe either way: not fault-revealing; the second reveals the fault
     assert (rows["RANDOM"]["detected"], rows["RANDOM"]["evaluations_to_detection"]) == (True, 3)
     assert (rows["NSGAII"]["detected"], rows["NSGAII"]["evaluations_to_detection"]) == (False, None)
+
+
+def test_a_fault_free_flight_counts_only_for_the_autopilot_parameters_the_campaign_flew(tmp_path, profile):
+    runs = {"cp_ignores_delay": [("RANDOM", [("violation", "ok")])]}
+    folder = bench_folder(tmp_path, profile, runs, sut_params={"CP_DIST": 1.5})
+    assert [r["detected"] for r in detections(folder)] == [True]
+    # the same fault-free verdicts, but the campaign flew other parameters: not yet re-flown
+    with Store.existing(folder / "cp_ignores_delay.db") as store, store.db:
+        store.db.execute("UPDATE campaigns SET config = json_set(config, '$.sut_params.CP_DIST', 2.5)")
+    assert [(r["detected"], r["unflown_violations"]) for r in detections(folder)] == [(False, 1)]
 
 
 def test_the_report_compares_detection_with_the_baseline_and_names_faults_nobody_found(tmp_path, profile):
@@ -80,10 +91,16 @@ def test_a_report_of_a_folder_that_is_no_benchmark_is_refused(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_small_benchmark_runs_end_to_end_and_resumes_without_flying_again(tmp_path, capsys):
     command = ["faults", "bench", "--fault", "cp_off_above_cruise", "--fault", "none", "--algorithm", "NSGAII", "--population", "10", "--scenario", str(WALL),
-               "--runs", "1", "--evaluations", "6", "--store", str(tmp_path / "bench"), "--json"]
+               "--runs", "1", "--evaluations", "6", "--store", str(tmp_path / "bench"), "--sut-param", "CP_DIST=1.5", "--json"]
     assert main(command) == 0
     first = json.loads(capsys.readouterr().out)
     assert first["control"] == {"runs": 1, "detected": 0} and first["unflown_violations"] == 0
+    # the parameters reach the faulty flights and their fault-free repeats alike
+    faulty = list((tmp_path / "bench" / "logs" / "cp_off_above_cruise").rglob("*.mcap"))
+    fault_free = list((tmp_path / "bench" / "logs" / "fault_free").rglob("*.mcap"))
+    assert faulty and fault_free
+    assert logs.json_metadata(faulty[0], "sut") == {"name": "bundled", "params": {"CP_DIST": 1.5}, "fault": "cp_off_above_cruise"}
+    assert logs.json_metadata(fault_free[0], "sut") == {"name": "bundled", "params": {"CP_DIST": 1.5}}
     flights = sorted(p.name for p in (tmp_path / "bench" / "logs").rglob("*.mcap"))
     assert main(command) == 0
     assert json.loads(capsys.readouterr().out) == first

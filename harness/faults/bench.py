@@ -17,7 +17,7 @@ import math
 import os
 import statistics as stats
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 from scipy.stats import fisher_exact
 
@@ -27,7 +27,6 @@ from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
-from harness.flight.evaluation import RunOptions
 from harness.flight.fitness import Status
 from harness.scenario.world import space_from_concrete
 
@@ -39,8 +38,11 @@ def _stores(folder: Path) -> dict[str, Path]:
     return {path.stem: path for path in sorted(folder.glob("*.db"))}
 
 
-def _key(concrete: str, seed: int) -> str:
-    return hashlib.sha256(f"{seed}:{concrete}".encode()).hexdigest()
+def _key(concrete: str, seed: int, sut_params: Mapping[str, float]) -> str:
+    """One fault-free flight per concrete scenario, seed and parameter set (parameters only when set,
+    so caches made before the bench took parameters keep their keys)."""
+    params = f"{json.dumps(dict(sut_params), sort_keys=True)}:" if sut_params else ""
+    return hashlib.sha256(f"{seed}:{params}{concrete}".encode()).hexdigest()
 
 
 def _load_cache(folder: Path) -> dict[str, dict[str, Any]]:
@@ -64,32 +66,36 @@ def _violations(store_path: Path) -> list[dict[str, Any]]:
 
 
 def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,
-              executor: Executor, *, seed: int = 0, population: int = 50, on_result=lambda r: None) -> None:
+              executor: Executor, *, seed: int = 0, population: int = 50, sut_params: Mapping[str, float] | None = None, on_result=lambda r: None) -> None:
+    """sut_params (e.g. CP_DIST) apply to the faulty and the fault-free flights alike."""
     if folder.exists() and not folder.is_dir():
         raise InputError([Problem(str(folder), "", "is not a folder: give --store a folder for the benchmark's stores, such as runs/fault-bench")])
     folder.mkdir(parents=True, exist_ok=True)
     faults = list(faults)
     checked_names([f for f in faults if f != CONTROL])
     for fault in faults:
-        config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population, sut_fault=None if fault == CONTROL else fault)
+        config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population, sut_params=dict(sut_params or {}),
+                                sut_fault=None if fault == CONTROL else fault)
         with Store.for_campaign(folder / f"{fault}.db") as store:
-            run_campaign(config, store, executor, folder / "logs" / fault, options=options_for(config.sut_fault), on_result=on_result)
+            run_campaign(config, store, executor, folder / "logs" / fault, options=options_for(config.sut_fault, config.sut_params), on_result=on_result)
         _fly_fault_free(folder / f"{fault}.db", folder, executor)
 
 
 def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:
     """Each violation not yet flown without the fault, flown now; the cache saved after each."""
     cache = _load_cache(folder)
+    with Store.existing(store_path) as store:
+        sut_params = store.campaign_sut()["params"]
     jobs, keys = [], {}
     for violation in _violations(store_path):
-        key = _key(violation["concrete"], violation["seed"])
+        key = _key(violation["concrete"], violation["seed"], sut_params)
         if key in cache or key in keys.values():
             continue
         keys[len(jobs)] = key
         concrete = json.loads(violation["concrete"])
         space = space_from_concrete(concrete, str(store_path))
         jobs.append(Job.of(len(jobs), space, space.from_concrete(concrete, str(store_path)), seed=violation["seed"], out_dir=folder / "logs" / "fault_free",
-                           name=f"fault-free-{key[:12]}", options=RunOptions()))
+                           name=f"fault-free-{key[:12]}", options=options_for(None, sut_params)))
     for job, result in executor.run(jobs):
         cache[keys[job.key]] = {"status": str(result.status), "fitness": result.fitness, "min_clearance_m": result.min_clearance_m}
         _save_cache(folder, cache)
@@ -104,8 +110,10 @@ def detections(folder: Path) -> list[dict[str, Any]]:
     for fault, store_path in _stores(folder).items():
         found: dict[int, int | None] = {}
         unflown = 0
+        with Store.existing(store_path) as store:
+            sut_params = store.campaign_sut()["params"]
         for violation in _violations(store_path):
-            clean = cache.get(_key(violation["concrete"], violation["seed"]))
+            clean = cache.get(_key(violation["concrete"], violation["seed"], sut_params))
             if clean is None:
                 unflown += 1
             elif clean["status"] != Status.VIOLATION and violation["run_id"] not in found:

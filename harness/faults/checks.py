@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -49,9 +49,9 @@ def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
     return faulty["status"] in REVEALING and clean is not None and clean["status"] == Status.OK
 
 
-def options_for(fault: str | None) -> RunOptions:
+def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None) -> RunOptions:
     """The bundled autopilot with the fault switched on, or fault-free for None."""
-    return RunOptions(sut_config={"fault": fault} if fault else {})
+    return RunOptions(sut_config={"fault": fault} if fault else {}, sut_params=dict(sut_params or {}))
 
 
 def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:

@@ -183,12 +183,26 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def _result_text(result: dict[str, Any]) -> str:
     lines = [f"status: {result['status']}" + (f" ({result['why']})" if result.get("why") else "")]
     lines.append(f"fitness: {result['fitness']:.3f}")
-    if result.get("min_clearance_m") is not None:
+    if result.get("min_clearance_at_s") is not None:
         lines.append(f"min clearance: {result['min_clearance_m']:.3f} m at t={result['min_clearance_at_s']:.3f} s to {result['min_clearance_obstacle']}")
     lines.append(f"simulated {result['sim_time_s']:.1f} s in {result['wall_time_s']:.1f} s wall" + (f" (flight at {result['real_time_factor']:.1f}x real time)" if result.get("real_time_factor") else ""))
     if result.get("log_path"):
         lines.append(f"log: {result['log_path']}")
     return "\n".join(lines)
+
+
+def _sut_param_values(items: list[str] | None) -> dict[str, float]:
+    """--sut-param NAME=VALUE items as numbers."""
+    params: dict[str, float] = {}
+    for item in items or []:
+        name, _, value = item.partition("=")
+        try:
+            params[name] = int(value) if value.lstrip("-").isdigit() else float(value)
+        except ValueError:
+            raise InputError([Problem("--sut-param", "", f"{item!r} is not NAME=NUMBER (e.g. CP_DIST=2.5)")]) from None
+        if not math.isfinite(params[name]):
+            raise InputError([Problem("--sut-param", "", f"{item!r}: a parameter's value must be a finite number")])
+    return params
 
 
 def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, float]]:
@@ -204,18 +218,15 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
         from harness.interop.param_files import load_params_file
 
         params.update(load_params_file(Path(args.sut_params_file)))
-    for item in args.sut_param or []:
-        name, _, value = item.partition("=")
-        try:
-            params[name] = int(value) if value.lstrip("-").isdigit() else float(value)
-        except ValueError:
-            raise InputError([Problem("--sut-param", "", f"{item!r} is not NAME=NUMBER (e.g. CP_DIST=2.5)")]) from None
-        if not math.isfinite(params[name]):
-            raise InputError([Problem("--sut-param", "", f"{item!r}: a parameter's value must be a finite number")])
+    params.update(_sut_param_values(args.sut_param))
     try:
-        sut_adapter.get(args.sut, config)
+        system = sut_adapter.get(args.sut, config)
     except sut_adapter.SutError as error:
         raise InputError([Problem("--sut", "", str(error))]) from None
+    try:
+        system.check_params(params)
+    except sut_adapter.SutError as error:
+        raise InputError([Problem("--sut-params-file" if args.sut_params_file else "--sut-param", "", str(error))]) from None
     return args.sut, config, params
 
 
@@ -503,6 +514,7 @@ def _faults_bench(args: argparse.Namespace) -> int:
     from harness.execution.registry import make_executor
     from harness.faults.bench import report, report_text, run_bench
     from harness.search.optimizers import parse_algorithm
+    import sut_adapter
 
     missing = [flag for flag, value in (("--fault", args.fault), ("--algorithm", args.algorithm), ("--scenario", args.scenario),
                                         ("--evaluations", args.evaluations), ("--store", args.store)) if not value]
@@ -516,13 +528,18 @@ def _faults_bench(args: argparse.Namespace) -> int:
     profile = load_profile("default")
     for scenario in args.scenario:
         load_logical(Path(scenario), profile)
+    sut_params = _sut_param_values(args.sut_param)
+    try:
+        sut_adapter.get("bundled").check_params(sut_params)
+    except sut_adapter.SutError as error:
+        raise InputError([Problem("--sut-param", "", str(error))]) from None
     try:
         executor = make_executor(args.executor, args.workers)
     except ValueError as error:
         raise InputError([Problem("--executor", "", str(error))]) from None
     try:
         run_bench(args.fault, tuple(a.upper() for a in args.algorithm), tuple(args.scenario), args.runs, args.evaluations, Path(args.store), executor,
-                  seed=args.seed, population=args.population)
+                  seed=args.seed, population=args.population, sut_params=sut_params)
     finally:
         executor.close()
     result = report(Path(args.store), args.baseline)
@@ -775,6 +792,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=seed_int, default=0, help="with witness: the sampling seed; with bench: run r uses seed + r")
     p.add_argument("--out", default="runs/faults", help="folder for the flights' logs (default runs/faults)")
     p.add_argument("--workers", type=positive_int, help="with check and bench: flights at once (default: cores)")
+    p.add_argument("--sut-param", action="append", metavar="NAME=VALUE",
+                   help="with bench: an autopilot parameter for the faulty and the fault-free flights alike, e.g. CP_DIST=1.5; repeatable")
 
     p = add("docker", "build the worker image for --executor docker and docker/compose.yaml")
     p.add_argument("action", choices=["build"])
