@@ -91,6 +91,10 @@ def test_a_log_path_pointing_outside_the_store_directory_is_not_served(client, t
     assert client.get(f"/api/campaigns/c1/evaluations/{evaluation_id}/log.mcap").status_code == 404
 
 
+def test_triage_of_an_unknown_campaign_is_not_found(client):
+    assert client.get("/api/campaigns/nothing/triage").status_code == 404
+
+
 def test_bad_setups_name_every_bad_field(client):
     response = client.post("/api/campaigns", json=launch_spec(name="../x", algorithms=["NXQ"], evaluations=0, scenarios=[]))
     files = sorted(p["file"] for p in response.json()["problems"])
@@ -171,6 +175,17 @@ def test_set_up_launch_watch_and_browse_a_campaign_in_the_browser(server, page, 
     page.locator("a.open-evaluation").first.click()
     page.wait_for_function("document.getElementById('plot').complete && document.getElementById('plot').naturalWidth > 0", timeout=60_000)
     page.screenshot(path=str(ARTIFACTS / "4-evaluation.png"), full_page=True)
+    # The violations triaged on the page: every violation in a mode, its worst example opens like an evaluation.
+    violations = page.locator("#evaluations tr.violation").count()
+    assert violations >= 1  # seed 0's eight samples of Fig. 4 hold a contact with the sphere
+    page.click("#triage-button")
+    page.wait_for_selector("#modes tr.mode")
+    assert sum(int(cell) for cell in page.locator("#modes td.count").all_inner_texts()) == violations
+    assert page.locator("#triage-summary").inner_text().startswith(f"{violations} distinct violations in ")
+    page.locator("a.open-worst").first.click()
+    page.wait_for_function("document.getElementById('evaluation-title').textContent.includes('violation')")
+    page.wait_for_function("document.getElementById('plot').complete && document.getElementById('plot').naturalWidth > 0", timeout=60_000)
+    page.screenshot(path=str(ARTIFACTS / "5-failure-modes.png"), full_page=True)
     with page.expect_download() as download:
         page.click("#mcap-link")
     saved = tmp_path / "downloaded.mcap"
@@ -192,7 +207,7 @@ def test_a_malformed_upload_in_the_browser_shows_the_located_error_and_launches_
     page.set_input_files("#upload", str(broken))
     page.wait_for_selector("#upload-problems li")
     assert page.locator("#upload-problems").inner_text().startswith(WIND_ERROR)
-    page.screenshot(path=str(ARTIFACTS / "5-malformed-upload.png"), full_page=True)
+    page.screenshot(path=str(ARTIFACTS / "6-malformed-upload.png"), full_page=True)
     page.fill("#name", "nothing")
     page.click("#launch")
     page.wait_for_selector("#launch-problems li")

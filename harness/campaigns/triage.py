@@ -116,15 +116,15 @@ def triage(store_path: Path) -> dict[str, Any]:
     """The campaign's violations grouped into failure modes, most frequent first."""
     with Store.existing(store_path) as store:
         rows = store.db.execute(
-            "SELECT r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key"
+            "SELECT e.id, r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key"
             " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status = 'violation' ORDER BY r.id, e.ordinal").fetchall()
     violations, skipped = [], []
     seen = set()
-    for scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key in rows:
+    for evaluation_id, scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key in rows:
         if vector_key in seen:
             continue
         seen.add(vector_key)
-        where = {"scenario": scenario, "scenario_file": scenario_file, "algorithm": algorithm, "run": run, "evaluation": ordinal, "fitness": fitness,
+        where = {"id": evaluation_id, "scenario": scenario, "scenario_file": scenario_file, "algorithm": algorithm, "run": run, "evaluation": ordinal, "fitness": fitness,
                  "log": log_path}
         if not log_path or not Path(log_path).is_file():
             skipped.append({**where, "why": "its log is missing"})
@@ -153,7 +153,7 @@ def triage(store_path: Path) -> dict[str, Any]:
 
 
 def _example(violation: Mapping[str, Any]) -> dict[str, Any]:
-    return {key: violation[key] for key in ("scenario", "scenario_file", "algorithm", "run", "evaluation", "fitness", "min_clearance_m", "log")}
+    return {key: violation[key] for key in ("id", "scenario", "scenario_file", "algorithm", "run", "evaluation", "fitness", "min_clearance_m", "log")}
 
 
 def triage_text(report: Mapping[str, Any]) -> str:

@@ -154,6 +154,24 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
         return {"name": name, "comparison": comparison, "console": console,
                 "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
 
+    @app.get("/api/campaigns/{name}/triage")
+    def triage(name: str) -> dict[str, Any]:
+        """The campaign's violations in failure modes; each example as the evaluations table has it,
+        so the page opens it like any evaluation. Read from every violation's log: on demand."""
+        from harness.campaigns.triage import triage as group
+
+        store = campaigns.store(known(name))
+        if store is None:
+            raise HTTPException(404, "no store yet")
+        with store:
+            report = group(store.path)
+            examples = [mode[which] for mode in report["modes"] for which in ("worst", "typical")]
+            concretes = dict(store.db.execute(f"SELECT id, concrete FROM evaluations WHERE id IN ({','.join('?' * len(examples))})",
+                                              [example["id"] for example in examples]).fetchall())
+        for example in examples:
+            example.update(ordinal=example["evaluation"], status="violation", concrete=json.loads(concretes[example["id"]] or "null"))
+        return report
+
     def log_of(name: str, evaluation: int) -> Path:
         store = campaigns.store(known(name))
         if store is None:

@@ -158,13 +158,38 @@ async function loadDetails(name) {
   fill(document.querySelector("#evaluations tbody"), details.evaluations, (e) => {
     const row = element("tr", null, { class: e.status });
     const cell = element("td");
-    if (e.has_log) {
-      const link = element("a", "open", { href: "#", class: "open-evaluation", "data-id": e.id });
-      link.addEventListener("click", (event) => { event.preventDefault(); showEvaluation(name, e); });
-      cell.append(link);
-    }
+    if (e.has_log) cell.append(evaluationLink(name, e, "open", "open-evaluation"));
     row.append(element("td", e.ordinal), element("td", e.scenario), element("td", e.algorithm), element("td", e.run), element("td", e.status),
       element("td", number(e.fitness), { class: "number" }), element("td", number(e.min_clearance_m), { class: "number" }), cell);
+    return row;
+  });
+}
+
+function evaluationLink(name, e, text, className) {
+  const link = element("a", text, { href: "#", class: className, "data-id": e.id });
+  link.addEventListener("click", (event) => { event.preventDefault(); showEvaluation(name, e); });
+  return link;
+}
+
+async function triage() {
+  const name = current;
+  $("triage-summary").textContent = "reading the violations' logs...";
+  const response = await api(`/api/campaigns/${encodeURIComponent(name)}/triage`);
+  if (!response.ok) { $("triage-summary").textContent = (await response.json()).detail; return; }
+  const report = await response.json();
+  if (name !== current) return;
+  const spread = report.diversity.mean_pairwise_trajectory_distance_m;
+  $("triage-summary").textContent = `${report.violations} distinct violations in ${report.diversity.modes} failure modes` +
+    (spread === null ? "" : `; mean pairwise trajectory distance ${number(spread, 1)} m`) +
+    (report.skipped.length ? `; ${report.skipped.length} not triaged (no log)` : "");
+  fill(document.querySelector("#modes tbody"), report.modes, (m) => {
+    const row = element("tr", null, { class: "mode" });
+    const worst = element("td"), typical = element("td");
+    worst.append(evaluationLink(name, m.worst, `f ${number(m.worst.fitness)}`, "open-worst"));
+    typical.append(evaluationLink(name, m.typical, `f ${number(m.typical.fitness)}`, "open-typical"));
+    row.append(element("td", m.count, { class: "number count" }), element("td", m.obstacle), element("td", m.approach), element("td", m.phase),
+      element("td", m.speed), element("td", m.wind), element("td", m.visibility), element("td", m.contacts, { class: "number" }),
+      element("td", m.near_misses, { class: "number" }), worst, typical);
     return row;
   });
 }
@@ -183,6 +208,8 @@ function open(name) {
   $("campaign").hidden = false;
   $("evaluation").hidden = true;
   $("campaign-title").textContent = name;
+  $("triage-summary").textContent = "";
+  document.querySelector("#modes tbody").replaceChildren();
   $("report-link").href = `/api/campaigns/${encodeURIComponent(name)}/report.html`;
   if (events) events.close();
   events = new EventSource(`/api/campaigns/${encodeURIComponent(name)}/events`);
@@ -221,4 +248,5 @@ $("upload").addEventListener("change", upload);
 $("setup-form").addEventListener("submit", launch);
 $("cancel").addEventListener("click", () => control("cancel"));
 $("resume").addEventListener("click", () => control("resume"));
+$("triage-button").addEventListener("click", triage);
 start();
