@@ -18,6 +18,7 @@ from pathlib import Path
 
 from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
+from sim_bridge.spec import WorldSpec
 
 NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed", "blocked"}
 
@@ -65,16 +66,21 @@ def main(argv: list[str] | None = None) -> int:
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)
 
-    world = json.loads(Path(args.world).read_text())
-    if "world" in world:  # accept `stella sample --json` output as it is
-        world = world["world"]
+    try:
+        document = json.loads(Path(args.world).read_text())
+        if "world" in document:  # accept `stella sample --json` output as it is
+            document = document["world"]
+        world = WorldSpec.from_dict(document)
+    except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
+        print(f"{args.world}: {error}", file=sys.stderr)
+        return 2
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
-    optional_topics = ("/pilot",) if world.get("drive") == "pilot" else ()
+    optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     with open(args.mcap, "wb") as stream, Recorder(stream, optional_topics) as recorder:
-        recorder.metadata("world", {"json": json.dumps(world)})
+        recorder.metadata("world", {"json": json.dumps(world.as_dict())})
         recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})
         bridge = Bridge(world, config, recorder)
         sim_listener.settimeout(args.connect_timeout_s)

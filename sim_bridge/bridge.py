@@ -47,6 +47,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, scene_entity, stamp, terrain_entity
 from sim_bridge.sensors import FIELDS_ALL, quaternion_from_euler
+from sim_bridge.spec import WorldSpec
 from sim_bridge.world import SECTOR_DEG, World
 from simlink import codec
 
@@ -177,18 +178,17 @@ class Bridge:
     """The server around the world (sim_bridge/world.py): PX4's simulator protocol to the SUT in
     lockstep, the hold while the harness sets up, the control channel, and the MCAP recording."""
 
-    def __init__(self, world: Mapping[str, Any], config: BridgeConfig, recorder: Recorder):
+    def __init__(self, world: WorldSpec, config: BridgeConfig, recorder: Recorder):
         self.config = config
         self.recorder = recorder
         self.summary = Summary()
         self._control: ControlChannel | None = None
         self.world = World(world, config.rate_hz, on_event=self._event, on_obstacles_changed=self._obstacles_changed)
         self._wedges = _wedges(np.flatnonzero(self.world.sector_visible).tolist())
-        sensor = world["sensor"]
         self._every = {
             "gps": max(1, round(config.rate_hz / config.gps_rate_hz)),
             "truth": max(1, round(config.rate_hz / config.ground_truth_rate_hz)),
-            "sensor": max(1, round(config.rate_hz / sensor["update_hz"])),
+            "sensor": max(1, round(config.rate_hz / world.sensor.update_hz)),
             "record": max(1, round(RECORD_EVERY_S * config.rate_hz)),
             "scene": max(1, round(SCENE_EVERY_S * config.rate_hz)),
             "flush": max(1, round(LINK_FLUSH_EVERY_S * config.rate_hz)),

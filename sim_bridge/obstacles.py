@@ -15,6 +15,8 @@ from typing import Any, Mapping
 import fcl
 import numpy as np
 
+from sim_bridge.spec import Body
+
 _BOX_QUADS = (
     (0, 1, 3, 2),
     (4, 6, 7, 5),
@@ -157,10 +159,10 @@ def ray_distances(origin_n: float, origin_e: float, angles_rad: np.ndarray, cut:
 class ObstacleField:
     """All obstacles plus the UAV body; one clearance query per obstacle per step, no allocation."""
 
-    def __init__(self, obstacles: list[Obstacle], body: Mapping[str, float]):
+    def __init__(self, obstacles: list[Obstacle], body: Body):
         self.obstacles = obstacles
         self._body = fcl.CollisionObject(
-            convex_box(body["length_m"], body["width_m"], body["height_m"]), fcl.Transform()
+            convex_box(body.length_m, body.width_m, body.height_m), fcl.Transform()
         )
         self._request = fcl.DistanceRequest(enable_nearest_points=False, enable_signed_distance=True)
         self._result = fcl.DistanceResult()

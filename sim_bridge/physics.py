@@ -142,7 +142,7 @@ class Multirotor:
         self._read_state()
 
     def local_to_geodetic(self, north_m: float, east_m: float) -> tuple[float, float]:
-        return geodetic_from_local({"lat_deg": self._origin_lat, "lon_deg": self._origin_lon}, north_m, east_m)
+        return geodetic_from_local(self._origin_lat, self._origin_lon, north_m, east_m)
 
     def _read_state(self) -> None:
         n = self._nodes

@@ -25,6 +25,8 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Mapping, Sequence
 
+from sim_bridge.spec import Point, Waypoint
+
 if TYPE_CHECKING:  # the harness imports this module for its constants; no JSBSim for that
     from sim_bridge.physics import VehicleState
 
@@ -100,12 +102,11 @@ def _clip(value: float, limit: float) -> float:
 
 
 class Pilot:
-    def __init__(self, start: Mapping[str, float], route: Sequence[Mapping[str, float]], takeoff_altitude_m: float, max_stick: float, aim_offset_m: float):
-        """start: the take-off point (north_m, east_m, up_m); route: waypoints with north_m,
-        east_m and altitude_m above the start, the last one the goal."""
-        self.start_up_m = start["up_m"]
-        self.points = [(start["north_m"], start["east_m"])] + [(w["north_m"], w["east_m"]) for w in route]
-        self.altitudes = [takeoff_altitude_m] + [w["altitude_m"] for w in route]
+    def __init__(self, start: Point, route: Sequence[Waypoint], takeoff_altitude_m: float, max_stick: float, aim_offset_m: float):
+        """start: the take-off point; route: waypoints with altitudes above the start, the last one the goal."""
+        self.start_up_m = start.up_m
+        self.points = [(start.north_m, start.east_m)] + [(w.north_m, w.east_m) for w in route]
+        self.altitudes = [takeoff_altitude_m] + [w.altitude_m for w in route]
         self.max_stick = max_stick
         self.aim_offset_m = aim_offset_m
         self.leg = 0

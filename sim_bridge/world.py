@@ -37,44 +37,40 @@ def _ignore_change(time_s: float, removed_id: str | None) -> None:
     pass
 
 
-def vehicle_for(spec: Mapping[str, Any], rate_hz: float) -> Multirotor:
+def vehicle_for(spec: WorldSpec, rate_hz: float) -> Multirotor:
     """JSBSim's F450 at the world's start point and temperature, stepped at rate_hz."""
-    origin = spec["origin"]
     return Multirotor(
-        lat_deg=origin["lat_deg"],
-        lon_deg=origin["lon_deg"],
-        ground_msl_m=origin["alt_m"] + spec["uav"]["start"]["up_m"],
+        lat_deg=spec.origin.lat_deg,
+        lon_deg=spec.origin.lon_deg,
+        ground_msl_m=spec.start_msl_m,
         rate_hz=rate_hz,
-        temperature_c=spec["atmosphere"]["temperature_c"],
+        temperature_c=spec.atmosphere.temperature_c,
     )
 
 
 class World:
     """The world of one flight, built from its world spec (what the harness's world_spec makes)."""
 
-    def __init__(self, spec: Mapping[str, Any], rate_hz: float, *,
+    def __init__(self, spec: WorldSpec, rate_hz: float, *,
                  on_event: Callable[[float, str, dict[str, Any]], None] = _ignore_event,
                  on_obstacles_changed: Callable[[float, str | None], None] = _ignore_change):
         self.spec = spec
         self.on_event = on_event
         self.on_obstacles_changed = on_obstacles_changed
-        start = spec["uav"]["start"]
-        atmosphere = spec["atmosphere"]
-        self.terrain = spec["terrain"]
-        self.water = spec["surface"]["water"]
-        self.wind = (atmosphere["wind_north_m_s"], atmosphere["wind_east_m_s"])
+        atmosphere = spec.atmosphere
+        self.terrain = spec.terrain
+        self.water = spec.surface.water
+        self.wind = (atmosphere.wind_north_m_s, atmosphere.wind_east_m_s)
         self.vehicle = vehicle_for(spec, rate_hz)
-        self.sensors = SensorModel(spec["seed"], atmosphere["temperature_c"])
-        self.field = ObstacleField([Obstacle.from_spec(o) for o in spec["obstacles"]], spec["uav"]["body"])
-        sensor = spec["sensor"]
-        self.range_m = float(sensor["range_m"])
-        self.min_range_m = float(sensor["min_range_m"])
-        half_fov = sensor["fov_deg"] / 2.0
+        self.sensors = SensorModel(spec.seed, atmosphere.temperature_c)
+        self.field = ObstacleField([Obstacle.from_spec(o) for o in spec.obstacles], spec.uav.body)
+        self.range_m = float(spec.sensor.range_m)
+        self.min_range_m = float(spec.sensor.min_range_m)
+        half_fov = spec.sensor.fov_deg / 2.0
         self.sector_visible = np.array([min(i * SECTOR_DEG, 360.0 - i * SECTOR_DEG) <= half_fov + 1e-9 for i in range(SECTORS)])
         self._sector_angles = np.radians(np.arange(SECTORS) * SECTOR_DEG)[self.sector_visible]
         # The sensors sit on the body's edge: each ray's range starts at the hull, not the centre.
-        body = spec["uav"]["body"]
-        half_l, half_w = body["length_m"] / 2.0, body["width_m"] / 2.0
+        half_l, half_w = spec.uav.body.length_m / 2.0, spec.uav.body.width_m / 2.0
         with np.errstate(divide="ignore"):
             self._hull_offsets = np.minimum(half_l / np.abs(np.cos(self._sector_angles)), half_w / np.abs(np.sin(self._sector_angles)))
         self.dt = 1.0 / rate_hz
@@ -90,9 +86,8 @@ class World:
         self._pending_ops: list[Mapping[str, Any]] = []
         self._landed_since: float | None = None
         self.pilot: Pilot | None = None
-        if spec.get("drive") == "pilot":
-            mission = spec["mission"]
-            self.pilot = Pilot(start, mission["waypoints"], mission["takeoff_altitude_m"], spec["pilot"]["max_stick"], spec["pilot"]["aim_offset_m"])
+        if spec.drive == "pilot":
+            self.pilot = Pilot(spec.uav.start, spec.mission.waypoints, spec.mission.takeoff_altitude_m, spec.pilot.max_stick, spec.pilot.aim_offset_m)
 
     @property
     def state(self) -> VehicleState:
@@ -250,5 +245,5 @@ class World:
             self.end_reason = "blocked"
             self.on_event(time_s, "blocked", {"remaining_m": self.pilot.remaining_m, "north_m": s.north_m, "east_m": s.east_m})
             return
-        if self.run_start_s is not None and run_time >= self.spec["time_limit_s"]:
+        if self.run_start_s is not None and run_time >= self.spec.time_limit_s:
             self.end_reason = "time_limit"

@@ -138,16 +138,16 @@ def plan_flight(log_path: Path) -> dict:
 
     from harness.flight import logs
 
-    world = logs.json_metadata(log_path, "world")
+    world = logs.world_of(log_path)
     states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
-    up0 = world["uav"]["start"]["up_m"]
+    up0 = world.uav.start.up_m
     waypoints = []
-    for waypoint in world["mission"]["waypoints"]:
+    for waypoint in world.mission.waypoints:
         def miss(s, w=waypoint):
-            return math.hypot(s["north_m"] - w["north_m"], s["east_m"] - w["east_m"])
+            return math.hypot(s["north_m"] - w.north_m, s["east_m"] - w.east_m)
         inside = [s for s in states if miss(s) <= 2.0] or [min(states, key=miss)]
-        best = min(inside, key=lambda s, w=waypoint: abs(s["up_m"] - up0 - w["altitude_m"]))
-        at_it = [s for s in states if miss(s) <= 1.0 and abs(s["up_m"] - up0 - waypoint["altitude_m"]) <= 0.5]
+        best = min(inside, key=lambda s, w=waypoint: abs(s["up_m"] - up0 - w.altitude_m))
+        at_it = [s for s in states if miss(s) <= 1.0 and abs(s["up_m"] - up0 - waypoint.altitude_m) <= 0.5]
         waypoints.append({"miss_m": miss(best), "altitude_error_m": best["up_m"] - up0 - waypoint["altitude_m"],
                           "at_it_s": len(at_it) * (states[1]["t"] - states[0]["t"])})
     speeds = [math.hypot(*s["v_ned_m_s"][:2]) for s in states]

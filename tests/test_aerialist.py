@@ -24,6 +24,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete, world_spec
 from harness.tools.cli import main
+from sim_bridge.spec import Origin
 
 DATA = ROOT / "tests" / "data" / "aerialist"
 HOVER = DATA / "hover_two_boxes.yaml"
@@ -58,13 +59,13 @@ def test_a_box_lands_where_aerialist_puts_it(tmp_path):
     concrete, params = import_aerialist(HOVER)
     assert params == {"NAV_ACC_RAD": 0.5, "MIS_TAKEOFF_ALT": 1.0}
     world = world_of(concrete)
-    first, second = world["obstacles"]
+    first, second = world.obstacles
     assert first["a"] == pytest.approx({"north_m": 20.0, "east_m": 8.0, "up_m": 7.5})  # centre, base on the ground
     assert first["size"] == {"length_m": 10.0, "width_m": 4.0, "height_m": 15.0} and math.degrees(first["yaw_rad"]) == pytest.approx(30.0)
     assert second["a"] == pytest.approx({"north_m": 45.0, "east_m": -10.0, "up_m": 6.0})
     # The competition's vehicle starts at PX4's default home, not at the plan's plannedHomePosition.
-    assert world["origin"] == {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0}
-    assert world["safety_distance_m"] == 1.5 and world["atmosphere"]["wind_north_m_s"] == 0.0
+    assert world.origin == Origin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
+    assert world.safety_distance_m == 1.5 and world.atmosphere.wind_north_m_s == 0.0
     # A corner computed Aerialist's way lies on our box: a probe 1 m beyond it along the
     # diagonal is 1 m from the obstacle the simulator scores clearance to.
     from sim_bridge.obstacles import Obstacle
@@ -87,7 +88,7 @@ def test_rotation_by_180_degrees_and_the_flat_obstacle_list_mean_the_same_box(tm
     (tmp_path / "flat.yaml").write_text(yaml.safe_dump(test))
     flat, _ = import_aerialist(tmp_path / "flat.yaml")
     original, _ = import_aerialist(HOVER)
-    for a, b in zip(world_of(flat)["obstacles"], world_of(original)["obstacles"]):
+    for a, b in zip(world_of(flat).obstacles, world_of(original).obstacles):
         assert a["a"] == pytest.approx(b["a"]) and a["size"] == b["size"] and a["yaw_rad"] == pytest.approx(b["yaw_rad"])
 
 
@@ -223,8 +224,8 @@ def test_export_then_import_gives_back_the_same_flight(tmp_path, profile, capsys
     imported, params = import_aerialist(Path(exported))
     assert params == {"CP_DIST": 1.5}
     before, after = world_of(original), world_of(imported)
-    assert after["origin"] == before["origin"]
-    for a, b in zip(after["obstacles"], before["obstacles"]):
+    assert after.origin == before.origin
+    for a, b in zip(after.obstacles, before.obstacles):
         assert a["a"] == pytest.approx(b["a"], abs=1e-9) and a["size"] == pytest.approx(b["size"], abs=1e-9)
         assert math.cos(2 * a["yaw_rad"]) == pytest.approx(math.cos(2 * b["yaw_rad"])) and math.sin(2 * a["yaw_rad"]) == pytest.approx(math.sin(2 * b["yaw_rad"]))
     assert _same_items(mission_items(after), mission_items(before))

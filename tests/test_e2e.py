@@ -103,7 +103,7 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
     space = space_for(DATA / "three_waypoints.json", profile)
     world = world_spec(space, space.vector_from({}), seed=5)
     world_path = tmp_path / "world.json"
-    world_path.write_text(json.dumps(world))
+    world_path.write_text(json.dumps(world.as_dict()))
     log_path = tmp_path / "flight.mcap"
     with PortLease() as ports:
         bridge_argv = [__import__("sys").executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim),
@@ -134,8 +134,8 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
             assert autopilot.poll() is None or autopilot.poll() == 0
     assert finished["end_reason"] == "landed"
     states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
-    for waypoint in world["mission"]["waypoints"]:
-        closest = min(math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states)
+    for waypoint in world.mission.waypoints:
+        closest = min(math.hypot(s["north_m"] - waypoint.north_m, s["east_m"] - waypoint.east_m) for s in states)
         assert closest <= 2.0, (waypoint, closest)
     touchdown = finished["touchdown"]
     assert math.hypot(touchdown["north_m"] - 0.0, touchdown["east_m"] - 15.0) < 1.5

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 
 from harness.flight.fitness import CLEARANCE_CAP_M, PENALTY, infeasible_fitness, judge, min_clearance, mission_check
+from sim_bridge.spec import MissionSpec, Waypoint
 
-MISSION = {"waypoints": [{"north_m": 60.0, "east_m": 0.0, "altitude_m": 8.0}], "land": True}
+MISSION = MissionSpec(takeoff_altitude_m=8.0, waypoints=(Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0),), cruise_speed_m_s=5.0, land=True)
 
 
 def batch(*samples):

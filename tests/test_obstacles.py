@@ -16,8 +16,10 @@ from harness.scenario.world import world_spec
 from sim_bridge.bridge import UINT16_MAX, Bridge, BridgeConfig
 from sim_bridge.obstacles import Obstacle, ObstacleField, ray_distances
 from sim_bridge.recording import Recorder
+from sim_bridge.spec import (Atmosphere, Body, MissionSpec, Origin, Point, RangeSensor, Surface, Uav, Waypoint,
+                             WorldSpec)
 
-BODY = {"length_m": 0.6, "width_m": 0.6, "height_m": 0.2}
+BODY = Body(length_m=0.6, width_m=0.6, height_m=0.2)
 
 
 def obstacle(form, size, at, b=None, speed=0.0, yaw=0.0, id_="o"):
@@ -77,7 +79,7 @@ def test_world_spec_dynamic_obstacles_follow_their_concrete_motion(profile):
     space = SearchSpace(load_logical(ROOT / "scenarios" / "table3" / "scenario_31.json", profile), profile)
     x = space.sample_feasible(np.random.default_rng(2), 1)[0]
     concrete = space.to_concrete(x)
-    for spec, entry in zip(world_spec(space, x, 0)["obstacles"], concrete["obstacles"]):
+    for spec, entry in zip(world_spec(space, x, 0).obstacles, concrete["obstacles"]):
         motion = entry["motion"]
         o = Obstacle.from_spec(spec)
         heading = math.radians(motion["heading_deg"])
@@ -102,17 +104,13 @@ def _bridge_with(obstacles, visibility_m=10_000.0, fov_deg=360.0):
     from harness.scenario.world import sensor_range_m
 
     sensor["range_m"] = sensor_range_m(sensor, visibility_m)
-    world = {
-        "seed": 1,
-        "origin": {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0},
-        "terrain": {"kind": "flat"},
-        "surface": {"kind": "land", "water": []},
-        "atmosphere": {"wind_north_m_s": 0.0, "wind_east_m_s": 0.0, "temperature_c": 15.0},
-        "sensor": sensor,
-        "obstacles": obstacles,
-        "uav": {"start": {"north_m": 0.0, "east_m": 0.0, "up_m": 0.0}, "body": BODY},
-        "time_limit_s": 10.0,
-    }
+    world = WorldSpec(
+        scenario="sectors", seed=1, origin=Origin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0), terrain={"kind": "flat"},
+        surface=Surface(kind="land", water=()), atmosphere=Atmosphere(wind_north_m_s=0.0, wind_east_m_s=0.0, temperature_c=15.0),
+        visibility_m=visibility_m, sensor=RangeSensor(**{k: v for k, v in sensor.items() if k != "description"}), obstacles=tuple(obstacles),
+        uav=Uav(start=Point(north_m=0.0, east_m=0.0, up_m=0.0), body=BODY),
+        mission=MissionSpec(takeoff_altitude_m=8.0, waypoints=(Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0),), cruise_speed_m_s=5.0, land=True),
+        safety_distance_m=1.0, time_limit_s=10.0)
     recorder = Recorder(io.BytesIO())
     recorder.__enter__()
     return Bridge(world, BridgeConfig(), recorder)

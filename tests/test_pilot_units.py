@@ -20,6 +20,7 @@ from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, world_spec
 from sim_bridge.physics import VehicleState as State
 from sim_bridge.pilot import BLOCKED_AFTER_S, SETTLE_S, SLOT_HOLD, SLOT_LAND, SLOT_POSITION, SUT_PARAMS, Pilot, RcFrame, pwm, slot_value
+from sim_bridge.spec import PilotSpec, Point, Waypoint
 
 WALL = ROOT / "scenarios" / "examples" / "wall.json"
 WALL_CONCRETE = ROOT / "scenarios" / "examples" / "wall_concrete.json"
@@ -27,8 +28,8 @@ WALL_CONCRETE = ROOT / "scenarios" / "examples" / "wall_concrete.json"
 
 def pilot(**overrides) -> Pilot:
     settings = {"max_stick": 1.0, "aim_offset_m": 0.0, **overrides}
-    route = [{"north_m": 60.0, "east_m": 0.0, "altitude_m": 8.0}]
-    return Pilot({"north_m": 0.0, "east_m": 0.0, "up_m": 0.0}, route, 8.0, settings["max_stick"], settings["aim_offset_m"])
+    route = [Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0)]
+    return Pilot(Point(north_m=0.0, east_m=0.0, up_m=0.0), route, 8.0, settings["max_stick"], settings["aim_offset_m"])
 
 
 def pilot_params() -> Params:
@@ -199,8 +200,8 @@ def test_the_pilot_drive_adds_the_pilots_stick_and_aim_to_the_space(profile):
     assert concrete["drive"] == "pilot" and concrete["pilot"] == {"max_stick": 0.7, "aim_offset_m": -3.0}
     assert concrete["logical_scenario"]["mission"]["drive"] == "pilot"
     world = world_spec(piloted, x, 0)
-    assert world["drive"] == "pilot" and world["pilot"] == {"max_stick": 0.7, "aim_offset_m": -3.0}
-    assert mission.to_concrete(mission.lower)["drive"] == "mission" and "pilot" not in world_spec(mission, mission.lower, 0)
+    assert world.drive == "pilot" and world.pilot == PilotSpec(max_stick=0.7, aim_offset_m=-3.0)
+    assert mission.to_concrete(mission.lower)["drive"] == "mission" and "pilot" not in world_spec(mission, mission.lower, 0).as_dict()
 
 
 def test_a_mission_concrete_scenario_flown_by_the_pilot_gets_full_stick_along_the_route():

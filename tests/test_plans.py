@@ -23,6 +23,7 @@ from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from harness.tools.cli import main
 from sim_bridge.geo import geodetic_from_local
+from sim_bridge.spec import Origin, WorldSpec
 
 PLAN = ROOT / "scenarios" / "examples" / "two_altitudes.plan"
 HOME = {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0}
@@ -33,7 +34,7 @@ def plan_document() -> dict:
 
 
 def item(command: int, frame: int, north: float | None = None, east: float | None = None, altitude: float = 0.0, p1: float = 0.0, p2: float = 0.0) -> dict:
-    lat, lon = geodetic_from_local(HOME, north, east) if north is not None else (0.0, 0.0)
+    lat, lon = geodetic_from_local(HOME["lat_deg"], HOME["lon_deg"], north, east) if north is not None else (0.0, 0.0)
     return {"type": "SimpleItem", "command": command, "frame": frame, "autoContinue": True, "params": [p1, p2, 0, None, lat, lon, altitude]}
 
 
@@ -62,11 +63,11 @@ def test_positions_and_altitudes_in_the_local_frame_of_home():
 def test_the_world_of_a_plan_has_its_home_as_origin_and_uploads_the_items_as_planned(profile):
     space = SearchSpace(load_logical(PLAN_SCENARIO, profile), profile)
     world = world_spec(space, space.sample_feasible(np.random.default_rng(0), 1)[0], 0)
-    assert world["origin"] == HOME
-    mission = world["mission"]
-    assert [w["altitude_m"] for w in mission["waypoints"]] == [6.0, 12.0]
-    assert mission["landing"] == pytest.approx({"north_m": 55.0, "east_m": -5.0}, abs=0.01)
-    uploaded = mission_items(json.loads(json.dumps(world)))  # as the worker receives it
+    assert world.origin == Origin(**HOME)
+    mission = world.mission
+    assert [w.altitude_m for w in mission.waypoints] == [6.0, 12.0]
+    assert (mission.landing.north_m, mission.landing.east_m) == pytest.approx((55.0, -5.0), abs=0.01)
+    uploaded = mission_items(WorldSpec.from_dict(json.loads(json.dumps(world.as_dict()))))  # as the worker receives it
     planned = plan_document()["mission"]["items"]
     assert [(i.command, i.frame) for i in uploaded] == [(p["command"], p["frame"]) for p in planned]
     for sent, wanted in zip(uploaded, planned):

@@ -74,7 +74,7 @@ def test_ten_thousand_sampled_points_keep_every_constraint(space, profile):
     for x in X[:100]:
         world = world_spec(space, x, seed=0)
         statics = []
-        for obstacle in world["obstacles"]:
+        for obstacle in world.obstacles:
             size = obstacle["size"]
             radius = 0.5 * (math.hypot(size["length_m"], size["width_m"]) if obstacle["form"] == "cuboid" else size["diameter_m"])
             for point in filter(None, (obstacle["a"], obstacle["b"])):
@@ -111,7 +111,7 @@ def test_static_obstacles_stand_on_the_terrain(profile):
     space = space_for(ROOT / "scenarios" / "table3" / "scenario_22.json", profile)  # steep transition
     terrain = profile.landforms["steep transition"].terrain
     for x in space.sample_feasible(np.random.default_rng(1), 20):
-        for obstacle in world_spec(space, x, 0)["obstacles"]:
+        for obstacle in world_spec(space, x, 0).obstacles:
             height = obstacle["size"].get("height_m", obstacle["size"].get("diameter_m"))
             ground = terrain_height_m(terrain, obstacle["a"]["north_m"], obstacle["a"]["east_m"])
             assert obstacle["a"]["up_m"] == pytest.approx(ground + height / 2)

@@ -78,20 +78,20 @@ def trajectory_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 def features(log_path: Path) -> dict[str, Any]:
     """What happened at the moment of least clearance of one flight."""
-    world = logs.json_metadata(log_path, "world")
+    world = logs.world_of(log_path)
     clearance = min_clearance(batch for _t, _ns, batch in logs.messages(log_path, ["/clearance"]))
     states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
     if world is None or not states or clearance.obstacle is None:
         raise InputError([Problem(str(log_path), "", "no world, trajectory or clearance in this log: it cannot be triaged")])
     index = min(range(len(states)), key=lambda i: abs(states[i]["t"] - clearance.at_s))
     at, before = states[index], states[max(0, index - 1)]
-    spec = next(o for o in world["obstacles"] if o["id"] == clearance.obstacle)
+    spec = next(o for o in world.obstacles if o["id"] == clearance.obstacle)
     obstacle = Obstacle.from_spec(spec)
     here = obstacle.position_at(at["t"])
     obstacle_velocity = (obstacle.position_at(at["t"] + 0.1) - obstacle.position_at(max(0.0, at["t"] - 0.1))) / 0.2
     closing = math.hypot(at["v_ned_m_s"][0] - obstacle_velocity[0], at["v_ned_m_s"][1] - obstacle_velocity[1])
-    wind = math.hypot(world["atmosphere"]["wind_north_m_s"], world["atmosphere"]["wind_east_m_s"])
-    visibility = "clear" if world["sensor"]["range_m"] >= world["sensor"]["max_range_m"] else "reduced visibility"
+    wind = world.atmosphere.wind_speed_m_s
+    visibility = "clear" if world.sensor.range_m >= world.sensor.max_range_m else "reduced visibility"
     return {
         "obstacle": f"{spec['kind']} {spec['form']}",
         "phase": _phase(before, at),

@@ -37,6 +37,7 @@ from harness.flight.evaluation import EvaluationResult, RunOptions, fly
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.spec import WorldSpec
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +51,7 @@ class Job:
     from, both made where the search space is, so that a worker derives nothing again."""
 
     key: int
-    world: Mapping[str, Any]
+    world: WorldSpec
     concrete: Mapping[str, Any]
     seed: int
     out_dir: str
@@ -58,11 +59,12 @@ class Job:
     options: RunOptions
 
     def to_json(self) -> dict[str, Any]:
-        return {**asdict(self), "options": {**asdict(self.options), "sut_params": dict(self.options.sut_params), "sut_config": dict(self.options.sut_config)}}
+        return {**asdict(self), "world": self.world.as_dict(),
+                "options": {**asdict(self.options), "sut_params": dict(self.options.sut_params), "sut_config": dict(self.options.sut_config)}}
 
     @classmethod
     def from_json(cls, document: Mapping[str, Any]) -> "Job":
-        return cls(**{**document, "options": RunOptions(**document["options"])})
+        return cls(**{**document, "world": WorldSpec.from_dict(document["world"]), "options": RunOptions(**document["options"])})
 
     @classmethod
     def of(cls, key: int, space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path | str, name: str, options: RunOptions) -> "Job":
@@ -77,7 +79,7 @@ def run_job(job: Job) -> EvaluationResult:
 
 def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world["scenario"], job.options.sut)
+    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world.scenario, job.options.sut)
 
 
 class _TryTimedOut(BaseException):

@@ -33,6 +33,7 @@ from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mi
 from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.spec import WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
@@ -120,7 +121,7 @@ def _logged_api_traffic(log_path: Path) -> Iterator[bytes]:
             yield bytes.fromhex(record["hex"])
 
 
-def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any], failure: tuple[str, str] | None,
+def _score(log_path: Path, world: WorldSpec, summary: Mapping[str, Any], failure: tuple[str, str] | None,
            api_from_sut: Iterable[bytes], partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
     """Status and fitness of a flight from the simulator's recording (the bridge's or the merged
     log) and what the SUT sent on the API link; of a partial (truncated) log, the clearance of
@@ -131,9 +132,9 @@ def _score(log_path: Path, world: Mapping[str, Any], summary: Mapping[str, Any],
     clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
     if failure is None and clearance.samples and not partial:
         states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
-        why = scoring.mission_check(states, world["mission"], ACCEPTANCE_RADIUS_M, summary, world.get("drive", "mission"))
+        why = scoring.mission_check(states, world.mission, ACCEPTANCE_RADIUS_M, summary, world.drive)
         failure = (Status.MISSION_FAILED, why) if why else None
-    status, value, why = scoring.judge(clearance, world["safety_distance_m"], failure)
+    status, value, why = scoring.judge(clearance, world.safety_distance_m, failure)
     return status, value, why, clearance
 
 
@@ -141,7 +142,7 @@ def rescore(log_path: Path) -> dict[str, Any]:
     """Recompute status and fitness from a log alone (what `stella inspect` does); a truncated log
     is scored on what precedes the damage, and says where that is."""
     cut = logs.truncation(log_path)
-    world = logs.json_metadata(log_path, "world")
+    world = logs.world_of(log_path)
     if world is None:
         where = f"; the file is {cut.describe()}" if cut else ""
         raise InputError([Problem(str(log_path), "", f"no world metadata: not an evaluation log of this tool, or cut before the simulator wrote it{where}")])
@@ -174,13 +175,13 @@ def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, opt
     return fly(world_spec(space, x, seed), space.to_concrete(x), seed=seed, out_dir=out_dir, options=options, name=name)
 
 
-def fly(world: Mapping[str, Any], concrete: Mapping[str, Any], *, seed: int, out_dir: Path, options: RunOptions = RunOptions(),
+def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Path, options: RunOptions = RunOptions(),
         name: str | None = None) -> EvaluationResult:
     """Fly a feasible concrete scenario from the world spec the simulator loads (world.world_spec);
     the concrete scenario is recorded with the log. Needs no search space, so a worker flies a
     job as the campaign made it."""
     wall_start = time.monotonic()
-    stem = logs.slug(name or f"{world['scenario']}-seed{seed}")
+    stem = logs.slug(name or f"{world.scenario}-seed{seed}")
     out_dir.mkdir(parents=True, exist_ok=True)
     workdir = Path(tempfile.mkdtemp(prefix=f"stella-{stem}-"))
     log_path = out_dir / f"{stem}.mcap"
@@ -205,7 +206,7 @@ def fly(world: Mapping[str, Any], concrete: Mapping[str, Any], *, seed: int, out
             real_time_factor=(run_time / in_run) if in_run > 0 else None,
             seed=seed,
             log_path=str(log_path) if log_path else None,
-            scenario=world["scenario"],
+            scenario=world.scenario,
             sut=options.sut,
             sut_fault=options.sut_config.get("fault"),
             artifacts=artifacts,
@@ -258,12 +259,12 @@ class Stack:
 
 
 @contextmanager
-def simulation_stack(world: Mapping[str, Any], options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
+def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
     """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
     on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first)."""
     with PortLease() as ports:
         world_path = workdir / "world.json"
-        world_path.write_text(json.dumps(world))
+        world_path.write_text(json.dumps(world.as_dict()))
         bridge_log = workdir / "bridge.mcap"
         cores = min(options.cores, len(os.sched_getaffinity(0)))
         spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
@@ -313,7 +314,7 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
-def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
+def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float]):
     """Returns (failure or None, bridge summary, MAVSDK observations)."""
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
@@ -331,12 +332,12 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
         timings["hold_s"] = time.monotonic() - t0
         try:
             session.set_params(sut.mavlink_params)
-            if world["drive"] == "pilot":
+            if world.drive == "pilot":
                 # A parameter the user set (--sut-param) is the user's to decide.
                 session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut_params})
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
-            if world["drive"] == "pilot":
-                session.arm_and_take_off(world["mission"]["takeoff_altitude_m"])
+            if world.drive == "pilot":
+                session.arm_and_take_off(world.mission.takeoff_altitude_m)
             else:
                 session.upload_and_start(mission_items(world))
         except InfrastructureError as error:  # not healthy in time, a parameter refused
@@ -347,7 +348,7 @@ def _fly(world, options: RunOptions, stack: Stack, timings: dict[str, float]):
             return (Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}"), control_summary(control), {}
         timings["setup_s"] = time.monotonic() - t0
         control.send({"op": "run"})
-        deadline = world["time_limit_s"] / options.min_real_time_factor + 30.0
+        deadline = world.time_limit_s / options.min_real_time_factor + 30.0
         finished = control.wait_for("finished", deadline, lambda: bridge.poll() is None)
         timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
         info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}

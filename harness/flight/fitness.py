@@ -25,6 +25,7 @@ from enum import StrEnum
 from typing import Any, Iterable, Mapping, Sequence
 
 from sim_bridge.pilot import BLOCKED_AFTER_S
+from sim_bridge.spec import MissionSpec
 
 CLEARANCE_CAP_M = 100.0
 PENALTY = 1000.0
@@ -74,24 +75,24 @@ def min_clearance(batches: Iterable[Mapping[str, Any]]) -> Clearance:
     return Clearance(best, at, which, count)
 
 
-def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any], acceptance_radius_m: float, summary: Mapping[str, Any],
+def mission_check(states: Sequence[Mapping[str, Any]], mission: MissionSpec, acceptance_radius_m: float, summary: Mapping[str, Any],
                   drive: str = "mission") -> str | None:
     """None if the recorded flight performed the mission, else why not. A pilot (drive "pilot")
     steers its own line to the goal, so only the goal and the landing count for it."""
     reason = summary.get("end_reason")
     if reason == "blocked":
         return f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
-    waypoints = list(enumerate(mission["waypoints"], 1))
+    waypoints = list(enumerate(mission.waypoints, 1))
     for number, waypoint in waypoints if drive == "mission" else waypoints[-1:]:
         closest = min(
-            (math.hypot(s["north_m"] - waypoint["north_m"], s["east_m"] - waypoint["east_m"]) for s in states),
+            (math.hypot(s["north_m"] - waypoint.north_m, s["east_m"] - waypoint.east_m) for s in states),
             default=math.inf,
         )
-        radius = waypoint.get("acceptance_radius_m", acceptance_radius_m)
+        radius = acceptance_radius_m if waypoint.acceptance_radius_m is None else waypoint.acceptance_radius_m
         if closest > radius:
             what = f"waypoint {number}" if drive == "mission" else "the goal"
             return f"{what} missed by {closest:.1f} m (acceptance radius {radius} m); run ended: {reason}"
-    if not mission.get("land", True):
+    if not mission.land:
         return None
     if reason == "crashed":
         touchdown = summary.get("touchdown") or {}
@@ -99,9 +100,9 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: Mapping[str, Any
     if reason != "landed":
         return {"time_limit": "not landed within the time limit"}.get(reason, f"run ended: {reason}")
     # The pilot lands where its route ends; a mission where its plan ends (home after a return).
-    goal = mission["waypoints"][-1] if drive == "pilot" else mission.get("landing", mission["waypoints"][-1])
+    goal = mission.waypoints[-1] if drive == "pilot" else mission.landing or mission.waypoints[-1]
     touchdown = summary.get("touchdown") or {}
-    miss = math.hypot(touchdown.get("north_m", math.inf) - goal["north_m"], touchdown.get("east_m", math.inf) - goal["east_m"])
+    miss = math.hypot(touchdown.get("north_m", math.inf) - goal.north_m, touchdown.get("east_m", math.inf) - goal.east_m)
     if miss > LANDING_TOLERANCE_M:
         return f"landed {miss:.1f} m from the goal (tolerance {LANDING_TOLERANCE_M} m)"
     return None

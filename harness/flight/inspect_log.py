@@ -26,7 +26,7 @@ def summarize(path: Path) -> dict[str, Any]:
     summary = scored["summary"]
     return {
         "log": str(path),
-        "scenario": scored["world"].get("scenario"),
+        "scenario": scored["world"].scenario,
         "duration_s": summary.get("sim_time_s", cut.last_time_s if cut else None),
         "end_reason": summary.get("end_reason"),
         "status": scored["status"],
@@ -37,7 +37,7 @@ def summarize(path: Path) -> dict[str, Any]:
         "min_clearance_m": clearance.min_clearance_m,
         "min_clearance_at_s": clearance.at_s,
         "min_clearance_obstacle": clearance.obstacle,
-        "safety_distance_m": scored["world"]["safety_distance_m"],
+        "safety_distance_m": scored["world"].safety_distance_m,
         "touchdown": summary.get("touchdown"),
         "partial": cut is not None,
         "truncation": None if cut is None else {"readable_bytes": cut.readable_bytes, "size_bytes": cut.size_bytes, "last_time_s": cut.last_time_s},
@@ -53,7 +53,9 @@ def plot(path: Path, out: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Polygon
 
-    world = logs.json_metadata(path, "world")
+    world = logs.world_of(path)
+    if world is None:
+        raise InputError([Problem(str(path), "", "no world metadata: not an evaluation log of this tool")])
     states = [m for _t, _ns, m in logs.messages(path, ["/uav/state"])]
     times, distances = [], []
     for _t, _ns, batch in logs.messages(path, ["/clearance"]):
@@ -63,7 +65,7 @@ def plot(path: Path, out: Path) -> None:
                 distances.append(d)
     figure, (top, series) = plt.subplots(1, 2, figsize=(13, 5.5))
     top.plot([s["east_m"] for s in states], [s["north_m"] for s in states], color="tab:blue", label="UAV")
-    for obstacle in world["obstacles"]:
+    for obstacle in world.obstacles:
         a, b = obstacle["a"], obstacle["b"]
         size = obstacle["size"]
         color = "tab:orange" if b else "tab:gray"
@@ -77,14 +79,14 @@ def plot(path: Path, out: Path) -> None:
         if b:
             top.annotate("", xy=(b["east_m"], b["north_m"]), xytext=(a["east_m"], a["north_m"]), arrowprops={"arrowstyle": "->", "color": color})
         top.text(a["east_m"], a["north_m"], obstacle["id"], fontsize=8)
-    for waypoint in world["mission"]["waypoints"]:
-        top.plot(waypoint["east_m"], waypoint["north_m"], "k*")
+    for waypoint in world.mission.waypoints:
+        top.plot(waypoint.east_m, waypoint.north_m, "k*")
     top.set_xlabel("east (m)")
     top.set_ylabel("north (m)")
     top.set_aspect("equal")
-    top.set_title(world.get("scenario", ""))
+    top.set_title(world.scenario)
     series.plot(times, distances, color="tab:blue", label="clearance")
-    series.axhline(world["safety_distance_m"], color="tab:red", linestyle="--", label="safety distance")
+    series.axhline(world.safety_distance_m, color="tab:red", linestyle="--", label="safety distance")
     series.set_xlabel("simulation time (s)")
     series.set_ylabel("UAV to nearest obstacle (m)")
     series.legend()

@@ -16,6 +16,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from harness.errors import InputError, Problem
+from sim_bridge.spec import SpecError, WorldSpec
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -151,6 +152,17 @@ def metadata(path: Path) -> dict[str, dict[str, str]]:
 def json_metadata(path: Path, name: str) -> Any:
     entry = metadata(path).get(name)
     return None if entry is None else json.loads(entry["json"])
+
+
+def world_of(path: Path) -> WorldSpec | None:
+    """The world spec the flight of this log was simulated in (None when the log has none)."""
+    document = json_metadata(path, "world")
+    if document is None:
+        return None
+    try:
+        return WorldSpec.from_dict(document)
+    except SpecError as error:
+        raise InputError([Problem(str(path), f"metadata world{error.pointer}", error.message)]) from None
 
 
 def merge(bridge_log: Path, out: Path, *, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:

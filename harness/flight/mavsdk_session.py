@@ -42,37 +42,37 @@ def _route_mavsdk_log(level, message: str, _file, _line) -> bool:
 log_subscribe(_route_mavsdk_log)
 
 
-def mission_items(world: Mapping[str, Any]) -> list[MissionItem]:
+def mission_items(world: WorldSpec) -> list[MissionItem]:
     """MISSION_ITEM_INTs for the world's mission: a plan's items as they are, or take off, set
     speed, waypoints, land at the last."""
-    origin = world["origin"]
-    mission = world["mission"]
-    if "plan_items" in mission:
+    origin = world.origin
+    mission = world.mission
+    if mission.plan_items is not None:
         items = []
-        for seq, item in enumerate(mission["plan_items"]):
+        for seq, item in enumerate(mission.plan_items):
             p = [float("nan") if v is None else float(v) for v in item["params"]]
             items.append(MissionItem(seq=seq, frame=item["frame"], command=item["command"], current=1 if seq == 0 else 0, autocontinue=1,
                                      param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=item["x"], y=item["y"], z=float(item["z"]), mission_type=0))
         return items
-    start = world["uav"]["start"]
+    start = world.uav.start
     items: list[MissionItem] = []
 
     def add(command: int, frame: int, north: float | None, east: float | None, z: float, *params: float) -> None:
         x = y = 0
         if north is not None:
-            lat, lon = geodetic_from_local(origin, north, east)
+            lat, lon = geodetic_from_local(origin.lat_deg, origin.lon_deg, north, east)
             x, y = int(round(lat * 1e7)), int(round(lon * 1e7))
         p = list(params) + [0.0] * (4 - len(params))
         items.append(MissionItem(seq=len(items), frame=frame, command=command, current=1 if not items else 0, autocontinue=1,
                                  param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=x, y=y, z=float(z), mission_type=0))
 
-    add(NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, start["north_m"], start["east_m"], mission["takeoff_altitude_m"], 0.0, 0.0, 0.0, float("nan"))
-    add(DO_CHANGE_SPEED, MAV_FRAME_MISSION, None, None, 0.0, 1.0, mission["cruise_speed_m_s"], -1.0)
-    for waypoint in mission["waypoints"]:
-        add(NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, waypoint["north_m"], waypoint["east_m"], waypoint["altitude_m"], 0.0, ACCEPTANCE_RADIUS_M, 0.0, float("nan"))
-    if mission["land"]:
-        last = mission["waypoints"][-1]
-        add(NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, last["north_m"], last["east_m"], 0.0, 0.0, 0.0, 0.0, float("nan"))
+    add(NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, start.north_m, start.east_m, mission.takeoff_altitude_m, 0.0, 0.0, 0.0, float("nan"))
+    add(DO_CHANGE_SPEED, MAV_FRAME_MISSION, None, None, 0.0, 1.0, mission.cruise_speed_m_s, -1.0)
+    for waypoint in mission.waypoints:
+        add(NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, waypoint.north_m, waypoint.east_m, waypoint.altitude_m, 0.0, ACCEPTANCE_RADIUS_M, 0.0, float("nan"))
+    if mission.land:
+        last = mission.waypoints[-1]
+        add(NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, last.north_m, last.east_m, 0.0, 0.0, 0.0, 0.0, float("nan"))
     return items
 
 

@@ -31,6 +31,7 @@ from harness.scenario.plan import AREA_MARGIN_M, plan_from_document, plan_proble
 from harness.scenario.profile import load_profile, profile_from_document
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.spec import WorldSpec
 
 PX4_DEFAULT_HOME = (47.397742, 8.545594, 488.0)
 COMPETITION_SAFETY_DISTANCE_M = 1.5  # its soft-fail threshold
@@ -206,39 +207,39 @@ def _competition_profile(safety_distance_m: float):
     return profile_from_document(document)
 
 
-def not_expressible(world: Mapping[str, Any]) -> list[str]:
+def not_expressible(world: WorldSpec) -> list[str]:
     """Why a flown world cannot be written as a competition test (empty when it can)."""
     reasons = []
-    for obstacle in world["obstacles"]:
+    for obstacle in world.obstacles:
         if obstacle["kind"] != "static" or obstacle["form"] != "cuboid":
             reasons.append(f"{obstacle['id']} is a {obstacle['kind']} {obstacle['form']}: the format has static boxes only")
-    if world["terrain"].get("kind", "flat") != "flat":
-        reasons.append(f"the terrain is {world['terrain']['kind']}: the competition's world is flat")
-    wind = math.hypot(world["atmosphere"]["wind_north_m_s"], world["atmosphere"]["wind_east_m_s"])
+    if world.terrain.get("kind", "flat") != "flat":
+        reasons.append(f"the terrain is {world.terrain['kind']}: the competition's world is flat")
+    wind = world.atmosphere.wind_speed_m_s
     if wind > 0.0:
         reasons.append(f"wind {wind:.1f} m/s: the competition flies in calm air")
-    if world["sensor"]["range_m"] < world["sensor"]["max_range_m"]:
-        reasons.append(f"visibility {world['visibility_m']:.0f} m shortens the range sensor: the competition has no fog")
-    if world.get("drive", "mission") != "mission":
+    if world.sensor.range_m < world.sensor.max_range_m:
+        reasons.append(f"visibility {world.visibility_m:.0f} m shortens the range sensor: the competition has no fog")
+    if world.drive != "mission":
         reasons.append("flown by the pilot drive: the competition flies missions")
     return reasons
 
 
-def plan_of(world: Mapping[str, Any]) -> dict[str, Any]:
+def plan_of(world: WorldSpec) -> dict[str, Any]:
     """A QGroundControl plan of the mission the world's flight uploads."""
     from harness.flight.mavsdk_session import mission_items
 
-    origin = world["origin"]
+    origin = world.origin
     items = []
     for item in mission_items(world):
         located = item.x != 0 or item.y != 0
         params = [item.param1, item.param2, item.param3, item.param4, item.x / 1e7 if located else 0, item.y / 1e7 if located else 0, item.z]
         items.append({"autoContinue": True, "command": item.command, "doJumpId": item.seq + 1, "frame": PLAN_FRAMES.get(item.frame, item.frame),
                       "params": [None if isinstance(p, float) and math.isnan(p) else p for p in params], "type": "SimpleItem"})
-    home_alt = origin["alt_m"] + world["uav"]["start"]["up_m"]
+    home_alt = world.start_msl_m
     return {"fileType": "Plan", "geoFence": {"circles": [], "polygons": [], "version": 2}, "groundStation": "QGroundControl",
-            "mission": {"cruiseSpeed": 15, "firmwareType": 12, "globalPlanAltitudeMode": 1, "hoverSpeed": world["mission"]["cruise_speed_m_s"],
-                        "items": items, "plannedHomePosition": [origin["lat_deg"], origin["lon_deg"], home_alt], "vehicleType": 2, "version": 2},
+            "mission": {"cruiseSpeed": 15, "firmwareType": 12, "globalPlanAltitudeMode": 1, "hoverSpeed": world.mission.cruise_speed_m_s,
+                        "items": items, "plannedHomePosition": [origin.lat_deg, origin.lon_deg, home_alt], "vehicleType": 2, "version": 2},
             "rallyPoints": {"points": [], "version": 2}, "version": 1}
 
 
@@ -263,7 +264,7 @@ def export_aerialist(name: str, concrete: Mapping[str, Any], sut_params: Mapping
             **({"home_position": home} if tuple(home) != PX4_DEFAULT_HOME else {}),
             "obstacles": [{"size": {"l": o["size"]["length_m"], "w": o["size"]["width_m"], "h": o["size"]["height_m"]},
                            "position": {"x": o["a"]["north_m"], "y": o["a"]["east_m"], "z": 0, "r": math.degrees(o["yaw_rad"])}}
-                          for o in world["obstacles"]],
+                          for o in world.obstacles],
         },
         "mission": {"commands": START_MISSION},
     }

@@ -78,13 +78,13 @@ def points_for(distance_m: float) -> int:
 
 def competition_score(path: Path) -> dict[str, Any]:
     """Per box the competition's distance, and the flight's minimum, verdict and points."""
-    world = logs.json_metadata(path, "world")
-    if not world["obstacles"] or any(o["kind"] != "static" or o["form"] != "cuboid" for o in world["obstacles"]):
+    world = logs.world_of(path)
+    if not world.obstacles or any(o["kind"] != "static" or o["form"] != "cuboid" for o in world.obstacles):
         raise InputError([Problem(str(path), "", "the competition scores static boxes only; this flight had other obstacles or none")])
     trajectory = resampled([m for _t, _ns, m in logs.messages(path, ["/uav/state"])])
     if not trajectory:
         raise InputError([Problem(str(path), "", "no trajectory recorded")])
-    distances = {o["id"]: max(0.0, path_to_polygon(trajectory, footprint(o)) - HALF_WIDTH_M) for o in world["obstacles"]}
+    distances = {o["id"]: max(0.0, path_to_polygon(trajectory, footprint(o)) - HALF_WIDTH_M) for o in world.obstacles}
     nearest = min(distances.values())
     verdict = "hard fail (collision)" if nearest == 0.0 else "soft fail" if nearest < SOFT_FAIL_M else "pass"
     return {"distances_m": distances, "min_distance_m": nearest, "verdict": verdict, "points": points_for(nearest)}

@@ -205,7 +205,7 @@ def _position_problems(command: int, frame: int, p: list[float], home: Mapping[s
     if located:
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             return [Problem(file, f"{where}/params/4", f"latitude {lat} / longitude {lon} out of range")]
-        distance = math.hypot(*local_from_geodetic(home, lat, lon))
+        distance = math.hypot(*local_from_geodetic(home["lat_deg"], home["lon_deg"], lat, lon))
         if distance > MAX_DISTANCE_FROM_HOME_M:
             problems.append(Problem(file, f"{where}/params/4", f"{distance / 1000:.1f} km from home: the simulated world reaches "
                                                                 f"{MAX_DISTANCE_FROM_HOME_M / 1000:.0f} km; is plannedHomePosition right?"))
@@ -261,7 +261,7 @@ def plan_from_document(document: Mapping[str, Any], file: str) -> Plan:
         located = command in POSITION_COMMANDS and math.isfinite(p[4]) and math.isfinite(p[5]) and (p[4], p[5]) != (0.0, 0.0)
         position: dict[str, float] = {}
         if located:
-            north, east = local_from_geodetic(origin, p[4], p[5])
+            north, east = local_from_geodetic(origin["lat_deg"], origin["lon_deg"], p[4], p[5])
             altitude = 0.0 if command == NAV_LAND else _altitude_above_home(frame, p[6], origin)
             position = {"north_m": north, "east_m": east, "altitude_m": altitude}
         elif command == NAV_TAKEOFF:

@@ -13,11 +13,12 @@ from harness.scenario.documents import load_json
 from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
+from sim_bridge.spec import (Atmosphere, Body, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface, Uav, Waypoint,
+                             WorldSpec)
 from sim_bridge.terrain import terrain_height_m
 
-WORLD_FORMAT = "stella.world/1"
 # PX4 SITL's default home (Zurich), so that logs of either SUT line up on the same map.
-ORIGIN = {"lat_deg": 47.397742, "lon_deg": 8.545594, "alt_m": 488.0}
+ORIGIN = Origin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 
 
 def sensor_range_m(sensor: Mapping[str, Any], visibility_m: float) -> float:
@@ -58,7 +59,7 @@ def _obstacle(space: SearchSpace, concrete: Mapping[str, Any], index: int) -> di
     return obstacle
 
 
-def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
+def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
     """Everything the simulator needs for one run, in SI units and the local north/east/up frame."""
     concrete = space.to_concrete(x)
     environment = concrete["environment"]
@@ -67,54 +68,52 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> dict[str, Any]:
     wind_toward = math.radians(environment["wind_from_deg"] + 180.0)
     mission = space.mission
     start_up_m = terrain_height_m(landform.terrain, 0.0, 0.0)
-    return {
-        "format": WORLD_FORMAT,
-        "scenario": space.logical.name,
-        "seed": int(seed),
-        "origin": dict(ORIGIN) if mission.plan is None else {**mission.plan.origin, "alt_m": mission.plan.home[2] - start_up_m},
-        "terrain": dict(landform.terrain),
-        "surface": {"kind": space.logical.surface, "water": list(profile.surfaces[space.logical.surface]["water"])},
-        "atmosphere": {
-            "wind_north_m_s": environment["wind_speed_m_s"] * math.cos(wind_toward),
-            "wind_east_m_s": environment["wind_speed_m_s"] * math.sin(wind_toward),
-            "temperature_c": environment["temperature_c"],
-        },
-        "visibility_m": environment["visibility_m"],
-        "sensor": {**dict(profile.sensor), "range_m": sensor_range_m(profile.sensor, environment["visibility_m"])},
-        "obstacles": [_obstacle(space, concrete, i) for i in range(len(concrete["obstacles"]))],
-        "uav": {
-            "start": {"north_m": 0.0, "east_m": 0.0, "up_m": start_up_m},
-            "body": {k: v for k, v in profile.uav["body"].items() if k != "description"},
-        },
-        "mission": _mission(mission),
-        "safety_distance_m": profile.safety_distance_m,
-        "time_limit_s": _time_limit_s(mission, profile.time_limit_s),
-        "not_simulated": concrete["not_simulated"],
-        "drive": mission.drive,
-        **({"pilot": dict(concrete["pilot"])} if mission.drive == "pilot" else {}),
-    }
+    sensor = {k: v for k, v in profile.sensor.items() if k != "description"}
+    return WorldSpec(
+        scenario=space.logical.name,
+        seed=int(seed),
+        origin=ORIGIN if mission.plan is None else Origin(**{**mission.plan.origin, "alt_m": mission.plan.home[2] - start_up_m}),
+        terrain=dict(landform.terrain),
+        surface=Surface(kind=space.logical.surface, water=tuple(profile.surfaces[space.logical.surface]["water"])),
+        atmosphere=Atmosphere(
+            wind_north_m_s=environment["wind_speed_m_s"] * math.cos(wind_toward),
+            wind_east_m_s=environment["wind_speed_m_s"] * math.sin(wind_toward),
+            temperature_c=environment["temperature_c"],
+        ),
+        visibility_m=environment["visibility_m"],
+        sensor=RangeSensor(**sensor, range_m=sensor_range_m(profile.sensor, environment["visibility_m"])),
+        obstacles=tuple(_obstacle(space, concrete, i) for i in range(len(concrete["obstacles"]))),
+        uav=Uav(start=Point(north_m=0.0, east_m=0.0, up_m=start_up_m),
+                body=Body(**{k: v for k, v in profile.uav["body"].items() if k != "description"})),
+        mission=_mission(mission),
+        safety_distance_m=profile.safety_distance_m,
+        time_limit_s=_time_limit_s(mission, profile.time_limit_s),
+        not_simulated=concrete["not_simulated"],
+        drive=mission.drive,
+        pilot=PilotSpec(**concrete["pilot"]) if mission.drive == "pilot" else None,
+    )
 
 
-def _mission(mission: Mission) -> dict[str, Any]:
+def _mission(mission: Mission) -> MissionSpec:
     """The route as the harness flies and scores it; a plan's items also as they are uploaded."""
     if mission.plan is None:
-        return {
-            "takeoff_altitude_m": mission.waypoints[0][2],
-            "waypoints": [{"north_m": n, "east_m": e, "altitude_m": a} for n, e, a in mission.waypoints],
-            "cruise_speed_m_s": mission.cruise_speed_m_s,
-            "land": mission.land,
-        }
+        return MissionSpec(
+            takeoff_altitude_m=mission.waypoints[0][2],
+            waypoints=tuple(Waypoint(north_m=n, east_m=e, altitude_m=a) for n, e, a in mission.waypoints),
+            cruise_speed_m_s=mission.cruise_speed_m_s,
+            land=mission.land,
+        )
     plan = mission.plan
     landing_north, landing_east = plan.landing_point
-    return {
-        "takeoff_altitude_m": plan.takeoff_altitude_m,
-        "waypoints": [{"north_m": w.north_m, "east_m": w.east_m, "altitude_m": w.altitude_m,
-                       **({"acceptance_radius_m": w.params[1]} if w.params[1] > 0 else {})} for w in plan.waypoints],
-        "cruise_speed_m_s": mission.cruise_speed_m_s,
-        "land": plan.lands,
-        "landing": {"north_m": landing_north, "east_m": landing_east},
-        "plan_items": plan.upload_items(),
-    }
+    return MissionSpec(
+        takeoff_altitude_m=plan.takeoff_altitude_m,
+        waypoints=tuple(Waypoint(north_m=w.north_m, east_m=w.east_m, altitude_m=w.altitude_m,
+                                 acceptance_radius_m=w.params[1] if w.params[1] > 0 else None) for w in plan.waypoints),
+        cruise_speed_m_s=mission.cruise_speed_m_s,
+        land=plan.lands,
+        landing=Landing(north_m=landing_north, east_m=landing_east),
+        plan_items=tuple(plan.upload_items()),
+    )
 
 
 def _time_limit_s(mission: Mission, profile_limit_s: float) -> float:

@@ -123,15 +123,15 @@ def jsbsim_alone(log_path: Path, rate_hz: float, repeats: int = 3) -> dict[str, 
     from sim_bridge.world import vehicle_for
     from simlink import codec
 
-    world = logs.json_metadata(log_path, "world")
+    world = logs.world_of(log_path)
     steps = logs.json_metadata(log_path, "bridge_summary")["steps"]
     splitter = codec.FrameSplitter({m: c.crc_extra for m, c in mavlink.mavlink_map.items()})
     answers = [codec.decode_hil_actuator_controls(payload)[2][:4]
                for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut"
                for msgid, payload, _frame in splitter.feed(bytes.fromhex(m["hex"])) if msgid == codec.HIL_ACTUATOR_CONTROLS_ID]
     commands = [(0.0, 0.0, 0.0, 0.0)] * max(0, steps - len(answers)) + answers[:steps]
-    terrain = world["terrain"]
-    wind = (world["atmosphere"]["wind_north_m_s"], world["atmosphere"]["wind_east_m_s"])
+    terrain = world.terrain
+    wind = (world.atmosphere.wind_north_m_s, world.atmosphere.wind_east_m_s)
     durations = []
     for _ in range(max(1, repeats)):
         vehicle = vehicle_for(world, rate_hz)
@@ -275,6 +275,6 @@ def autopilot_step_bench(log_path: Path) -> dict[str, Any]:
     from harness.flight import logs
     from sut_adapter.bundled import step_bench
 
-    world = logs.json_metadata(log_path, "world")
+    mission = logs.json_metadata(log_path, "world")["mission"]  # as JSON: the autopilot knows no simulator types
     stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
-    return {"log": str(log_path), **step_bench(stream, world["mission"])}
+    return {"log": str(log_path), **step_bench(stream, mission)}

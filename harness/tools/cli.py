@@ -148,7 +148,7 @@ def cmd_sample(args: argparse.Namespace) -> int:
 
     space = _space(args)
     x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
-    result = {"vector": x.tolist(), "concrete": space.to_concrete(x), "world": world_spec(space, x, args.seed)}
+    result = {"vector": x.tolist(), "concrete": space.to_concrete(x), "world": world_spec(space, x, args.seed).as_dict()}
     if args.out:
         Path(args.out).write_text(json.dumps(result["concrete"], indent=2) + "\n")
     text = json.dumps({k: v for k, v in result["concrete"].items() if k not in ("logical_scenario", "profile_document")}, indent=2)

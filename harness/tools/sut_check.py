@@ -45,7 +45,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     system = sut_adapter.get(options.sut, options.sut_config)
     world = world_spec(space, x, 0)
     workdir = Path(tempfile.mkdtemp(prefix="stella-sut-check-"))
-    stages = [Stage(name, None) for name in (*STAGES, LAST_STAGE[world["drive"]])]
+    stages = [Stage(name, None) for name in (*STAGES, LAST_STAGE[world.drive])]
     start = time.monotonic()
     try:
         with simulation_stack(world, options, system, workdir) as stack:
@@ -85,7 +85,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _armable(session)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world["drive"] == "mission" else
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s)),
         ]
         for index, _name, action in steps:
@@ -93,7 +93,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
                 action()
             except Exception as error:  # MAVSDK raises its own error type per plugin
                 return failed(index, str(error))
-            passed(index, _details(index, session, sut, world["drive"]))
+            passed(index, _details(index, session, sut, world.drive))
     finally:
         control.send({"op": "stop"})
         control.close()
