@@ -28,6 +28,28 @@ from sut_adapter.processes import ManagedProcess
 HOLD_MODES = ("frozen", "paced")
 
 
+@dataclass(frozen=True)
+class SutConfig:
+    """Which SUT flies and how, as a user chose it: what a campaign records (name, params,
+    fault: its identity) and a job carries to a worker (all of it)."""
+
+    name: str = "bundled"
+    params: Mapping[str, float] = field(default_factory=dict)  # set before each flight
+    fault: str | None = None  # a seeded fault of the bundled autopilot
+    px4_bin: str | None = None  # px4: the binary or its build folder
+    command: str | None = None  # command: the command line template
+    hold: str | None = None  # command: one of HOLD_MODES
+
+    def adapter_options(self) -> dict[str, str]:
+        """What the named adapter is configured with (its factory's mapping)."""
+        return {key: value for key, value in (("px4_bin", self.px4_bin), ("command", self.command), ("hold", self.hold),
+                                              ("fault", self.fault)) if value is not None}
+
+    def identity(self) -> dict[str, object]:
+        """What makes two flights' SUTs the same, wherever they run (no machine's paths)."""
+        return {"name": self.name, "params": dict(self.params), **({"fault": self.fault} if self.fault else {})}
+
+
 class SutError(Exception):
     """A SUT would not start or answer, or is configured wrongly; carries its name and the tail of its log."""
 

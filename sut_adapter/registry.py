@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Callable, Mapping
 
-from sut_adapter.base import SutError, SystemUnderTest
+from sut_adapter.base import SutConfig, SutError, SystemUnderTest
 from sut_adapter.bundled import BundledAutopilot
 from sut_adapter.command import CommandSut
 from sut_adapter.px4 import Px4Sitl
@@ -25,6 +25,11 @@ def get(name: str, config: Mapping[str, str] | None = None) -> SystemUnderTest:
     if name not in _REGISTRY:
         raise SutError(name, f"unknown SUT; available: {', '.join(names())}")
     return _REGISTRY[name](config or {})
+
+
+def system_for(config: SutConfig) -> SystemUnderTest:
+    """The SUT a SutConfig names, configured by it."""
+    return get(config.name, config.adapter_options())
 
 
 register("bundled", BundledAutopilot)

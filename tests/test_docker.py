@@ -14,6 +14,7 @@ import pytest
 from conftest import FIG4_SEED1_FITNESS, ROOT, SEEDED_CAMPAIGN, campaign_candidates, fig4_job, run_seeded_campaign
 from harness.errors import InfrastructureError
 from harness.flight import logs
+from sut_adapter import SutConfig
 from test_executors import SILENT_SUT
 
 pytestmark = pytest.mark.slow
@@ -92,7 +93,7 @@ def test_a_killed_container_is_retried(engine, executor, tmp_path, profile):
 def test_a_container_that_overruns_is_ended_as_a_timeout(executor, tmp_path, profile):
     docker = executor(attempts=1, timeout_s=8.0)
     silent = SILENT_SUT.replace(sys.executable, "python")  # the image's python
-    [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": silent})]))
+    [(_job, result)] = list(docker.run([fig4_job(tmp_path, profile, sut=SutConfig("command", command=silent))]))
     assert result.status == "timeout" and "the executor's limit per try" in result.why
 
 

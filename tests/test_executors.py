@@ -20,6 +20,7 @@ from harness.execution.registry import make_executor
 from harness.flight.evaluation import RunOptions
 from harness.flight.ports import PortLease
 from harness.tools.cli import main
+from sut_adapter import SutConfig
 
 pytestmark = pytest.mark.slow
 SILENT_SUT = f"{sys.executable} -c 'import time; time.sleep(600)' {{sim_port}} {{api_port}}"
@@ -40,7 +41,7 @@ def no_leftovers() -> None:
 
 def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
-    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)]))
+    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut=SutConfig("command", command=SILENT_SUT), setup_timeout_s=3.0)]))
     assert result.status == "timeout"
     assert [a["status"] for a in result.attempts] == ["timeout", "timeout"]
     assert all("no autopilot heartbeat" in a["why"] for a in result.attempts)
@@ -49,7 +50,7 @@ def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, 
 
 def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
-    options = {"sut": "command", "sut_config": {"command": HANGING_SUT, "hold": "frozen"}, "setup_timeout_s": 5.0}
+    options = {"sut": SutConfig("command", command=HANGING_SUT, hold="frozen"), "setup_timeout_s": 5.0}
     [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, **options)]))
     assert len(result.attempts) == 2
     assert {a["status"] for a in result.attempts} <= {"timeout", "sut_crashed"}
@@ -59,7 +60,7 @@ def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
 def test_the_hard_limit_per_try_ends_a_try_and_frees_everything(tmp_path, profile):
     executor = SequentialExecutor(attempts=1, timeout_s=2.0)
     started = time.monotonic()
-    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut="command", sut_config={"command": SILENT_SUT})]))
+    [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut=SutConfig("command", command=SILENT_SUT))]))
     assert time.monotonic() - started < 10.0
     assert result.status == "timeout" and "the executor's limit per try" in result.why
     no_leftovers()
@@ -88,9 +89,9 @@ def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_aga
 
 
 def test_a_campaign_with_a_broken_sut_finishes_with_every_evaluation_accounted_for(tmp_path):
-    config = CampaignConfig((str(FIG4),), ("RANDOM",), 3, population=3, sut="command", batch=2)
+    config = CampaignConfig((str(FIG4),), ("RANDOM",), 3, population=3, sut=SutConfig("command", command=SILENT_SUT), batch=2)
     executor = make_executor("local", 2, attempts=2)
-    options = RunOptions(sut="command", sut_config={"command": SILENT_SUT}, setup_timeout_s=3.0)
+    options = RunOptions(setup_timeout_s=3.0)
     try:
         with Store(tmp_path / "c.db") as store:
             run_campaign(config, store, executor, tmp_path / "logs", options=options)

@@ -43,7 +43,7 @@ def test_sut_param_wins_over_the_file(tmp_path):
     path = tmp_path / "params.csv"
     path.write_text("CP_DIST,3\nMPC_XY_CRUISE,4\n")
     args = argparse.Namespace(sut="bundled", px4_bin=None, sut_command=None, sut_hold=None, sut_param=["CP_DIST=1.5"], sut_params_file=str(path), sut_fault=None)
-    assert _sut_spec(args)[2] == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
+    assert _sut_spec(args).params == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
 
 
 @pytest.mark.parametrize("text, line, message", [

@@ -17,6 +17,7 @@ from harness.flight.fitness import PENALTY
 from harness.scenario.world import load_concrete
 from harness.tools.cli import main
 from sim_bridge.pilot import BLOCKED_AFTER_S, RC_PERIOD_S
+from sut_adapter import SutConfig
 
 pytestmark = pytest.mark.slow
 EXAMPLES = ROOT / "scenarios" / "examples"
@@ -85,6 +86,6 @@ def test_a_sut_that_ignores_the_rc_is_not_reported_as_held_back_by_collision_pre
     """COM_RC_IN_MODE 1 (MAVLink only): the bundled autopilot ignores the pilot's RC frames, so
     the vehicle hovers where the takeoff left it; the user's parameter wins over the pilot's."""
     space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
-    result = evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2, sut_params={"COM_RC_IN_MODE": 1}), name="ignored")
+    result = evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2, sut=SutConfig(params={"COM_RC_IN_MODE": 1})), name="ignored")
     assert result.status == "mission_failed"
     assert result.why.startswith("the SUT never reported Position mode"), result.why

@@ -18,6 +18,7 @@ from harness.flight.fitness import Status
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
+from sut_adapter import SutConfig
 
 CASES = ROOT / "tests" / "data" / "regressions"
 KNOWN_VIOLATION = json.loads((CASES / "known_violation.json").read_text())
@@ -51,7 +52,7 @@ def test_export_writes_each_violation_once_as_a_loadable_case(tmp_path, profile)
     written = export_regressions(tmp_path / "c.db", tmp_path / "out")
     assert [p.name for p in written] == ["fig4-NSGAII-run0-eval1.regression.json"]
     case = load_regression(written[0])
-    assert (case.expect, case.seed, case.sut, case.found["fitness"], case.found["status"]) == ("safe", 7, "bundled", -0.4, "violation")
+    assert (case.expect, case.seed, case.sut, case.found["fitness"], case.found["status"]) == ("safe", 7, SutConfig(), -0.4, "violation")
     assert "must keep the safety distance" in json.loads(written[0].read_text())["note"]
 
 

@@ -20,6 +20,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
 import sut_adapter
+from sut_adapter import SutConfig
 from sut_adapter.command import CommandSut
 from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 
@@ -139,7 +140,7 @@ def test_a_px4_that_dies_before_connecting_is_classified_and_its_ulog_kept(tmp_p
         """)
     space = SearchSpace(load_logical(FIG4, profile), profile)
     x = space.sample_feasible(np.random.default_rng(1), 1)[0]
-    options = RunOptions(sut="px4", sut_config={"px4_bin": str(build)}, setup_timeout_s=10.0)
+    options = RunOptions(sut=SutConfig("px4", px4_bin=str(build)), setup_timeout_s=10.0)
     result = evaluate(space, x, seed=1, out_dir=tmp_path / "out", options=options)
     assert result.status == "sut_crashed" and "gave up" in result.why
     assert [os.path.basename(a) for a in result.artifacts] == ["10_00_01.ulg", "px4.stderr.log"]
@@ -154,7 +155,7 @@ def test_the_command_adapter_flies_the_bundled_autopilot_exactly_as_the_bundled_
     space = SearchSpace(load_logical(FIG4, profile), profile)
     x = space.sample_feasible(np.random.default_rng(1), 1)[0]
     bundled = evaluate(space, x, seed=1, out_dir=tmp_path, name="bundled")
-    generic = evaluate(space, x, seed=1, out_dir=tmp_path, name="generic", options=RunOptions(sut="command", sut_config={"command": AUTOPILOT, "hold": "frozen"}))
+    generic = evaluate(space, x, seed=1, out_dir=tmp_path, name="generic", options=RunOptions(sut=SutConfig("command", command=AUTOPILOT, hold="frozen")))
     assert generic.status == bundled.status == "ok"
     assert generic.fitness == bundled.fitness
     traces = [[m["d"] for _t, _ns, m in logs.messages(r.log_path, ["/clearance"])] for r in (bundled, generic)]
@@ -169,7 +170,7 @@ def test_parameters_reach_the_sut_over_mavlink(tmp_path, profile):
     x = space.vector_from({})
     results = {}
     for cp_dist in (1.0, 3.0):
-        options = RunOptions(sut="command", sut_config={"command": AUTOPILOT, "hold": "frozen"}, sut_params={"CP_DIST": cp_dist})
+        options = RunOptions(sut=SutConfig("command", {"CP_DIST": cp_dist}, command=AUTOPILOT, hold="frozen"))
         results[cp_dist] = evaluate(space, x, seed=1, out_dir=tmp_path, name=f"cp{cp_dist}", options=options)
     assert results[3.0].min_clearance_m == pytest.approx(results[1.0].min_clearance_m + 2.0, abs=0.6)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -28,6 +28,7 @@ from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
 from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
+from sut_adapter import SutConfig
 
 log = logging.getLogger(__name__)
 
@@ -46,14 +47,11 @@ class CampaignConfig:
     profile: str = "default"
     stop_at_violation: bool = False
     wall_time_s: float | None = None
-    sut: str = "bundled"
-    sut_params: Mapping[str, float] = field(default_factory=dict)
+    sut: SutConfig = field(default_factory=SutConfig)  # its identity part is the campaign's
     drive: str | None = None  # None: each scenario's own mission.drive
     batch: int = DEFAULT_BATCH
     confirm: int = 0
     mission_plan: str | None = None  # a .plan flown instead of each scenario's route
-    sut_fault: str | None = None  # a seeded fault switched on in the bundled autopilot
-
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
@@ -64,8 +62,8 @@ class CampaignConfig:
             overrides["confirm"] = self.confirm
         if self.mission_plan:
             overrides["mission_plan"] = str(Path(self.mission_plan).resolve())
-        if self.sut_fault:
-            overrides["sut_fault"] = self.sut_fault
+        if self.sut.fault:
+            overrides["sut_fault"] = self.sut.fault
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -75,8 +73,8 @@ class CampaignConfig:
             "population": self.population,
             "profile": self.profile,
             "stop_at_violation": self.stop_at_violation,
-            "sut": self.sut,
-            "sut_params": dict(self.sut_params),
+            "sut": self.sut.name,
+            "sut_params": dict(self.sut.params),
             **overrides,
         }
 
@@ -142,6 +140,8 @@ def termination_for(config: CampaignConfig) -> Termination:
 
 def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
                  on_result: Callable[[EvaluationResult], None] = lambda r: None) -> CampaignSummary:
+    """options: how each flight runs; its SUT is always the campaign's (config.sut)."""
+    options = replace(options, sut=config.sut)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity())
     profile = load_profile(config.profile)

@@ -110,7 +110,7 @@ class CampaignProblem:
                 self._record(ordinal, key, x, stored.fitness, stored.status)
                 results[index] = stored.fitness
                 continue
-            refused = infeasible(self.space, x, seed=self.seed, sut=self.options.sut)
+            refused = infeasible(self.space, x, seed=self.seed, sut=self.options.sut.name)
             if refused is not None:
                 self._finish(ordinal, x, key, refused, None)
                 results[index] = refused.fitness

@@ -24,6 +24,7 @@ from harness.flight.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import space_from_concrete, with_drive_recorded
+from sut_adapter import SutConfig
 
 FORMAT = "stella.regression/1"
 SUFFIX = ".regression.json"
@@ -39,9 +40,7 @@ class Regression:
     name: str
     expect: str
     seed: int
-    sut: str
-    sut_params: Mapping[str, float]
-    sut_fault: str | None
+    sut: SutConfig  # as the case names it: its name, parameters and seeded fault
     concrete: Mapping[str, Any]
     found: Mapping[str, Any]
     space: SearchSpace
@@ -66,8 +65,8 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
             concrete = space.to_concrete(x)
     except InputError as error:
         raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
-    return Regression(path, document["name"], document["expect"], document["seed"], document["sut"]["name"], dict(document["sut"].get("params", {})),
-                      document["sut"].get("fault"), concrete, document.get("found", {}), space, x)
+    return Regression(path, document["name"], document["expect"], document["seed"],
+                      SutConfig(document["sut"]["name"], dict(document["sut"].get("params", {})), document["sut"].get("fault")), concrete, document.get("found", {}), space, x)
 
 
 def describe(result: EvaluationResult, safety_distance_m: float) -> str:

@@ -38,6 +38,7 @@ from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.spec import WorldSpec
+from sut_adapter import SutConfig
 
 log = logging.getLogger(__name__)
 
@@ -59,12 +60,12 @@ class Job:
     options: RunOptions
 
     def to_json(self) -> dict[str, Any]:
-        return {**asdict(self), "world": self.world.as_dict(),
-                "options": {**asdict(self.options), "sut_params": dict(self.options.sut_params), "sut_config": dict(self.options.sut_config)}}
+        return {**asdict(self), "world": self.world.as_dict(), "options": asdict(self.options)}
 
     @classmethod
     def from_json(cls, document: Mapping[str, Any]) -> "Job":
-        return cls(**{**document, "world": WorldSpec.from_dict(document["world"]), "options": RunOptions(**document["options"])})
+        options = document["options"]
+        return cls(**{**document, "world": WorldSpec.from_dict(document["world"]), "options": RunOptions(**{**options, "sut": SutConfig(**options["sut"])})})
 
     @classmethod
     def of(cls, key: int, space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path | str, name: str, options: RunOptions) -> "Job":
@@ -79,7 +80,7 @@ def run_job(job: Job) -> EvaluationResult:
 
 def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world.scenario, job.options.sut)
+    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world.scenario, job.options.sut.name)
 
 
 class _TryTimedOut(BaseException):

@@ -29,6 +29,7 @@ from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
 from harness.flight.fitness import Status
 from harness.scenario.world import space_from_concrete
+from sut_adapter import SutConfig
 
 CONTROL = "none"
 FAULT_FREE_CACHE = "fault_free.json"
@@ -74,10 +75,10 @@ def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tup
     faults = list(faults)
     checked_names([f for f in faults if f != CONTROL])
     for fault in faults:
-        config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population, sut_params=dict(sut_params or {}),
-                                sut_fault=None if fault == CONTROL else fault)
+        config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population,
+                                sut=SutConfig(params=dict(sut_params or {}), fault=None if fault == CONTROL else fault))
         with Store.for_campaign(folder / f"{fault}.db") as store:
-            run_campaign(config, store, executor, folder / "logs" / fault, options=options_for(config.sut_fault, config.sut_params), on_result=on_result)
+            run_campaign(config, store, executor, folder / "logs" / fault, on_result=on_result)
         _fly_fault_free(folder / f"{fault}.db", folder, executor)
 
 

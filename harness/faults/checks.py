@@ -22,6 +22,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete
+from sut_adapter import SutConfig
 from sut_adapter.bundled import seeded_faults
 
 WITNESS_SEED = 0  # the sensor-noise seed every witness is flown with
@@ -51,7 +52,7 @@ def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
 
 def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None) -> RunOptions:
     """The bundled autopilot with the fault switched on, or fault-free for None."""
-    return RunOptions(sut_config={"fault": fault} if fault else {}, sut_params=dict(sut_params or {}))
+    return RunOptions(sut=SutConfig(params=dict(sut_params or {}), fault=fault))
 
 
 def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:

@@ -36,7 +36,7 @@ from harness.scenario.world import world_spec
 from sim_bridge.spec import WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 import sut_adapter
-from sut_adapter import SutHandle, SystemUnderTest
+from sut_adapter import SutConfig, SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -50,9 +50,7 @@ LOCKSTEP_SPIN_S = 0.002
 
 @dataclass(frozen=True)
 class RunOptions:
-    sut: str = "bundled"
-    sut_params: Mapping[str, float] = field(default_factory=dict)
-    sut_config: Mapping[str, str] = field(default_factory=dict)  # e.g. {"px4_bin": PATH}; see sut_adapter
+    sut: SutConfig = field(default_factory=SutConfig)
     rate_hz: float = 250.0
     hold_after_s: float = 3.0
     setup_timeout_s: float = 60.0
@@ -169,7 +167,7 @@ def infeasible(space: SearchSpace, x: np.ndarray, *, seed: int, sut: str) -> Eva
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
     """Fly the concrete scenario x of space (unless it is infeasible); never raises for a failed
     run, only reports it."""
-    refused = infeasible(space, x, seed=seed, sut=options.sut)
+    refused = infeasible(space, x, seed=seed, sut=options.sut.name)
     if refused is not None:
         return refused
     return fly(world_spec(space, x, seed), space.to_concrete(x), seed=seed, out_dir=out_dir, options=options, name=name)
@@ -207,15 +205,15 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             seed=seed,
             log_path=str(log_path) if log_path else None,
             scenario=world.scenario,
-            sut=options.sut,
-            sut_fault=options.sut_config.get("fault"),
+            sut=options.sut.name,
+            sut_fault=options.sut.fault,
             artifacts=artifacts,
             timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
             mavsdk=mavsdk_info,
         )
 
     try:
-        system = sut_adapter.get(options.sut, options.sut_config)
+        system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
             failure, summary, mavsdk_info = _fly(world, options, stack, timings)
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
@@ -232,7 +230,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         result = finish(status, value, why, clearance, log_path)
         logs.merge(stack.bridge_log, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
-            "sut": {"name": options.sut, "params": dict(options.sut_params), **({"fault": options.sut_config["fault"]} if "fault" in options.sut_config else {})},
+            "sut": options.sut.identity(),
         })
         return result
     except sut_adapter.SutError as error:
@@ -274,7 +272,7 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
         session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
         try:
             with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
-                sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut_params, spin_s=spin_s)
+                sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s)
                 try:
                     if options.pin_cpu:
                         _pin(bridge.pid, sut.pids, ports.slot, cores)
@@ -334,7 +332,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             session.set_params(sut.mavlink_params)
             if world.drive == "pilot":
                 # A parameter the user set (--sut-param) is the user's to decide.
-                session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut_params})
+                session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut.params})
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             if world.drive == "pilot":
                 session.arm_and_take_off(world.mission.takeoff_altitude_m)

@@ -40,7 +40,7 @@ PLACEMENT_NAMES = {2: "a core each for the simulator and the SUT, polling", 1: "
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
               sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS, drive: str | None = None,
               mission_plan: Path | None = None) -> dict[str, Any]:
-    """`sut` names the SUT (its sut, sut_config and sut_params fields); the bundled autopilot by
+    """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
     default. `drive` overrides the scenario's drive, `mission_plan` its route."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
@@ -62,7 +62,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                 if result.real_time_factor is None:
                     raise RuntimeError(f"bench run {index} on {cores} core(s) did not fly: {result.status} {result.why}")
                 rows.append(_run_figures(result, rate_hz, wall))
-                if autopilot is None and sut.sut == "bundled":
+                if autopilot is None and sut.sut.name == "bundled":
                     autopilot = autopilot_step_bench(Path(result.log_path))
                 if physics_alone is None:
                     physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
@@ -77,7 +77,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     fitnesses = {r["fitness"] for p in report_placements for r in p["per_run"]}
     return {
         "scenario": str(path),
-        "sut": sut.sut,
+        "sut": sut.sut.name,
         "drive": space.mission.drive,
         "seed": seed,
         "rate_hz": rate_hz,

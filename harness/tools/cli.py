@@ -16,7 +16,7 @@ import signal
 import sqlite3
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from harness.scenario.logical import DRIVES, load_logical, logical_problems, wit
 from harness.scenario.plan import plan_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT
+
+if TYPE_CHECKING:
+    from sut_adapter import SutConfig
 from harness.scenario.world import space_from_concrete
 from harness.search import DEFAULT_BATCH
 
@@ -205,12 +208,10 @@ def _sut_param_values(items: list[str] | None) -> dict[str, float]:
     return params
 
 
-def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, float]]:
-    """(SUT name, its configuration, its parameters) from the command line, checked by the adapter."""
+def _sut_spec(args: argparse.Namespace) -> SutConfig:
+    """The SUT the command line chose, checked by its adapter."""
     import sut_adapter
 
-    config = {key: value for key, value in (("px4_bin", args.px4_bin), ("command", args.sut_command), ("hold", args.sut_hold),
-                                            ("fault", args.sut_fault)) if value is not None}
     if args.sut_fault is not None and args.sut != "bundled":
         raise InputError([Problem("--sut-fault", "", f"seeded faults live in the bundled autopilot, not in --sut {args.sut}")])
     params: dict[str, float] = {}
@@ -219,15 +220,16 @@ def _sut_spec(args: argparse.Namespace) -> tuple[str, dict[str, str], dict[str, 
 
         params.update(load_params_file(Path(args.sut_params_file)))
     params.update(_sut_param_values(args.sut_param))
+    config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold)
     try:
-        system = sut_adapter.get(args.sut, config)
+        system = sut_adapter.system_for(config)
     except sut_adapter.SutError as error:
         raise InputError([Problem("--sut", "", str(error))]) from None
     try:
         system.check_params(params)
     except sut_adapter.SutError as error:
         raise InputError([Problem("--sut-params-file" if args.sut_params_file else "--sut-param", "", str(error))]) from None
-    return args.sut, config, params
+    return config
 
 
 @command("run")
@@ -236,7 +238,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from harness.flight.fitness import COULD_NOT_FINISH, Status
     from harness.scenario.world import load_concrete
 
-    sut, sut_config, sut_params = _sut_spec(args)
+    sut = _sut_spec(args)
     if args.concrete:
         space, x = load_concrete(Path(args.concrete), args.drive, _mission_plan(args))
     elif args.scenario:
@@ -244,7 +246,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
-    options = RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params, rate_hz=args.rate_hz, cores=args.cores)
+    options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores)
     if args.repeat == 1:
         result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
         emit(args, result, _result_text(result))
@@ -376,9 +378,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None)
         emit(args, report, campaign_bench_text(report))
         return 0
-    sut, sut_config, sut_params = _sut_spec(args)
+    sut = _sut_spec(args)
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
-                       sut=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), placements=(args.cores,) if args.cores else PLACEMENTS,
+                       sut=RunOptions(sut=sut), placements=(args.cores,) if args.cores else PLACEMENTS,
                        drive=args.drive, mission_plan=_mission_plan(args))
     emit(args, report, bench_text(report))
     return 0
@@ -387,7 +389,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 @command("campaign")
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import CampaignConfig, run_campaign
-    from harness.flight.evaluation import EvaluationResult, RunOptions
+    from harness.flight.evaluation import EvaluationResult
     from harness.execution.registry import make_executor
     from harness.search.optimizers import parse_algorithm
     from harness.campaigns.store import Store
@@ -400,10 +402,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
             raise InputError([Problem("--algorithm", "", str(error))]) from None
     for scenario in args.scenarios:
         load_logical(Path(scenario), load_profile(args.profile), args.drive, _mission_plan(args))
-    sut, sut_config, sut_params = _sut_spec(args)
+    sut = _sut_spec(args)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
-                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, sut_params, args.drive, args.batch, args.confirm,
-                            args.mission_plan, sut_config.get("fault"))
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
+                            args.mission_plan)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -425,8 +427,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
     try:
         with store:
-            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs",
-                                   options=RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), on_result=progress)
+            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress)
     finally:
         bar.close()
         executor.close()
@@ -463,11 +464,11 @@ def cmd_sut(args: argparse.Namespace) -> int:
     from harness.flight.evaluation import RunOptions
     from harness.tools.sut_check import as_dicts, check, report_text
 
-    sut, sut_config, sut_params = _sut_spec(args)
+    sut = _sut_spec(args)
     space = _space(args)
     x = space.sample_feasible(np.random.default_rng(0), 1)[0]
-    stages = check(space, x, RunOptions(sut=sut, sut_config=sut_config, sut_params=sut_params), args.timeout_s)
-    emit(args, {"sut": sut, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut, stages))
+    stages = check(space, x, RunOptions(sut=sut), args.timeout_s)
+    emit(args, {"sut": sut.name, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut.name, stages))
     return 0 if all(s.ok for s in stages) else 3
 
 
@@ -530,7 +531,7 @@ def _faults_bench(args: argparse.Namespace) -> int:
         load_logical(Path(scenario), profile)
     sut_params = _sut_param_values(args.sut_param)
     try:
-        sut_adapter.get("bundled").check_params(sut_params)
+        sut_adapter.system_for(sut_adapter.SutConfig(params=sut_params)).check_params(sut_params)
     except sut_adapter.SutError as error:
         raise InputError([Problem("--sut-param", "", str(error))]) from None
     try:

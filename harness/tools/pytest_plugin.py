@@ -33,6 +33,7 @@ from harness.scenario.logical import DRIVES, load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
 from harness.scenario.world import load_concrete
+from sut_adapter import SutConfig
 
 FLIGHTS = pytest.StashKey["Flights"]()
 
@@ -147,21 +148,18 @@ class Flights:
         self._thread: threading.Thread | None = None
 
     def options(self, regression: Regression) -> RunOptions:
-        sut = self.sut_override or regression.sut
-        return self.run_options(sut, regression.sut_params, regression.sut_fault if sut == "bundled" else None)
+        sut = self.sut_override or regression.sut.name
+        return self.run_options(sut, regression.sut.params, regression.sut.fault if sut == "bundled" else None)
 
     def run_options(self, sut: str, params: Mapping[str, float], fault: str | None = None) -> RunOptions:
-        config = {"px4_bin": self.px4_bin} if sut == "px4" and self.px4_bin else {}
-        if fault:
-            config["fault"] = fault
-        return RunOptions(sut=sut, sut_config=config, sut_params=params)
+        return RunOptions(sut=SutConfig(sut, dict(params), fault, self.px4_bin if sut == "px4" else None))
 
     def names(self, regression: Regression) -> list[str]:
         return [regression.name] if self.repeat == 1 else [f"{regression.name}-repeat{i + 1}" for i in range(self.repeat)]
 
     def refusal(self, regression: Regression) -> EvaluationResult | None:
         """The infeasible result of a case that breaks a realism constraint: it is not flown."""
-        return infeasible(regression.space, regression.x, seed=regression.seed, sut=self.options(regression).sut)
+        return infeasible(regression.space, regression.x, seed=regression.seed, sut=self.options(regression).sut.name)
 
     def jobs(self, item: RegressionItem, first_key: int = 0) -> list[Job]:
         regression = item.regression

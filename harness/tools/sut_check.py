@@ -42,7 +42,7 @@ class Stage:
 
 
 def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -> list[Stage]:
-    system = sut_adapter.get(options.sut, options.sut_config)
+    system = sut_adapter.system_for(options.sut)
     world = world_spec(space, x, 0)
     workdir = Path(tempfile.mkdtemp(prefix="stella-sut-check-"))
     stages = [Stage(name, None) for name in (*STAGES, LAST_STAGE[world.drive])]
