@@ -10,7 +10,7 @@ import pytest
 
 from conftest import ROOT, stored_result
 from harness.campaigns.store import Store
-from harness.faults.bench import FAULT_FREE_CACHE, _key, detections, report
+from harness.faults.bench import FAULT_FREE_CACHE, _key, detections, report, report_text
 from harness.flight import logs
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -81,6 +81,17 @@ def test_the_report_compares_detection_with_the_baseline_and_names_faults_nobody
     assert nsga["a12"] == pytest.approx((3 * (3 + 0.5) + 3 * 0.5) / 16)  # each 1 beats three 3s and ties the 1; the 3 ties three
     assert result["found_by_none"] == ["yaw_fixed_heading"]
     assert result["control"] == {"runs": 1, "detected": 0}
+
+
+def test_a_run_still_under_way_is_left_out_of_the_report_and_counted(tmp_path, profile):
+    found = [("violation", "ok")]
+    folder = bench_folder(tmp_path, profile, {"cp_narrow_view": [("RANDOM", found), ("RANDOM", [("ok", None)])]})
+    with Store.existing(folder / "cp_narrow_view.db") as store, store.db:
+        store.db.execute("UPDATE runs SET finished = NULL WHERE run_index = 1")
+    result = report(folder)
+    assert result["algorithms"]["RANDOM"]["runs"] == 1 and result["algorithms"]["RANDOM"]["detected"] == 1
+    assert result["unfinished_runs"] == 1
+    assert "1 runs unfinished and not counted" in report_text(result)
 
 
 def test_a_report_of_a_folder_that_is_no_benchmark_is_refused(tmp_path, capsys):

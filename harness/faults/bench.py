@@ -129,8 +129,10 @@ def detections(folder: Path) -> list[dict[str, Any]]:
 
 def report(folder: Path, baseline: str = "RANDOM") -> dict[str, Any]:
     every = detections(folder)
-    rows = [r for r in every if r["fault"] != CONTROL]
-    control = [r for r in every if r["fault"] == CONTROL]
+    # A run still under way (or stopped) says nothing yet of its detection: left out, and counted.
+    finished = [r for r in every if r["finished"]]
+    rows = [r for r in finished if r["fault"] != CONTROL]
+    control = [r for r in finished if r["fault"] == CONTROL]
     algorithms = sorted({r["algorithm"] for r in rows})
     baseline = baseline.upper()
     by_algorithm = {}
@@ -161,14 +163,15 @@ def report(folder: Path, baseline: str = "RANDOM") -> dict[str, Any]:
     return {"baseline": baseline, "algorithms": by_algorithm, "per_fault": per_fault,
             "found_by_none": [f for f, counts in per_fault.items() if not any(counts[a] for a in algorithms)],
             "control": {"runs": len(control), "detected": sum(r["detected"] for r in control)},
-            "unflown_violations": sum({r["fault"]: r["unflown_violations"] for r in every}.values())}
+            "unflown_violations": sum({r["fault"]: r["unflown_violations"] for r in every}.values()),
+            "unfinished_runs": sum(not r["finished"] for r in every)}
 
 
 def report_text(result: dict[str, Any]) -> str:
     lines = [f"{'algorithm':<10} {'detected':>9} {'rate':>6} {'median evals':>13} {'censored':>9} {'Fisher p':>9} {'MWU p':>7} {'A12':>5}   (baseline {result['baseline']})"]
     fmt = lambda v, spec: "-" if v is None else format(v, spec)
     for algorithm, e in result["algorithms"].items():
-        lines.append(f"{algorithm:<10} {e['detected']:>4}/{e['runs']:<4} {e['detection_rate']:>6.2f} {fmt(e['median_evaluations_to_detection'], '>13'):>13} "
+        lines.append(f"{algorithm:<10} {e['detected']:>4}/{e['runs']:<4} {e['detection_rate']:>6.2f} {fmt(e['median_evaluations_to_detection'], '.1f'):>13} "
                      f"{e['censored']:>9} {fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
     lines.append("")
     algorithms = list(result["algorithms"])
@@ -177,6 +180,8 @@ def report_text(result: dict[str, Any]) -> str:
         lines.append(f"{fault:<28} " + " ".join(f"{counts[a]:>5}/{counts['runs_per_algorithm']:<2}" for a in algorithms))
     lines.append(f"found by no algorithm: {', '.join(result['found_by_none']) or 'none'}")
     lines.append(f"control (--fault none): {result['control']['detected']} detections in {result['control']['runs']} runs")
+    if result["unfinished_runs"]:
+        lines.append(f"{result['unfinished_runs']} runs unfinished and not counted: run the bench command again to finish them")
     if result["unflown_violations"]:
         lines.append(f"{result['unflown_violations']} violations not yet flown without their fault: run the bench command again to finish")
     return "\n".join(lines)
