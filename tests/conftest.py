@@ -148,7 +148,7 @@ def plan_flight(log_path: Path) -> dict:
         inside = [s for s in states if miss(s) <= 2.0] or [min(states, key=miss)]
         best = min(inside, key=lambda s, w=waypoint: abs(s["up_m"] - up0 - w.altitude_m))
         at_it = [s for s in states if miss(s) <= 1.0 and abs(s["up_m"] - up0 - waypoint.altitude_m) <= 0.5]
-        waypoints.append({"miss_m": miss(best), "altitude_error_m": best["up_m"] - up0 - waypoint["altitude_m"],
+        waypoints.append({"miss_m": miss(best), "altitude_error_m": best["up_m"] - up0 - waypoint.altitude_m,
                           "at_it_s": len(at_it) * (states[1]["t"] - states[0]["t"])})
     speeds = [math.hypot(*s["v_ned_m_s"][:2]) for s in states]
     return {"waypoints": waypoints, "max_speed_m_s": max(speeds), "states": states}
