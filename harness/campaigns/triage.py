@@ -5,7 +5,9 @@ A violation's mode is read from its log at the moment of least clearance: the ob
 (kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle's
 centre was relative to the direction of flight (ahead, beside, behind; the vehicle hovering; or
 inside the obstacle, for a contact), the
-closing speed band, and the environment (wind, visibility) bands. Each mode has its count, its
+closing speed band, and the environment: the wind and visibility categories of the profile the
+scenario was flown in (what a user searched over; not bands of the sampled values, which would
+split one category's violations at a made-up edge). Each mode has its count, its
 severity (near miss: 0 < clearance < safety distance; contact: clearance <= 0), its worst and its
 most typical example (the one whose trajectory is closest to the others'), with their logs.
 The campaign's diversity is the number of modes and, as the UAV Testing Competition measures
@@ -25,6 +27,7 @@ from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.flight import logs
 from harness.flight.fitness import min_clearance
+from harness.scenario.world import space_from_concrete
 from sim_bridge.obstacles import Obstacle
 
 TRAJECTORY_POINTS = 50  # a trajectory is compared at this many instants spread over its flight
@@ -32,7 +35,6 @@ BRAKING_M_S2 = 0.5  # deceleration above this along the velocity is braking
 MOVING_M_S = 0.5
 CLIMB_M_S = 0.3
 SPEED_BANDS = ((1.0, "slow (< 1 m/s)"), (3.0, "medium (1-3 m/s)"), (math.inf, "fast (> 3 m/s)"))
-WIND_BANDS = ((0.5, "calm"), (3.0, "light wind"), (math.inf, "strong wind"))
 
 
 def _band(value: float, bands: Sequence[tuple[float, str]]) -> str:
@@ -90,16 +92,16 @@ def features(log_path: Path) -> dict[str, Any]:
     here = obstacle.position_at(at["t"])
     obstacle_velocity = (obstacle.position_at(at["t"] + 0.1) - obstacle.position_at(max(0.0, at["t"] - 0.1))) / 0.2
     closing = math.hypot(at["v_ned_m_s"][0] - obstacle_velocity[0], at["v_ned_m_s"][1] - obstacle_velocity[1])
-    wind = world.atmosphere.wind_speed_m_s
-    visibility = "clear" if world.sensor.range_m >= world.sensor.max_range_m else "reduced visibility"
+    weather = space_from_concrete(logs.json_metadata(log_path, "concrete_scenario"), str(log_path)).logical.weather
+    wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
     return {
         "obstacle": f"{spec['kind']} {spec['form']}",
         "phase": _phase(before, at),
         # Inside the obstacle, where its centre lies says nothing of how the vehicle got there.
         "approach": "inside" if clearance.min_clearance_m <= 0.0 else _approach(at, here),
         "speed": _band(closing, SPEED_BANDS),
-        "wind": _band(wind, WIND_BANDS),
-        "visibility": visibility,
+        "wind": "no wind" if wind == "none" else f"{wind} wind",
+        "visibility": "clear" if visibility == "none" else visibility,
         "min_clearance_m": clearance.min_clearance_m,
         "trajectory": trajectory(states),
     }
