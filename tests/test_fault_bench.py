@@ -94,6 +94,18 @@ def test_a_run_still_under_way_is_left_out_of_the_report_and_counted(tmp_path, p
     assert "1 runs unfinished and not counted" in report_text(result)
 
 
+def test_the_per_fault_table_divides_by_each_algorithms_own_finished_runs(tmp_path, profile):
+    found, missed = [("violation", "ok")], [("ok", None)]
+    folder = bench_folder(tmp_path, profile, {"cp_narrow_view": [("RANDOM", found), ("RANDOM", missed), ("NSGAII", found)],
+                                              "cp_ignores_delay": [("NSGAII", missed)]})
+    with Store.existing(folder / "cp_narrow_view.db") as store, store.db:
+        store.db.execute("UPDATE runs SET finished = NULL WHERE algorithm = 'NSGAII'")
+    result = report(folder)
+    assert result["per_fault"]["cp_narrow_view"]["runs"] == {"NSGAII": 0, "RANDOM": 2}
+    row = next(line for line in report_text(result).splitlines() if line.startswith("cp_narrow_view"))
+    assert row.split()[1:] == ["-", "1/2"]  # NSGAII's run on it is still under way
+
+
 def test_a_report_of_a_folder_that_is_no_benchmark_is_refused(tmp_path, capsys):
     assert main(["faults", "report", "--store", str(tmp_path)]) == 2
     assert "no fault benchmark here" in capsys.readouterr().err

@@ -159,7 +159,7 @@ def report(folder: Path, baseline: str = "RANDOM") -> dict[str, Any]:
     per_fault = {}
     for fault in sorted({r["fault"] for r in rows}):
         per_fault[fault] = {algorithm: sum(r["detected"] for r in rows if r["fault"] == fault and r["algorithm"] == algorithm) for algorithm in algorithms}
-        per_fault[fault]["runs_per_algorithm"] = max((sum(1 for r in rows if r["fault"] == fault and r["algorithm"] == a) for a in algorithms), default=0)
+        per_fault[fault]["runs"] = {a: sum(1 for r in rows if r["fault"] == fault and r["algorithm"] == a) for a in algorithms}
     return {"baseline": baseline, "algorithms": by_algorithm, "per_fault": per_fault,
             "found_by_none": [f for f, counts in per_fault.items() if not any(counts[a] for a in algorithms)],
             "control": {"runs": len(control), "detected": sum(r["detected"] for r in control)},
@@ -177,7 +177,7 @@ def report_text(result: dict[str, Any]) -> str:
     algorithms = list(result["algorithms"])
     lines.append(f"{'fault':<28} " + " ".join(f"{a:>8}" for a in algorithms) + "   (runs detecting it, of runs per algorithm)")
     for fault, counts in result["per_fault"].items():
-        lines.append(f"{fault:<28} " + " ".join(f"{counts[a]:>5}/{counts['runs_per_algorithm']:<2}" for a in algorithms))
+        lines.append(f"{fault:<28} " + " ".join(f"{counts[a]:>5}/{counts['runs'][a]:<2}" if counts["runs"][a] else f"{'-':>8}" for a in algorithms))
     lines.append(f"found by no algorithm: {', '.join(result['found_by_none']) or 'none'}")
     lines.append(f"control (--fault none): {result['control']['detected']} detections in {result['control']['runs']} runs")
     if result["unfinished_runs"]:
