@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot.commander import MAIN_AUTO, SUB_AUTO_LAND, SUB_AUTO_LOITER, SUB_AUTO_RTL, Commander, MissionItem, VehicleEstimate
 from autopilot.estimator import Estimator
 from autopilot.params import BY_NAME, ParamError, Params
+from simlink.failures import MAV_CMD_INJECT_FAILURE, SUPPORTED_TYPES, SUPPORTED_UNITS, FailureType, FailureUnit, failure_text
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ MESSAGE_STREAMS = {
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: "sys_status",
 }
 MIN_STREAM_PERIOD_S = 0.02
+SENSOR_INSTANCES = 1  # of each unit failures can be injected into (MAV_CMD_INJECT_FAILURE's param3: 0 all, 1 the first)
 
 
 class Vehicle(Protocol):
@@ -89,6 +91,8 @@ class Vehicle(Protocol):
     def on_armed(self) -> None: ...
 
     def mission_item_from_global(self, seq: int, command: int, frame: int, lat: float, lon: float, z: float, params) -> MissionItem | None: ...
+
+    def inject_failure(self, unit: FailureUnit, kind: FailureType) -> None: ...
 
 
 class ApiLink:
@@ -504,6 +508,29 @@ class ApiLink:
             else:
                 self.periods[stream] = STREAMS[stream]
             self._ack(msg, accepted)
+        elif command == MAV_CMD_INJECT_FAILURE:
+            self._inject_failure(msg)
         else:
             self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
+
+    def _inject_failure(self, msg) -> None:
+        """As PX4: refused (DENIED) unless SYS_FAILURE_EN is 1; a unit, type or instance it does
+        not have is UNSUPPORTED; an accepted one is reported in a STATUSTEXT, a warning (ok, the
+        unit's recovery, as information). The parameters are rounded as PX4 rounds them."""
+        if not self.ap.params["SYS_FAILURE_EN"]:
+            self._ack(msg, mavlink.MAV_RESULT_DENIED)
+            return
+        unit, kind, instance = (_rounded(value) for value in (msg.param1, msg.param2, msg.param3))
+        if unit not in SUPPORTED_UNITS or kind not in SUPPORTED_TYPES or instance is None or not 0 <= instance <= SENSOR_INSTANCES:
+            self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        unit, kind = FailureUnit(unit), FailureType(kind)
+        self.ap.inject_failure(unit, kind)
+        self.statustext(failure_text(unit, kind), mavlink.MAV_SEVERITY_INFO if kind == FailureType.OK else mavlink.MAV_SEVERITY_WARNING)
+        self._ack(msg, mavlink.MAV_RESULT_ACCEPTED)
+
+
+def _rounded(value: float) -> int | None:
+    """A command's float parameter as the whole number PX4 takes it for (value + 0.5, truncated); None if not finite."""
+    return int(value + 0.5) if math.isfinite(value) else None
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import socket
@@ -35,6 +36,17 @@ from autopilot.estimator import Estimator, GpsFix
 from autopilot.manual import PositionMode, sticks_from_rc
 from autopilot.params import Params
 from simlink import codec
+from simlink.failures import (
+    Failure,
+    FailureType,
+    FailureUnit,
+    wrong_accel,
+    wrong_baro_altitude,
+    wrong_distances,
+    wrong_gps_position,
+    wrong_gyro,
+    wrong_mag,
+)
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +82,13 @@ class Autopilot:
         self._controlling = False
         self.api: ApiLink | None = None
         self._seq = 0
+        # Injected failures (MAV_CMD_INJECT_FAILURE) by unit, applied to the simulator's data as it
+        # comes in; empty, as almost always, they cost a step one truth test. The last raw
+        # readings are kept (one reference each) for the onset of a stuck or slow failure.
+        self.failures: dict[FailureUnit, Failure] = {}
+        self._last_sensor_values: tuple | None = None
+        self._last_gps_fix: GpsFix | None = None
+        self._last_obstacle_reading: tuple | None = None
         self._wanted_sim_messages = {mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, mavlink.MAVLINK_MSG_ID_RC_CHANNELS}
         if params["EKF2_GT_MODE"]:
             self._wanted_sim_messages.add(mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
@@ -121,6 +140,56 @@ class Autopilot:
             log.info("mission item %d: command %d will be skipped", seq, command)
         return MissionItem(seq, command, north, east, z, *params, has_position=has_position)
 
+    # -- failure injection ---------------------------------------------------------------------
+
+    def inject_failure(self, unit: FailureUnit, kind: FailureType) -> None:
+        """An accepted MAV_CMD_INJECT_FAILURE: from now (the onset, this simulation time) on, the
+        unit's readings reach the flight stack as simlink.failures defines; FailureType.OK
+        clears the unit's failure. A new failure of a unit replaces its old one."""
+        if kind == FailureType.OK:
+            self.failures.pop(unit, None)
+            return
+        self.failures[unit] = Failure(kind, onset_s=self.now_s, last_reading=self._last_reading(unit), wrong=_WRONG[unit])
+
+    def _last_reading(self, unit: FailureUnit):
+        if unit == FailureUnit.SENSOR_GPS:
+            return self._last_gps_fix
+        if unit == FailureUnit.SENSOR_DISTANCE_SENSOR:
+            return self._last_obstacle_reading
+        values = self._last_sensor_values
+        return None if values is None else _sensor_reading(unit, values)
+
+    def _delivered(self, unit: FailureUnit, reading):
+        """The reading as the unit's failure, if any, leaves it; None: nothing is delivered."""
+        failure = self.failures.get(unit)
+        return reading if failure is None else failure.apply(self.now_s, reading)
+
+    def _estimate_with_failures(self, dt: float, values: tuple) -> None:
+        """The estimator's sensor step while a failure is active; a unit without a delivered
+        reading gives the estimator no new information, as a real estimator has none:
+        * gyro: no IMU step at all. A strapdown estimator predicts with the gyro's rotation
+          (PX4's EKF2 with the IMU's delta angles); without it the attitude cannot follow the
+          vehicle, and accelerometer readings cannot be turned into north-east-down without it.
+          Attitude, rates and the inertial prediction stay as they were, GPS and barometer still
+          correct position and velocity, and the estimate turns unhealthy after
+          SENSOR_TIMEOUT_S, as an estimator whose IMU stopped does.
+        * accelerometer: no gravity reference for roll and pitch, and a constant-velocity
+          prediction between GPS and barometer corrections (Estimator.update_imu, accel None).
+        * magnetometer: the heading follows the gyro alone (update_imu, mag None).
+        * barometer: no barometer update; height follows the inertial prediction, and its
+          vertical velocity the GPS's.
+        With EKF2_GT_MODE=1 the simulator's truth stands in for the IMU and the barometer, and
+        their failures do not act (GPS and distance sensor failures still do)."""
+        est = self.estimator
+        gyro = self._delivered(FailureUnit.SENSOR_GYRO, (values[3], values[4], values[5]))
+        accel = self._delivered(FailureUnit.SENSOR_ACCEL, (values[0], values[1], values[2]))
+        mag = self._delivered(FailureUnit.SENSOR_MAG, (values[6], values[7], values[8]))
+        pressure_alt = self._delivered(FailureUnit.SENSOR_BARO, values[11])
+        if gyro is not None:
+            est.update_imu(self.now_s, dt, gyro, accel, mag)
+        if pressure_alt is not None:
+            est.update_baro(dt, pressure_alt + self._baro_drift_m(values[12]))
+
     # -- the flight stack, once per HIL_SENSOR --------------------------------------------------
 
     def _handle_sim_message(self, msgid: int, payload: bytes, frame: bytes, decoder: mavlink.MAVLink) -> None:
@@ -128,6 +197,11 @@ class Autopilot:
         kind = message.get_type()
         if kind == "HIL_GPS":
             fix = GpsFix(message.lat * 1e-7, message.lon * 1e-7, message.alt / 1000.0, message.vn / 100.0, message.ve / 100.0, message.vd / 100.0, message.fix_type, message.satellites_visible)
+            self._last_gps_fix = fix
+            if self.failures:
+                fix = self._delivered(FailureUnit.SENSOR_GPS, fix)
+                if fix is None:
+                    return
             if not self.params["EKF2_GT_MODE"]:
                 self.estimator.update_gps(self.now_s, 0.1, fix)
             else:
@@ -137,7 +211,13 @@ class Autopilot:
             self._ground_truth = message
         elif kind == "OBSTACLE_DISTANCE":
             increment = message.increment_f if message.increment_f > 0 else float(message.increment)
-            self.obstacles.update(self.now_s, self.yaw_rad(), list(message.distances), increment, message.angle_offset, message.min_distance, message.max_distance)
+            reading = (list(message.distances), increment, message.angle_offset, message.min_distance, message.max_distance)
+            self._last_obstacle_reading = reading
+            if self.failures:
+                reading = self._delivered(FailureUnit.SENSOR_DISTANCE_SENSOR, reading)
+                if reading is None:
+                    return
+            self.obstacles.update(self.now_s, self.yaw_rad(), *reading)
         elif kind == "RC_CHANNELS" and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
             raw = [getattr(message, f"chan{n}_raw") for n in range(1, 9)]
             sticks = sticks_from_rc(self.params, self.now_s, message.chancount, raw)
@@ -162,9 +242,12 @@ class Autopilot:
             est.set_ground_truth(tuple(gt.attitude_quaternion), (gt.rollspeed, gt.pitchspeed, gt.yawspeed), gt.lat * 1e-7, gt.lon * 1e-7, gt.alt / 1000.0,
                                  (gt.vx / 100.0, gt.vy / 100.0, gt.vz / 100.0), (values[0], values[1], values[2]))
             est.last_imu_s = self.now_s
+        elif self.failures:
+            self._estimate_with_failures(dt, values)
         else:
             est.update_imu(self.now_s, dt, (values[3], values[4], values[5]), (values[0], values[1], values[2]), (values[6], values[7], values[8]))
             est.update_baro(dt, values[11] + self._baro_drift_m(values[12]))
+        self._last_sensor_values = values
         commander = self.commander
         if commander.home is None and est.position_ready and not commander.armed:
             commander.home = (est.pos[0], est.pos[1], est.pos[2])
@@ -261,6 +344,39 @@ class Autopilot:
                 self._seq = (self._seq + 1) & 0xFF
             elif msgid in self._wanted_sim_messages:
                 self._handle_sim_message(msgid, payload, frame, decoder)
+
+
+def _sensor_reading(unit: FailureUnit, values: tuple):
+    """A HIL_SENSOR unit's reading from values (time_usec left out, as Autopilot.step takes them):
+    accelerometer 0:3, gyro 3:6, magnetometer 6:9, pressure altitude 11."""
+    if unit == FailureUnit.SENSOR_ACCEL:
+        return (values[0], values[1], values[2])
+    if unit == FailureUnit.SENSOR_GYRO:
+        return (values[3], values[4], values[5])
+    if unit == FailureUnit.SENSOR_MAG:
+        return (values[6], values[7], values[8])
+    return values[11]
+
+
+def _wrong_fix(fix: GpsFix) -> GpsFix:
+    lat_deg, lon_deg = wrong_gps_position(fix.lat_deg, fix.lon_deg)
+    return dataclasses.replace(fix, lat_deg=lat_deg, lon_deg=lon_deg)
+
+
+def _wrong_obstacle_reading(reading: tuple) -> tuple:
+    distances, increment, angle_offset, min_cm, max_cm = reading
+    return (wrong_distances(distances, max_distance_cm=max_cm), increment, angle_offset, min_cm, max_cm)
+
+
+# Each unit's wrong reading (simlink.failures) in the form the autopilot takes it in.
+_WRONG = {
+    FailureUnit.SENSOR_GYRO: wrong_gyro,
+    FailureUnit.SENSOR_ACCEL: wrong_accel,
+    FailureUnit.SENSOR_MAG: wrong_mag,
+    FailureUnit.SENSOR_BARO: wrong_baro_altitude,
+    FailureUnit.SENSOR_GPS: _wrong_fix,
+    FailureUnit.SENSOR_DISTANCE_SENSOR: _wrong_obstacle_reading,
+}
 
 
 def _connect(address: tuple[str, int], timeout_s: float) -> socket.socket:

@@ -68,29 +68,37 @@ class Estimator:
         self.q = quat_from_euler(roll, pitch, yaw)
         self.attitude_ready = True
 
-    def update_imu(self, now_s: float, dt: float, gyro: Vec3, accel: Vec3, mag: Vec3) -> None:
+    def update_imu(self, now_s: float, dt: float, gyro: Vec3, accel: Vec3 | None, mag: Vec3 | None) -> None:
+        """One gyro sample propagates the attitude. accel or mag None: that sensor gives no new
+        information (failed, or its sample dropped), and what it corrects goes uncorrected:
+        without the accelerometer, roll and pitch have no gravity reference and velocity and
+        position are predicted at constant velocity (acc_ned zero) between GPS and barometer
+        corrections; without the magnetometer, the heading follows the gyro alone."""
         self.last_imu_s = now_s
         if not self.attitude_ready:
-            self._initial_attitude(accel, mag)
+            if accel is not None and mag is not None:
+                self._initial_attitude(accel, mag)
             return
         q = self.q
         ex = ey = ez = 0.0
-        a_norm = math.sqrt(accel[0] ** 2 + accel[1] ** 2 + accel[2] ** 2)
-        if abs(a_norm - GRAVITY) < 0.1 * GRAVITY:
-            # Measured "up" (-specific force) against predicted up (body view of NED -z).
-            ux, uy, uz = -accel[0] / a_norm, -accel[1] / a_norm, -accel[2] / a_norm
-            px, py, pz = quat_rotate_inverse(q, (0.0, 0.0, -1.0))
-            ex += ACCEL_GAIN * (py * uz - pz * uy)
-            ey += ACCEL_GAIN * (pz * ux - px * uz)
-            ez += ACCEL_GAIN * (px * uy - py * ux)
-        # Heading: the measured field, seen in the world, should point at the declination.
-        mn, me, _ = quat_rotate(q, mag)
-        yaw_error = self.declination - math.atan2(me, mn)
-        yaw_error = math.atan2(math.sin(yaw_error), math.cos(yaw_error))
-        bx, by, bz = quat_rotate_inverse(q, (0.0, 0.0, 1.0))
-        ex += MAG_GAIN * yaw_error * bx
-        ey += MAG_GAIN * yaw_error * by
-        ez += MAG_GAIN * yaw_error * bz
+        if accel is not None:
+            a_norm = math.sqrt(accel[0] ** 2 + accel[1] ** 2 + accel[2] ** 2)
+            if abs(a_norm - GRAVITY) < 0.1 * GRAVITY:
+                # Measured "up" (-specific force) against predicted up (body view of NED -z).
+                ux, uy, uz = -accel[0] / a_norm, -accel[1] / a_norm, -accel[2] / a_norm
+                px, py, pz = quat_rotate_inverse(q, (0.0, 0.0, -1.0))
+                ex += ACCEL_GAIN * (py * uz - pz * uy)
+                ey += ACCEL_GAIN * (pz * ux - px * uz)
+                ez += ACCEL_GAIN * (px * uy - py * ux)
+        if mag is not None:
+            # Heading: the measured field, seen in the world, should point at the declination.
+            mn, me, _ = quat_rotate(q, mag)
+            yaw_error = self.declination - math.atan2(me, mn)
+            yaw_error = math.atan2(math.sin(yaw_error), math.cos(yaw_error))
+            bx, by, bz = quat_rotate_inverse(q, (0.0, 0.0, 1.0))
+            ex += MAG_GAIN * yaw_error * bx
+            ey += MAG_GAIN * yaw_error * by
+            ez += MAG_GAIN * yaw_error * bz
         bias = self._gyro_bias
         bias[0] -= GYRO_BIAS_GAIN * ex * dt
         bias[1] -= GYRO_BIAS_GAIN * ey * dt
@@ -109,8 +117,11 @@ class Estimator:
                 z + half * (w * wz + x * wy - y * wx),
             )
         )
-        fn, fe, fd = quat_rotate(self.q, accel)
-        self.acc_ned = (fn, fe, fd + GRAVITY)
+        if accel is None:
+            self.acc_ned = (0.0, 0.0, 0.0)
+        else:
+            fn, fe, fd = quat_rotate(self.q, accel)
+            self.acc_ned = (fn, fe, fd + GRAVITY)
         if self.origin is not None:
             for axis in range(3):
                 self.vel[axis] += self.acc_ned[axis] * dt

@@ -82,6 +82,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("EKF2_MAG_DECL", 3.0, -180.0, 180.0, "deg", "Magnetic declination at the flying site (PX4's default home, Zurich: 3 deg)."),
     _i("EKF2_GT_MODE", 0, 0, 1, "", "1: use the simulator's ground truth (HIL_STATE_QUATERNION) instead of estimating; for debugging only."),
     _i("SYS_AUTOSTART", 4001, 0, 9999999, "", "Airframe (4001: generic quadrotor X), reported for tools that read it."),
+    _i("SYS_FAILURE_EN", 0, 0, 1, "", "1: accept failure injection (MAV_CMD_INJECT_FAILURE, MAVSDK's failure plugin; what each failure does: simlink/failures.py); 0 refuses it with MAV_RESULT_DENIED, as PX4 does."),
     _i("MAV_SYS_ID", 1, 1, 250, "", "MAVLink system id."),
     _i("COM_RC_IN_MODE", 3, 0, 4, "", "Manual control source, as in PX4: 0 RC only, 1 MAVLink only, 2 or 3 RC or MAVLink, 4 none. The bundled autopilot reads RC (RC_CHANNELS on the simulator link) and has no MAVLink manual control, so 1 and 4 disable manual control."),
     _f("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s", "Manual control counts as lost this long after the last RC frame."),
@@ -146,7 +147,7 @@ class Params:
         if not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise ParamError(f"{name}: {value!r} is not a number")
         if not spec.min <= value <= spec.max:
-            raise ParamError(f"{name}: {value} outside [{spec.min}, {spec.max}] {spec.unit}")
+            raise ParamError(f"{name}: {float(value)} outside [{spec.min}, {spec.max}] {spec.unit}")
         self._values[name] = int(value) if spec.kind == "INT32" else float(value)
         return self._values[name]
 
