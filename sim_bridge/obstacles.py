@@ -8,6 +8,7 @@ boxes are built as convex hulls, which it measures exactly (tests/test_obstacles
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -43,9 +44,14 @@ def yaw_rotation(yaw_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+REPEATS = ("back_and_forth", "once")
+
+
 @dataclass
 class Obstacle:
-    """One obstacle; a dynamic one moves back and forth between a and b at constant speed."""
+    """One obstacle. A dynamic one moves at constant speed back and forth between a and b, or,
+    with a `path` (a polyline from a to b, as arcs, smooth curves and intruders' tracks are
+    sampled), along it: back and forth, or once and then stays at its end."""
 
     id: str
     form: str
@@ -54,13 +60,25 @@ class Obstacle:
     a: np.ndarray
     b: np.ndarray | None
     speed_m_s: float
+    kind: str = "static"
+    path: np.ndarray | None = None  # N x 3 north/east/up
+    repeat: str = "back_and_forth"
     position: np.ndarray = field(init=False)
     collision: fcl.CollisionObject = field(init=False)
 
     def __post_init__(self) -> None:
+        if self.repeat not in REPEATS:
+            raise ValueError(f"obstacle {self.id}: repeat {self.repeat!r} is not one of {REPEATS}")
+        if self.path is not None:
+            self.a, self.b = self.path[0].copy(), self.path[-1].copy()
+            self._cumulative_m = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(self.path, axis=0), axis=1)))).tolist()
+            self._path_points = [tuple(p) for p in self.path.tolist()]
         self.position = self.a.copy()
         self.collision = fcl.CollisionObject(self._geometry(), fcl.Transform(yaw_rotation(self.yaw_rad), self.position))
-        self._leg_m = 0.0 if self.b is None else float(np.linalg.norm(self.b - self.a))
+        if self.path is not None:
+            self._leg_m = self._cumulative_m[-1]
+        else:
+            self._leg_m = 0.0 if self.b is None else float(np.linalg.norm(self.b - self.a))
         self._a_tuple = tuple(self.a.tolist())
         self._delta = (0.0, 0.0, 0.0) if self.b is None else tuple((self.b - self.a).tolist())
 
@@ -69,6 +87,9 @@ class Obstacle:
         def point(p: Mapping[str, float] | None) -> np.ndarray | None:
             return None if p is None else np.array([p["north_m"], p["east_m"], p["up_m"]], dtype=float)
 
+        path = spec.get("path")
+        if path is not None and len(path) < 2:
+            raise ValueError(f"obstacle {spec['id']}: a path needs at least two points")
         return cls(
             id=spec["id"],
             form=spec["form"],
@@ -77,7 +98,17 @@ class Obstacle:
             a=point(spec["a"]),
             b=point(spec.get("b")),
             speed_m_s=float(spec.get("speed_m_s", 0.0)),
+            kind=spec.get("kind", "static" if spec.get("b") is None and path is None else "dynamic"),
+            path=None if path is None else np.array([[p["north_m"], p["east_m"], p["up_m"]] for p in path], dtype=float),
+            repeat=spec.get("repeat", "back_and_forth"),
         )
+
+    @property
+    def track(self) -> np.ndarray | None:
+        """The points a moving obstacle's centre passes through (N x 3 north/east/up); None when still."""
+        if not self.moving:
+            return None
+        return self.path if self.path is not None else np.array([self.a, self.b])
 
     def _geometry(self):
         size = self.size
@@ -101,10 +132,26 @@ class Obstacle:
         if not self.moving:
             return self.a
         leg = self._leg_m
+        if self.path is not None:
+            travelled = self.speed_m_s * time_s
+            if self.repeat == "once":
+                travelled = min(travelled, leg)
+            else:
+                travelled %= 2.0 * leg
+                travelled = travelled if travelled <= leg else 2.0 * leg - travelled
+            return self._along_path(travelled)
         travelled = (self.speed_m_s * time_s) % (2.0 * leg)
         fraction = (travelled if travelled <= leg else 2.0 * leg - travelled) / leg
         (an, ae, au), (dn, de, du) = self._a_tuple, self._delta
         return np.array((an + dn * fraction, ae + de * fraction, au + du * fraction))
+
+    def _along_path(self, travelled_m: float) -> np.ndarray:
+        cumulative = self._cumulative_m
+        segment = min(max(bisect.bisect_right(cumulative, travelled_m) - 1, 0), len(cumulative) - 2)
+        length = cumulative[segment + 1] - cumulative[segment]
+        fraction = 0.0 if length <= 0.0 else (travelled_m - cumulative[segment]) / length
+        (pn, pe, pu), (qn, qe, qu) = self._path_points[segment], self._path_points[segment + 1]
+        return np.array((pn + (qn - pn) * fraction, pe + (qe - pe) * fraction, pu + (qu - pu) * fraction))
 
     def move_to(self, time_s: float) -> None:
         if self.moving:

@@ -23,6 +23,12 @@ _QUATERNION = {"type": "object", "properties": {k: {"type": "number"} for k in "
 _POSE = {"type": "object", "properties": {"position": _VECTOR3, "orientation": _QUATERNION}}
 _COLOR = {"type": "object", "properties": {k: {"type": "number"} for k in "rgba"}}
 _PRIMITIVE = {"type": "object", "properties": {"pose": _POSE, "size": _VECTOR3, "color": _COLOR}}
+# foxglove.LineType, as Foxglove's own JSON schema spells the enumeration.
+_LINE_TYPE = {
+    "title": "foxglove.LineType",
+    "oneOf": [{"title": "LINE_STRIP", "const": 0}, {"title": "LINE_LOOP", "const": 1}, {"title": "LINE_LIST", "const": 2}],
+}
+LINE_STRIP = 0
 
 FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
     "foxglove.FrameTransform": {
@@ -101,6 +107,22 @@ FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
                                 },
                             },
                         },
+                        "lines": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "type": _LINE_TYPE,
+                                    "pose": _POSE,
+                                    "thickness": {"type": "number", "minimum": 0},
+                                    "scale_invariant": {"type": "boolean"},
+                                    "points": {"type": "array", "items": _VECTOR3},
+                                    "color": _COLOR,
+                                    "colors": {"type": "array", "items": _COLOR},
+                                    "indices": {"type": "array", "items": {"type": "integer"}},
+                                },
+                            },
+                        },
                     },
                 },
             },
@@ -155,6 +177,12 @@ STELLA_SCHEMAS: dict[str, dict[str, Any]] = {
 
 # Schemas of topics a log has only when the run needs them.
 OPTIONAL_SCHEMAS: dict[str, dict[str, Any]] = {
+    "stella.Wind": {
+        "title": "stella.Wind",
+        "description": "The air's velocity over the ground (NED, m/s) the vehicle flies in: steady wind, turbulence and gust.",
+        "type": "object",
+        "properties": {"t": {"type": "number"}, "wind_ned_m_s": {"type": "array", "items": {"type": "number"}}},
+    },
     "stella.PilotSticks": {
         "title": "stella.PilotSticks",
         "description": "The simulated pilot's RC frame (sticks -1..1 in PX4's manual_control convention, mode-switch slot, raw channels) and where it aims.",
@@ -190,7 +218,7 @@ TOPICS = {
     "/mavlink/api": "stella.MavlinkBytes",
 }
 # Topics a log has only when the run needs them.
-OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks"}
+OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks", "/wind": "stella.Wind"}
 
 
 def stamp(time_ns: int) -> dict[str, int]:
@@ -264,24 +292,49 @@ class Recorder:
         self._writer.add_metadata(name, dict(values))
 
 
-def scene_entity(obstacle: Obstacle, time_ns: int) -> dict[str, Any]:
-    """An obstacle as a Foxglove SceneEntity: moving ones orange, static ones grey."""
-    n, e, u = obstacle.position
-    pose = {"position": enu(n, e, u), "orientation": yaw_orientation(obstacle.yaw_rad)}
-    color = {"r": 0.9, "g": 0.4, "b": 0.1, "a": 0.8} if obstacle.moving else {"r": 0.5, "g": 0.5, "b": 0.55, "a": 0.9}
-    size = obstacle.size
-    entity: dict[str, Any] = {
+# One colour per kind of obstacle, for its shape and its path, here and in `stella inspect --plot`.
+KIND_COLORS: dict[str, dict[str, float]] = {
+    "static": {"r": 0.5, "g": 0.5, "b": 0.55, "a": 0.9},  # grey
+    "dynamic": {"r": 0.9, "g": 0.4, "b": 0.1, "a": 0.8},  # orange
+    "intruder": {"r": 0.75, "g": 0.2, "b": 0.85, "a": 0.8},  # violet: another aircraft, not a moving object
+}
+PATH_THICKNESS_M = 0.05
+
+
+def obstacle_kind_color(obstacle: Obstacle) -> dict[str, float]:
+    """An intruder's colour, a moving obstacle's, or a still one's (a dynamic obstacle at speed 0 stands still)."""
+    if obstacle.kind == "intruder":
+        return KIND_COLORS["intruder"]
+    return KIND_COLORS["dynamic"] if obstacle.moving else KIND_COLORS["static"]
+
+
+def _entity(entity_id: str, time_ns: int, metadata: list[dict[str, str]]) -> dict[str, Any]:
+    return {
         "timestamp": stamp(time_ns),
         "frame_id": "world",
-        "id": obstacle.id,
+        "id": entity_id,
         "lifetime": stamp(0),
         "frame_locked": False,
-        "metadata": [{"key": "form", "value": obstacle.form}],
+        "metadata": metadata,
         "cubes": [],
         "spheres": [],
         "cylinders": [],
         "triangles": [],
+        "lines": [],
     }
+
+
+def _identity_pose() -> dict[str, dict[str, float]]:
+    return {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+
+
+def scene_entity(obstacle: Obstacle, time_ns: int) -> dict[str, Any]:
+    """An obstacle as a Foxglove SceneEntity: intruders violet, other moving ones orange, still ones grey."""
+    n, e, u = obstacle.position
+    pose = {"position": enu(n, e, u), "orientation": yaw_orientation(obstacle.yaw_rad)}
+    color = dict(obstacle_kind_color(obstacle))
+    size = obstacle.size
+    entity = _entity(obstacle.id, time_ns, [{"key": "form", "value": obstacle.form}, {"key": "kind", "value": obstacle.kind}])
     if obstacle.form == "cuboid":
         entity["cubes"].append({"pose": pose, "size": {"x": size["length_m"], "y": size["width_m"], "z": size["height_m"]}, "color": color})
     elif obstacle.form == "sphere":
@@ -292,6 +345,28 @@ def scene_entity(obstacle: Obstacle, time_ns: int) -> dict[str, Any]:
         entity["cylinders"].append(
             {"pose": pose, "size": {"x": d, "y": d, "z": size["height_m"]}, "bottom_scale": 1.0, "top_scale": 1.0, "color": color}
         )
+    return entity
+
+
+def path_entity(obstacle: Obstacle, time_ns: int) -> dict[str, Any] | None:
+    """The track a moving obstacle's centre follows, as a thin Foxglove line strip in its kind's
+    colour (entity id "<obstacle id>/path"); None for an obstacle that does not move."""
+    track = obstacle.track
+    if track is None:
+        return None
+    entity = _entity(f"{obstacle.id}/path", time_ns, [{"key": "kind", "value": obstacle.kind}, {"key": "repeat", "value": obstacle.repeat}])
+    entity["lines"].append(
+        {
+            "type": LINE_STRIP,
+            "pose": _identity_pose(),
+            "thickness": PATH_THICKNESS_M,
+            "scale_invariant": False,
+            "points": [enu(n, e, u) for n, e, u in track.tolist()],
+            "color": {**obstacle_kind_color(obstacle), "a": 1.0},
+            "colors": [],
+            "indices": [],
+        }
+    )
     return entity
 
 
@@ -311,16 +386,6 @@ def terrain_entity(terrain: Mapping[str, Any], water: Any) -> dict[str, Any]:
             n0, e0 = -area + 30 + i * step, -area + j * step
             for n, e in ((n0, e0), (n0 + step, e0), (n0 + step, e0 + step), (n0, e0), (n0 + step, e0 + step), (n0, e0 + step)):
                 vertex(n, e)
-    identity = {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
-    return {
-        "timestamp": stamp(0),
-        "frame_id": "world",
-        "id": "terrain",
-        "lifetime": stamp(0),
-        "frame_locked": False,
-        "metadata": [{"key": "landform", "value": terrain["kind"]}],
-        "cubes": [],
-        "spheres": [],
-        "cylinders": [],
-        "triangles": [{"pose": identity, "points": points, "color": {"r": 0.35, "g": 0.55, "b": 0.3, "a": 1.0}, "colors": colors, "indices": []}],
-    }
+    entity = _entity("terrain", 0, [{"key": "landform", "value": terrain["kind"]}])
+    entity["triangles"].append({"pose": _identity_pose(), "points": points, "color": {"r": 0.35, "g": 0.55, "b": 0.3, "a": 1.0}, "colors": colors, "indices": []})
+    return entity
