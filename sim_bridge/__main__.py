@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     sim_listener = listen(args.sim_port, args.host)
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
+    if world.atmosphere.turbulence is not None or world.atmosphere.gust is not None:
+        optional_topics += ("/wind",)
     with open(args.mcap, "wb") as stream, Recorder(stream, optional_topics) as recorder:
         recorder.metadata("world", {"json": json.dumps(world.as_dict())})
         recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})

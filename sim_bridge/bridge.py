@@ -20,6 +20,11 @@ Control channel (newline-delimited JSON over TCP, one client, the harness):
       since "run"); without it the change applies at the next step.
       {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
       slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
+  Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
+      end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
+      end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the
+      harness answers {"op": "failure_injected", "result": R} with the SUT's answer to
+      MAV_CMD_INJECT_FAILURE; /events records it ("failure" or "failure_cleared").
 
 With the pilot drive (world "drive": "pilot") a simulated pilot (sim_bridge/pilot.py) flies the
 route with RC_CHANNELS frames every 20 ms of simulated time, sent before HIL_SENSOR like the
@@ -44,12 +49,14 @@ from typing import Any, Mapping
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from sim_bridge.failures import FailureSchedule
 from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
-from sim_bridge.recording import Recorder, enu, enu_flu_orientation, scene_entity, stamp, terrain_entity
+from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
 from sim_bridge.sensors import FIELDS_ALL, quaternion_from_euler
 from sim_bridge.spec import WorldSpec
 from sim_bridge.world import SECTOR_DEG, World
 from simlink import codec
+from simlink.failures import wrong_distances, wrong_gps_position
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +209,8 @@ class Bridge:
         self._clearance_batch: tuple[list, list, list, list] = ([], [], [], [])
         self._hold_deadline: float | None = None
         self._hold_announced = False
+        self.failures = FailureSchedule(world.failures or (), lambda event, detail: self._event(self.world.time_s, event, detail))
+        self._awaiting_injection: dict[str, Any] | None = None
 
     # -- recording ---------------------------------------------------------------------------
 
@@ -215,12 +224,14 @@ class Bridge:
     def _obstacles_changed(self, time_s: float, removed_id: str | None) -> None:
         time_ns = int(time_s * 1e9)
         if removed_id is not None:
-            self.recorder.write("/scene", time_ns=time_ns, message={"deletions": [{"timestamp": stamp(time_ns), "type": 1, "id": removed_id}], "entities": []})
+            deletions = [{"timestamp": stamp(time_ns), "type": 1, "id": entity} for entity in (removed_id, f"{removed_id}/path")]
+            self.recorder.write("/scene", time_ns=time_ns, message={"deletions": deletions, "entities": []})
         self._record_scene(time_ns, everything=True)
 
     def _record_scene(self, time_ns: int, everything: bool) -> None:
         entities = [scene_entity(o, time_ns) for o in self.world.field.obstacles if everything or o.moving]
         if everything:
+            entities += [path for path in (path_entity(o, time_ns) for o in self.world.field.obstacles) if path is not None]
             entities.append(terrain_entity(self.world.terrain, self.world.water))
         if entities:
             self.recorder.write("/scene", time_ns=time_ns, message={"deletions": [], "entities": entities})
@@ -279,6 +290,8 @@ class Bridge:
         batch[3].append(self.world.state.agl_m)
         if step % every["record"] == 0:
             self._record_pose(time_ns)
+            if self.world.wind_field.varies:
+                self.recorder.write("/wind", time_ns=time_ns, message={"t": time_s, "wind_ned_m_s": list(self.world.wind_now)})
         if step % every["scene"] == 0:
             self._record_scene(time_ns, everything=False)
         if step % every["flush"] == 0:
@@ -296,8 +309,8 @@ class Bridge:
         self._mav.seq = (self._mav.seq + 1) & 0xFF
         every = self._every
         extra = []
-        if step % every["gps"] == 0:
-            g = world.gps()
+        g = self._gps_fix() if step % every["gps"] == 0 else None
+        if g is not None:
             extra.append(
                 self._mav.hil_gps_encode(
                     time_us, g["fix_type"], g["lat"], g["lon"], g["alt"], g["eph"], g["epv"], g["vel"], g["vn"], g["ve"], g["vd"], g["cog"], g["satellites_visible"]
@@ -320,9 +333,9 @@ class Bridge:
                     int(round(s.v_down_m_s * 100)),
                     0,
                     0,
-                    int(round(s.ax_m_s2 / 9.80665 * 1000)),
-                    int(round(s.ay_m_s2 / 9.80665 * 1000)),
-                    int(round(s.az_m_s2 / 9.80665 * 1000)),
+                    _milli_g(s.ax_m_s2),
+                    _milli_g(s.ay_m_s2),
+                    _milli_g(s.az_m_s2),
                 )
             )
         if step % every["sensor"] == 0:
@@ -335,10 +348,26 @@ class Bridge:
         # however TCP splits the stream.
         return b"".join(bytes(m.pack(self._mav)) for m in extra) + sensor
 
+    def _gps_fix(self) -> dict[str, Any] | None:
+        """This step's HIL_GPS fields as the receiver delivers them (None: nothing delivered)."""
+        fix = self.world.gps()
+        if self.failures.owns("gps"):
+            return self.failures.reading("gps", self._run_time(), fix, _wrong_gps)
+        return fix
+
+    def _run_time(self) -> float | None:
+        world = self.world
+        return None if world.run_start_s is None else world.run_time(world.time_s)
+
     def _obstacle_distance(self, time_us: int):
         world = self.world
         distances = world.range_cm()
         reach_cm = int(world.range_m * 100)
+        if self.failures.owns("distance sensor"):
+            distances = self.failures.reading("distance sensor", self._run_time(), distances,
+                                              lambda sectors: wrong_distances(sectors, max_distance_cm=reach_cm))
+            if distances is None:
+                return []
         self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": world.range_m, "distances_cm": distances})
         min_cm = int(world.min_range_m * 100)
         messages = []
@@ -378,10 +407,43 @@ class Bridge:
                 self.world.end("stopped")
             elif kind == "rc_mode_slot":
                 self.world.forced_slot = int(op["slot"])
+            elif kind == "failure_injected":
+                self._injected(str(op.get("result", "")), time_s)
             elif "at_s" in op:
                 self.world.schedule(op)
             else:
                 self.world.apply(op, time_s)
+
+    # -- failures told to the SUT -------------------------------------------------------------
+
+    def _ask_for_injection(self, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
+        """Each MAV_CMD_INJECT_FAILURE now due, through the harness: frozen, wait for its answer
+        here; paced, the loop runs on at real-time pace until it comes."""
+        while self._awaiting_injection is None and self.world.running:
+            due = self.failures.command_due(self._run_time())
+            if due is None:
+                return
+            spec, kind = due
+            request = {"unit": spec.unit, "type": kind, "failure": spec.type, "duration_s": spec.duration_s}
+            if not control.connected:
+                self._event(time_s, "failure_undelivered", {**request, "reason": "no harness on the control channel"})
+                continue
+            self._awaiting_injection = request
+            control.send({"event": "inject_failure", "t": time_s, "unit": spec.unit, "type": kind})
+            if self.config.hold_mode != "paced":
+                self._frozen_until(lambda: self._awaiting_injection is None, sut, splitter, control, time_s)
+
+    def _injected(self, result: str, time_s: float) -> None:
+        request = self._awaiting_injection
+        if request is None:
+            return
+        self._awaiting_injection = None
+        # A SUT that refuses (PX4 without SYS_FAILURE_EN, an unsupported unit) flies on unfailed.
+        event = "failure_refused" if result != "SUCCESS" else "failure_cleared" if request["type"] == "ok" else "failure"
+        detail = {"unit": request["unit"], "type": request["failure"], "delivery": "sut", "result": result}
+        if request["type"] != "ok":
+            detail["duration_s"] = request["duration_s"]
+        self._event(time_s, event, detail)
 
     # -- the loop ----------------------------------------------------------------------------
 
@@ -458,6 +520,10 @@ class Bridge:
                 self._paced_hold(control, time_s)
                 if not world.running:
                     break
+            if world.run_start_s is not None and self._awaiting_injection is None:
+                self._ask_for_injection(sut, splitter, control, time_s)
+                if not world.running:
+                    break
             if wall_run_started is None and hold_enabled and world.run_start_s is not None:
                 wall_run_started = perf()
                 # Step timers count the run only: before it the loop runs at real-time pace.
@@ -490,12 +556,12 @@ class Bridge:
             world.step(world.motors if lockstep else (0.0, 0.0, 0.0, 0.0))
             t2 = perf()
             summary.physics_s += t2 - t1
-            if world.steps % self._every["control"] == 0:
+            if world.steps % self._every["control"] == 0 or self._awaiting_injection is not None:
                 self._handle_ops(control.poll(), world.time_s)
             world.check_end()
             unobserved_step = world.steps
             summary.world_s += perf() - t2
-            if not lockstep or holding:
+            if not lockstep or holding or self._awaiting_injection is not None:
                 time.sleep(max(0.0, world.dt - (perf() - t_sent)))
         if unobserved_step is not None:
             self._observe(unobserved_step)
@@ -536,14 +602,19 @@ class Bridge:
 
     def _hold(self, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Pause the simulation until the harness says run; keep reading what the SUT sends."""
-        world = self.world
         self._event(time_s, "holding")
-        announced = False
+        self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce={"event": "holding", "t": time_s})
+
+    def _frozen_until(self, done, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float,
+                      announce: Mapping[str, Any] | None = None) -> None:
+        """Simulated time stands still until done() (the harness's ops are handled meanwhile) or
+        the hold timeout; the SUT's traffic is read so that it never blocks on a full socket."""
+        world = self.world
         deadline = time.monotonic() + self.config.hold_timeout_s
-        while world.run_start_s is None and world.running:
-            if not announced and control.connected:
-                control.send({"event": "holding", "t": time_s})
-                announced = True
+        while not done() and world.running:
+            if announce is not None and control.connected:
+                control.send(announce)
+                announce = None
             if time.monotonic() > deadline:
                 world.end("hold_timeout")
                 return
@@ -559,6 +630,16 @@ class Bridge:
 
 
 WEDGE_SECTORS = 4
+
+
+def _milli_g(specific_force_m_s2: float) -> int:
+    """HIL_STATE_QUATERNION's int16 acceleration: a crash's impact (tens of g) saturates it."""
+    return max(-32768, min(32767, int(round(specific_force_m_s2 / 9.80665 * 1000))))
+
+
+def _wrong_gps(fix: dict[str, Any]) -> dict[str, Any]:
+    lat_deg, _lon_deg = wrong_gps_position(fix["lat"] * 1e-7, fix["lon"] * 1e-7)
+    return {**fix, "lat": int(round(lat_deg * 1e7))}
 
 
 def _wedges(visible: list[int]) -> list[tuple[list[float], float, list[int]]]:

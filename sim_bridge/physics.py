@@ -168,15 +168,17 @@ class Multirotor:
         s.agl_m = n["agl"].get_double_value() * FT - GEAR_HEIGHT_M
         s.on_ground = s.agl_m < 0.02
 
-    def step(self, motors: tuple[float, float, float, float], terrain_up_m: float, wind_n_m_s: float, wind_e_m_s: float) -> VehicleState:
-        """Advance one step with motor commands in PX4's quad-X order and the terrain height under the vehicle."""
+    def step(self, motors: tuple[float, float, float, float], terrain_up_m: float, wind_n_m_s: float, wind_e_m_s: float,
+             wind_d_m_s: float = 0.0) -> VehicleState:
+        """Advance one step with motor commands in PX4's quad-X order, the terrain height under the
+        vehicle and the wind (the air's velocity over the ground, NED), which acts through body drag."""
         self._terrain.set_double_value((self._origin_alt + terrain_up_m) / FT)
         s = self.state
         rho = self._nodes["rho"].get_double_value() * 515.378818  # slug/ft^3 -> kg/m^3
         k = 0.5 * rho * DRAG_AREA_M2
         air_n = s.v_north_m_s - wind_n_m_s
         air_e = s.v_east_m_s - wind_e_m_s
-        air_d = s.v_down_m_s
+        air_d = s.v_down_m_s - wind_d_m_s
         speed = math.sqrt(air_n * air_n + air_e * air_e + air_d * air_d)
         self._drag[0].set_double_value(-k * speed * air_n / LBF)
         self._drag[1].set_double_value(-k * speed * air_e / LBF)

@@ -51,10 +51,33 @@ class Surface:
 
 
 @dataclass(frozen=True)
+class Turbulence:
+    """Dryden turbulence: intensities (standard deviations) and scale lengths, horizontal and vertical."""
+
+    sigma_horizontal_m_s: float
+    sigma_vertical_m_s: float
+    length_horizontal_m: float
+    length_vertical_m: float
+
+
+@dataclass(frozen=True)
+class Gust:
+    """A discrete 1-cosine gust: from `from_deg`, rising from nothing to `amplitude_m_s` and back
+    over `duration_s` from run time `onset_s`."""
+
+    amplitude_m_s: float
+    from_deg: float
+    onset_s: float
+    duration_s: float
+
+
+@dataclass(frozen=True)
 class Atmosphere:
     wind_north_m_s: float
     wind_east_m_s: float
     temperature_c: float
+    turbulence: Turbulence | None = None
+    gust: Gust | None = None
 
     @property
     def wind_speed_m_s(self) -> float:
@@ -113,6 +136,21 @@ class MissionSpec:
     plan_items: tuple[Mapping[str, Any], ...] | None = None  # MISSION_ITEM_INT fields of an uploaded plan
 
 
+FAILURE_DELIVERIES = ("simulator", "sut")
+
+
+@dataclass(frozen=True)
+class FailureSpec:
+    """A failure injected from run time `onset_s` for `duration_s`: by the simulator into readings
+    it owns, or by MAV_CMD_INJECT_FAILURE to the SUT (simlink/failures.py defines the units and types)."""
+
+    unit: str
+    type: str
+    onset_s: float
+    duration_s: float
+    delivery: str
+
+
 @dataclass(frozen=True)
 class PilotSpec:
     max_stick: float
@@ -137,6 +175,7 @@ class WorldSpec:
     drive: str = "mission"
     not_simulated: Mapping[str, Any] = field(default_factory=dict)
     pilot: PilotSpec | None = None
+    failures: tuple[FailureSpec, ...] | None = None
     format: str = WORLD_FORMAT
 
     @property
@@ -157,6 +196,9 @@ class WorldSpec:
             raise SpecError("/drive", f"{spec.drive!r} is neither 'mission' nor 'pilot'")
         if spec.drive == "pilot" and spec.pilot is None:
             raise SpecError("/pilot", "missing: the pilot drive needs the pilot's max_stick and aim_offset_m")
+        for index, failure in enumerate(spec.failures or ()):
+            if failure.delivery not in FAILURE_DELIVERIES:
+                raise SpecError(f"/failures/{index}/delivery", f"{failure.delivery!r} is neither 'simulator' nor 'sut'")
         if not spec.mission.waypoints:
             raise SpecError("/mission/waypoints", "empty: a mission needs at least one waypoint")
         return spec

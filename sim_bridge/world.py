@@ -21,6 +21,7 @@ from sim_bridge.physics import Multirotor, VehicleState
 from sim_bridge.pilot import Pilot, RcFrame
 from sim_bridge.sensors import SensorModel
 from sim_bridge.terrain import is_water, terrain_height_m
+from sim_bridge.wind import WindField
 
 SECTORS = 72
 SECTOR_DEG = 5.0
@@ -61,6 +62,9 @@ class World:
         self.terrain = spec.terrain
         self.water = spec.surface.water
         self.wind = (atmosphere.wind_north_m_s, atmosphere.wind_east_m_s)
+        self.wind_field = WindField(atmosphere, spec.seed, 1.0 / rate_hz)
+        self.wind_now = (*self.wind, 0.0)
+        self._gust_announced = False
         self.vehicle = vehicle_for(spec, rate_hz)
         self.sensors = SensorModel(spec.seed, atmosphere.temperature_c)
         self.field = ObstacleField([Obstacle.from_spec(o) for o in spec.obstacles], spec.uav.body)
@@ -160,13 +164,28 @@ class World:
         """One physics step with these motor commands, then the obstacles' changes and motion due
         by the new time. check_end() follows once the step's control messages are handled."""
         s = self.vehicle.state
-        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind)
+        if self.wind_field.varies:
+            self._step_in_varying_wind(motors)
+        else:
+            self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind)
         self.steps += 1
         time_s = self.time_s
         run_time = self.run_time(time_s)
         while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
             self.apply(self._pending_ops.pop(0), time_s)
         self.field.move_to(run_time)
+
+    def _step_in_varying_wind(self, motors: tuple[float, float, float, float]) -> None:
+        s = self.vehicle.state
+        run_time = None if self.run_start_s is None else self.run_time(self.time_s)
+        steady_n, steady_e, _ = self.wind_field.steady
+        airspeed = math.hypot(s.v_north_m_s - steady_n, s.v_east_m_s - steady_e)
+        self.wind_now = self.wind_field.advance(run_time, airspeed)
+        gust = self.wind_field.gust
+        if gust is not None and not self._gust_announced and run_time is not None and run_time >= gust.onset_s:
+            self._gust_announced = True
+            self.on_event(self.time_s, "gust", {"amplitude_m_s": gust.amplitude_m_s, "from_deg": gust.from_deg, "duration_s": gust.duration_s})
+        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind_now)
 
     def schedule(self, op: Mapping[str, Any]) -> None:
         """An obstacle change to make at run time op["at_s"]."""

@@ -107,3 +107,33 @@ def test_px4_flies_an_imported_competition_case_with_the_clearance_computed_by_h
     from test_aerialist import check_hover_clearances, fly_hover_case
 
     check_hover_clearances(fly_hover_case(tmp_path, capsys, "--sut", "px4"))
+
+
+def test_an_injected_range_sensor_failure_reaches_px4_and_px4_answers_a_barometer_one(capsys, tmp_path):
+    """The range sensor fails in the simulator: PX4's distance_sensor topic, which it relays on
+    its API link, falls silent for the failure's span. The barometer's goes to PX4 as
+    MAV_CMD_INJECT_FAILURE, with SYS_FAILURE_EN set: /events records PX4's answer."""
+    from harness.scenario.logical import load_logical
+    from harness.scenario.profile import load_profile
+    from harness.scenario.space import SearchSpace
+
+    profile = load_profile("default")
+    space = SearchSpace(load_logical(ROOT / "tests" / "data" / "scenarios" / "wall_range_off_baro_off.json", profile), profile)
+    x = space.vector_from({"obstacle_1.length_m": 20.0, "obstacle_1.width_m": 10.0, "obstacle_1.height_m": 20.0, "obstacle_1.north_m": 30.0,
+                           "obstacle_1.east_m": 0.0, "obstacle_1.yaw_deg": 90.0, "failure_1.onset_s": 4.0, "failure_1.duration_s": 4.0,
+                           "failure_2.onset_s": 10.0, "failure_2.duration_s": 2.0})
+    concrete = tmp_path / "failures.json"
+    concrete.write_text(json.dumps(space.to_concrete(x)))
+    assert main(["run", "--concrete", str(concrete), "--sut", "px4", "--out", str(tmp_path), "--json"]) in (0, 1)
+    result = json.loads(capsys.readouterr().out)
+    log = Path(result["log_path"])
+    events = [m for _t, _ns, m in logs.messages(log, ["/events"])]
+    start = next(e["t"] for e in events if e["event"] == "run")
+    told = [e for e in events if e["event"] in ("failure", "failure_refused") and e["detail"]["unit"] == "barometer"]
+    assert told and told[0]["detail"]["result"], events
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    relayed = [message.time_boot_ms / 1000.0 - start for _t, _ns, m in logs.messages(log, ["/mavlink/api"]) if m["direction"] == "from_sut"
+               for message in parser.parse_buffer(bytes.fromhex(m["hex"])) or [] if message.get_type() == "DISTANCE_SENSOR"]
+    assert [t for t in relayed if 2.0 < t < 4.0] and [t for t in relayed if 9.0 < t < 11.0]
+    assert not [t for t in relayed if 5.0 < t < 8.0]

@@ -330,6 +330,8 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         timings["hold_s"] = time.monotonic() - t0
         try:
             session.set_params(sut.mavlink_params)
+            if any(f.delivery == "sut" for f in world.failures or ()):
+                session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":
                 # A parameter the user set (--sut-param) is the user's to decide.
                 session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut.params})
@@ -347,10 +349,12 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         timings["setup_s"] = time.monotonic() - t0
         control.send({"op": "run"})
         deadline = world.time_limit_s / options.min_real_time_factor + 30.0
-        finished = control.wait_for("finished", deadline, lambda: bridge.poll() is None)
+        finished = _fly_until_finished(control, session, deadline, lambda: bridge.poll() is None)
         timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
         info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}
         if finished is None:
+            if control.closed:
+                bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
             if bridge.poll() is not None:
                 return (Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
             control.send({"op": "stop"})
@@ -359,6 +363,24 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         return None, finished, info
     finally:
         control.close()
+
+
+def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_s: float, alive) -> dict[str, Any] | None:
+    """The bridge's "finished" event, injecting each failure it asks for on the way."""
+    deadline = time.monotonic() + timeout_s
+    asked = 0
+    while True:
+        finished = control.wait_for("finished", 0.0)
+        if finished is not None:
+            return finished
+        requests = [e for e in control.events if e.get("event") == "inject_failure"]
+        for request in requests[asked:]:
+            result = session.inject_failure(request["unit"], request["type"])
+            control.send({"op": "failure_injected", "result": result})
+        asked = len(requests)
+        if time.monotonic() > deadline or control.closed or not alive():
+            return None
+        control.poll(0.05)
 
 
 def control_summary(control: BridgeControl) -> dict[str, Any]:

@@ -11,12 +11,14 @@ from typing import Any, Mapping, Sequence
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
+from mavsdk.plugins.failure import Failure, FailureType, FailureUnit
 from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
 from mavsdk.plugins.param import Param
 from mavsdk.plugins.telemetry import Telemetry
 
 from harness.errors import InfrastructureError
 from sim_bridge.geo import geodetic_from_local
+from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +105,7 @@ class MavsdkSession:
         self.action = Action(self.system)
         self.mission = MissionRaw(self.system)
         self.param = Param(self.system)
+        self.failure: Failure | None = None
         self.telemetry.subscribe_status_text(self._on_status_text)
         self.mission.subscribe_mission_progress(self._on_progress)
         return self
@@ -153,6 +156,23 @@ class MavsdkSession:
         self.set_params({"MIS_TAKEOFF_ALT": float(altitude_m)})
         self.action.arm()
         self.action.takeoff()
+
+    def enable_failure_injection(self) -> None:
+        """SYS_FAILURE_EN = 1, then MAVSDK's failure plugin: it reads the parameter once, when made."""
+        self.set_params({"SYS_FAILURE_EN": 1})
+        self.failure = Failure(self.system)
+
+    def inject_failure(self, unit: str, kind: str) -> str:
+        """MAV_CMD_INJECT_FAILURE for a scenario's unit and type ("ok" clears it); the SUT's
+        answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
+        failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
+        if self.failure is None:
+            return "NOT_ENABLED"
+        try:
+            self.failure.inject(FailureUnit(int(UNIT_BY_NAME[unit])), failure_type, 0)
+        except Exception as error:  # MAVSDK's FailureError carries the SUT's answer
+            return getattr(getattr(error, "result", None), "name", str(error))
+        return "SUCCESS"
 
     def close(self) -> None:
         sdk = getattr(self, "sdk", None)

@@ -20,11 +20,20 @@ SIZE_DIMENSIONS = {
 
 @dataclass(frozen=True)
 class LogicalObstacle:
-    kind: str
-    size: str
-    form: str
+    kind: str  # static, dynamic or intruder
+    size: str | None  # None for an intruder: the profile's intruder body
+    form: str | None
     size_range: Interval | None
     speed_range: Interval | None
+    motion: str = "straight"  # how a dynamic obstacle moves
+    encounter: str | None = None  # an intruder's encounter type
+    path: str = "straight"  # an intruder's own path
+
+
+@dataclass(frozen=True)
+class LogicalFailure:
+    unit: str
+    type: str
 
 
 @dataclass(frozen=True)
@@ -49,6 +58,8 @@ class LogicalScenario:
     obstacles: tuple[LogicalObstacle, ...]
     weather: Mapping[str, WeatherValue]
     mission: Mapping[str, Any] | None
+    gusts: str = "none"
+    failures: tuple[LogicalFailure, ...] = ()
 
     @property
     def not_simulated(self) -> list[WeatherValue]:
@@ -123,6 +134,17 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             problems += _range_problems(file, f"{at}/size range", obstacle["size range"], "m")
             if obstacle["size range"]["min"] <= 0:
                 problems.append(Problem(file, f"{at}/size range/min", "obstacle sizes must be positive"))
+        if obstacle["kind"] == "intruder":
+            for key in ("size", "form", "size range", "speed range", "motion"):
+                if key in obstacle:
+                    problems.append(Problem(file, f"{at}/{key}", "an intruder is another multirotor of the profile's intruder size and speeds, "
+                                                                 "placed by its encounter: remove this"))
+            continue
+        for key in ("encounter", "path"):
+            if key in obstacle:
+                problems.append(Problem(file, f"{at}/{key}", 'only an "intruder" has an encounter and a path; remove it or make the obstacle an intruder'))
+        if "motion" in obstacle and obstacle["kind"] != "dynamic":
+            problems.append(Problem(file, f"{at}/motion", 'only a "dynamic" obstacle moves; remove it or make the obstacle dynamic'))
         if "speed range" in obstacle:
             if obstacle["kind"] != "dynamic":
                 problems.append(
@@ -137,6 +159,12 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             if area[f"{axis}_min_m"] >= area[f"{axis}_max_m"]:
                 problems.append(Problem(file, f"/environment/flight area/area/{axis}_min_m",
                                         f"{area[f'{axis}_min_m']} is not below {axis}_max_m {area[f'{axis}_max_m']}: swapped bounds?"))
+    seen_units: dict[str, int] = {}
+    for index, failure in enumerate(document.get("failures", [])):
+        if failure["unit"] in seen_units:
+            problems.append(Problem(file, f"/failures/{index}/unit", f'{failure["unit"]!r} already fails in /failures/{seen_units[failure["unit"]]}: '
+                                                                      "one failure per unit"))
+        seen_units.setdefault(failure["unit"], index)
     mission = document.get("mission", {})
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
     if "move to waypoint" not in maneuvers and "waypoints" not in mission and "plan" not in mission:
@@ -183,10 +211,13 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
     obstacles = tuple(
         LogicalObstacle(
             kind=o["kind"],
-            size=o["size"],
-            form=o["form"],
+            size=o.get("size"),
+            form=o.get("form"),
             size_range=_range(o.get("size range")),
             speed_range=_range(o.get("speed range")),
+            motion=o.get("motion", "straight"),
+            encounter=o.get("encounter"),
+            path=o.get("path", "straight"),
         )
         for o in environment["obstacles"]
     )
@@ -199,6 +230,8 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
         obstacles=obstacles,
         weather=_weather(document, profile),
         mission=document.get("mission"),
+        gusts=environment["weather"].get("gusts", "none"),
+        failures=tuple(LogicalFailure(f["unit"], f["type"]) for f in document.get("failures", [])),
     )
 
 

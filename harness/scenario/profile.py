@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import lru_cache
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -103,6 +104,23 @@ class Profile:
     def time_limit_s(self) -> float:
         return float(self.document["time_limit_s"])
 
+    def section(self, name: str) -> Mapping[str, Any]:
+        """A section a profile written before it existed leaves out: the bundled default's then."""
+        return self.document[name] if name in self.document else _bundled_default()[name]
+
+    def obstacle_range(self, key: str) -> Interval:
+        """One of the obstacles' ranges (speed, travel, altitude, arc_radius, vertical_travel) in SI units."""
+        document = self.document["obstacles"].get(key) or _bundled_default()["obstacles"][key]
+        return Interval.from_json(document).scaled(units.factor(document["unit"], "m/s" if key == "speed" else "m"))
+
+    def intruder_range(self, key: str) -> Interval:
+        """speed, closing_speed, vertical_offset or turn_rate of the intruder section."""
+        return Interval.from_json(self.section("intruder")[key])
+
+    @property
+    def climb_speed_m_s(self) -> float:
+        return float(self.uav.get("climb_speed_m_s", _bundled_default()["uav"]["climb_speed_m_s"]))
+
     @property
     def pilot_max_stick(self) -> Interval:
         return Interval.from_json(self.document.get("pilot", PILOT_DEFAULTS)["max_stick"])
@@ -110,6 +128,11 @@ class Profile:
     @property
     def pilot_aim_offset_m(self) -> Interval:
         return Interval.from_json(self.document.get("pilot", PILOT_DEFAULTS)["aim_offset"])
+
+
+@lru_cache(maxsize=1)
+def _bundled_default() -> Mapping[str, Any]:
+    return load_json(profile_path("default"))
 
 
 def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
@@ -155,8 +178,26 @@ def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
         check_interval(f"/obstacles/size/categories/{size}", interval, f"obstacle size {size!r}")
         if interval["min"] <= 0:
             problems.append(Problem(file, f"/obstacles/size/categories/{size}/min", "obstacle sizes must be positive"))
-    for key in ("speed", "travel", "altitude"):
-        check_interval(f"/obstacles/{key}", document["obstacles"][key], f"obstacle {key}")
+    for key in ("speed", "travel", "altitude", "arc_radius", "vertical_travel"):
+        if key in document["obstacles"]:
+            check_interval(f"/obstacles/{key}", document["obstacles"][key], f"obstacle {key}")
+    for key in ("speed", "closing_speed", "vertical_offset", "turn_rate"):
+        if "intruder" in document:
+            check_interval(f"/intruder/{key}", document["intruder"][key], f"the intruder's {key}")
+    if "gusts" in document:
+        check_interval("/gusts/gust_duration", document["gusts"]["gust_duration"], "the gust's duration")
+        for band, values in document["gusts"]["categories"].items():
+            for key in ("turbulence", "gust"):
+                check_interval(f"/gusts/categories/{band}/{key}", values[key], f"{band} {key}")
+                if values[key]["min"] < 0:
+                    problems.append(Problem(file, f"/gusts/categories/{band}/{key}/min", "an intensity cannot be negative"))
+    if "failures" in document:
+        check_interval("/failures/duration", document["failures"]["duration"], "a failure's duration")
+    expected_units = [("intruder", key, unit) for key, unit in (("speed", "m/s"), ("closing_speed", "m/s"), ("vertical_offset", "m"), ("turn_rate", "deg/s"))]
+    expected_units += [("gusts", "gust_duration", "s"), ("failures", "duration", "s")]
+    for section, key, unit in expected_units:
+        if section in document and document[section][key]["unit"] != unit:
+            problems.append(Problem(file, f"/{section}/{key}/unit", f'must be "{unit}", got "{document[section][key]["unit"]}"'))
     for name, landform in document["landforms"].items():
         area = landform["area"]
         check_interval(
@@ -173,7 +214,9 @@ def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
             if not (area["north_min_m"] <= north <= area["north_max_m"] and area["east_min_m"] <= east <= area["east_max_m"]):
                 problems.append(Problem(file, f"/landforms/{name}/area", f"the {label} lies outside the flight area"))
     quantities = [(f"/parameters/{name}/unit", document["parameters"][name]["unit"], unit) for name, (_n, unit) in SIMULATED_WEATHER.items()]
-    quantities += [(f"/obstacles/{key}/unit", document["obstacles"][key]["unit"], unit) for key, unit in (("speed", "m/s"), ("travel", "m"), ("altitude", "m"))]
+    quantities += [(f"/obstacles/{key}/unit", document["obstacles"][key]["unit"], unit)
+                   for key, unit in (("speed", "m/s"), ("travel", "m"), ("altitude", "m"), ("arc_radius", "m"), ("vertical_travel", "m"))
+                   if key in document["obstacles"]]
     for pointer, unit, simulation_unit in quantities:
         try:
             units.factor(unit, simulation_unit)

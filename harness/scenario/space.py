@@ -18,11 +18,18 @@ from harness.errors import InputError, Problem
 from harness.scenario import units
 from harness.scenario.documents import pointer
 from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
+from harness.scenario.motion import RouteTiming, arc_points, intruder_speed, smooth_points
 from harness.scenario.plan import Plan
 from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from sim_bridge.terrain import max_height_on_segment_m
 
 CONCRETE_FORMAT = "stella.concrete/1"
+# An intruder's track relative to the route's at closest approach, per encounter type (degrees,
+# clockwise; 0 flies the route's way). A crossing is anything between overtaking and head-on
+# on either side: its range spans both sides and a realism constraint cuts the head-on sector out.
+ENCOUNTER_CROSSING_DEG = {"head-on": (150.0, 210.0), "overtaking": (-30.0, 30.0), "crossing": (30.0, 330.0), "any": (0.0, 360.0)}
+# Samples along a curved path for the keep-out constraints (the world spec's paths are finer).
+CONSTRAINT_SAMPLES = 9
 
 
 @dataclass(frozen=True)
@@ -160,8 +167,44 @@ class SearchSpace:
         area = self.area
         north = Interval(area["north_min_m"], area["north_max_m"])
         east = Interval(area["east_min_m"], area["east_max_m"])
+        self.timing = RouteTiming(self.mission.waypoints, self.mission.cruise_speed_m_s,
+                                  self.mission.waypoints[0][2] / profile.climb_speed_m_s, 0.0)
+        during_route = Interval(0.0, round(self.timing.duration_s, 1))
+        if logical.gusts != "none":
+            gusts = profile.section("gusts")
+            band = gusts["categories"][logical.gusts]
+            quantity("turbulence_m_s", Interval.from_json(band["turbulence"]), "m/s", ("environment", "turbulence_m_s"))
+            self._template["environment"]["gust"] = {}
+            gust = ("environment", "gust")
+            quantity("gust.amplitude_m_s", Interval.from_json(band["gust"]), "m/s", gust + ("amplitude_m_s",))
+            quantity("gust.from_deg", Interval(0.0, 360.0), "deg", gust + ("from_deg",))
+            quantity("gust.onset_s", during_route, "s", gust + ("onset_s",))
+            quantity("gust.duration_s", Interval.from_json(gusts["gust_duration"]), "s", gust + ("duration_s",))
+        if logical.failures:
+            self._template["failures"] = []
+            duration = Interval.from_json(profile.section("failures")["duration"])
+            for index, failure in enumerate(logical.failures):
+                self._template["failures"].append({"unit": failure.unit, "type": failure.type})
+                quantity(f"failure_{index + 1}.onset_s", during_route, "s", ("failures", index, "onset_s"))
+                quantity(f"failure_{index + 1}.duration_s", duration, "s", ("failures", index, "duration_s"))
+
+        area = self.area
+        north = Interval(area["north_min_m"], area["north_max_m"])
+        east = Interval(area["east_min_m"], area["east_max_m"])
         for index, obstacle in enumerate(logical.obstacles):
             prefix = f"obstacle_{index + 1}"
+            if obstacle.kind == "intruder":
+                self._template["obstacles"].append(self._intruder_entry(obstacle))
+                geometry = ("obstacles", index, "geometry")
+                timeline = Interval(round(self.timing.takeoff_s + 0.15 * (during_route.max - self.timing.takeoff_s), 1),
+                                    round(self.timing.takeoff_s + 0.85 * (during_route.max - self.timing.takeoff_s), 1))
+                quantity(f"{prefix}.closest_approach_s", timeline, "s", geometry + ("closest_approach_s",))
+                quantity(f"{prefix}.crossing_deg", Interval(*ENCOUNTER_CROSSING_DEG[obstacle.encounter]), "deg", geometry + ("crossing_deg",))
+                quantity(f"{prefix}.closing_speed_m_s", profile.intruder_range("closing_speed"), "m/s", geometry + ("closing_speed_m_s",))
+                quantity(f"{prefix}.vertical_offset_m", profile.intruder_range("vertical_offset"), "m", geometry + ("vertical_offset_m",))
+                if obstacle.path == "arc":
+                    quantity(f"{prefix}.turn_rate_deg_s", profile.intruder_range("turn_rate"), "deg/s", geometry + ("turn_rate_deg_s",))
+                continue
             entry: dict[str, Any] = {"kind": obstacle.kind, "form": obstacle.form, "size": {}, "position": {}}
             self._template["obstacles"].append(entry)
             size = obstacle.size_range or profile.obstacle_sizes[obstacle.size]
@@ -172,13 +215,27 @@ class SearchSpace:
             if obstacle.form == "cuboid":
                 quantity(f"{prefix}.yaw_deg", Interval(0.0, 180.0), "deg", ("obstacles", index, "position", "yaw_deg"))
             if obstacle.kind == "dynamic":
-                entry["motion"] = {}
+                # A straight motion keeps the paper's four quantities and no "type", so concrete
+                # scenarios of Table III read as they always have.
+                entry["motion"] = {} if obstacle.motion == "straight" else {"type": obstacle.motion}
                 speed = obstacle.speed_range.scaled(profile.obstacle_speed_factor) if obstacle.speed_range else profile.obstacle_speed_m_s
                 motion = ("obstacles", index, "motion")
                 quantity(f"{prefix}.altitude_m", profile.obstacle_altitude_m, "m", motion + ("altitude_m",))
-                quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
+                if obstacle.motion in ("straight", "arc"):
+                    quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
                 quantity(f"{prefix}.speed_m_s", speed, "m/s", motion + ("speed_m_s",))
-                quantity(f"{prefix}.travel_m", profile.obstacle_travel_m, "m", motion + ("travel_m",))
+                if obstacle.motion == "straight":
+                    quantity(f"{prefix}.travel_m", profile.obstacle_travel_m, "m", motion + ("travel_m",))
+                elif obstacle.motion == "arc":
+                    quantity(f"{prefix}.radius_m", profile.obstacle_range("arc_radius"), "m", motion + ("radius_m",))
+                    quantity(f"{prefix}.turn_deg", Interval(-180.0, 180.0), "deg", motion + ("turn_deg",))
+                elif obstacle.motion == "vertical":
+                    quantity(f"{prefix}.rise_m", profile.obstacle_range("vertical_travel"), "m", motion + ("rise_m",))
+                else:
+                    for via in ("via_1", "via_2"):
+                        entry["motion"][via] = {}
+                        quantity(f"{prefix}.{via}.north_m", north, "m", motion + (via, "north_m"))
+                        quantity(f"{prefix}.{via}.east_m", east, "m", motion + (via, "east_m"))
 
         self._template["drive"] = self.mission.drive
         # Pilot values a concrete scenario made for the mission drive lacks, when it is flown by
@@ -197,6 +254,11 @@ class SearchSpace:
         self._fixed = {f.name: f.value for f in self.fixed}
         self.lower = np.array([d.lower for d in self.dimensions], dtype=float)
         self.upper = np.array([d.upper for d in self.dimensions], dtype=float)
+
+    def _intruder_entry(self, obstacle) -> dict[str, Any]:
+        body = self.profile.section("intruder")["body"]
+        return {"kind": "intruder", "form": "cuboid", "encounter": obstacle.encounter, "path": obstacle.path,
+                "size": {key: float(body[key]) for key in SIZE_DIMENSIONS["cuboid"]}, "geometry": {}}
 
     @property
     def n_dimensions(self) -> int:
@@ -241,16 +303,30 @@ class SearchSpace:
             return 0.5 * np.hypot(self.column(X, f"{prefix}.length_m"), self.column(X, f"{prefix}.width_m"))
         return 0.5 * self.column(X, f"{prefix}.diameter_m")
 
-    def _points(self, X: np.ndarray, index: int) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Where an obstacle is placed: its position, and for a dynamic one also its far end."""
+    def _points(self, X: np.ndarray, index: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """Where an obstacle is on the ground plan, labelled: its position, a straight mover's far
+        end too, and for a curved path samples along it (arrays of shape (rows, samples))."""
         prefix = f"obstacle_{index + 1}"
+        obstacle = self.logical.obstacles[index]
         north, east = self.column(X, f"{prefix}.north_m"), self.column(X, f"{prefix}.east_m")
-        points = [(north, east)]
-        if self.logical.obstacles[index].kind == "dynamic":
+        if obstacle.kind != "dynamic" or obstacle.motion == "vertical":
+            return [("", north, east)]
+        if obstacle.motion == "straight":
             heading = np.radians(self.column(X, f"{prefix}.heading_deg"))
             travel = self.column(X, f"{prefix}.travel_m")
-            points.append((north + travel * np.cos(heading), east + travel * np.sin(heading)))
-        return points
+            return [("start point", north, east), ("end point", north + travel * np.cos(heading), east + travel * np.sin(heading))]
+        if obstacle.motion == "arc":
+            path_n, path_e = arc_points(north, east, self.column(X, f"{prefix}.heading_deg"), self.column(X, f"{prefix}.radius_m"),
+                                        self.column(X, f"{prefix}.turn_deg"), CONSTRAINT_SAMPLES)
+        else:
+            vias = [(self.column(X, f"{prefix}.{via}.north_m"), self.column(X, f"{prefix}.{via}.east_m")) for via in ("via_1", "via_2")]
+            path_n, path_e = smooth_points([(north, east), *vias], CONSTRAINT_SAMPLES // 2)
+        return [("path", path_n, path_e)]
+
+    def intruder_speeds(self, X: np.ndarray, index: int) -> np.ndarray:
+        """The ground speed of intruder `index` in each row (NaN where its closing speed cannot be had)."""
+        prefix = f"obstacle_{index + 1}"
+        return intruder_speed(self.mission.cruise_speed_m_s, self.column(X, f"{prefix}.crossing_deg"), self.column(X, f"{prefix}.closing_speed_m_s"))
 
     def constraint_margins(self, X: np.ndarray) -> dict[str, np.ndarray]:
         """Each realism constraint's margin per row; a row is feasible where all are >= 0."""
@@ -260,20 +336,41 @@ class SearchSpace:
         landing = self.mission.landing_point
         for index, obstacle in enumerate(self.logical.obstacles):
             name = f"obstacle_{index + 1}"
+            if obstacle.kind == "intruder":
+                margins.update(self._intruder_margins(X, index))
+                continue
             radius = self._footprint_radius(X, index)
-            for which, (north, east) in zip(("start", "end"), self._points(X, index)):
-                where = f"{name} ({which} point)" if obstacle.kind == "dynamic" else name
-                margins[f"{where} keeps out of the start area"] = np.hypot(north, east) - radius - keep_out
-                margins[f"{where} keeps out of the landing area"] = (
-                    np.hypot(north - landing[0], east - landing[1]) - radius - keep_out
-                )
+            for which, north, east in self._points(X, index):
+                where = f"{name} ({which})" if which else name
+                to_start = np.hypot(north, east)
+                to_landing = np.hypot(north - landing[0], east - landing[1])
+                if to_start.ndim == 2:
+                    to_start, to_landing = to_start.min(axis=1), to_landing.min(axis=1)
+                margins[f"{where} keeps out of the start area"] = to_start - radius - keep_out
+                margins[f"{where} keeps out of the landing area"] = to_landing - radius - keep_out
         static = [i for i, o in enumerate(self.logical.obstacles) if o.kind == "static"]
         for a_pos, a in enumerate(static):
             for b in static[a_pos + 1 :]:
-                (na, ea), (nb, eb) = self._points(X, a)[0], self._points(X, b)[0]
+                (_, na, ea), (_, nb, eb) = self._points(X, a)[0], self._points(X, b)[0]
                 margins[f"obstacle_{a + 1} and obstacle_{b + 1} do not overlap"] = (
                     np.hypot(na - nb, ea - eb) - self._footprint_radius(X, a) - self._footprint_radius(X, b) - self.profile.min_separation_m
                 )
+        return margins
+
+    def _intruder_margins(self, X: np.ndarray, index: int) -> dict[str, np.ndarray]:
+        name = f"obstacle_{index + 1}"
+        speeds = self.intruder_speeds(X, index)
+        lowest, highest = self.profile.intruder_range("speed").min, self.profile.intruder_range("speed").max
+        # An unreachable closing speed scores by how far it falls short, so a search is led back.
+        crossing = np.radians(self.column(X, f"{name}.crossing_deg"))
+        shortfall = self.column(X, f"{name}.closing_speed_m_s") - self.mission.cruise_speed_m_s * np.abs(np.sin(crossing))
+        margins = {
+            f"{name} can close at its closing speed from its crossing angle": shortfall,
+            f"{name} flies within the intruder's speeds": np.where(np.isnan(speeds), np.minimum(shortfall, -1e-6), np.minimum(speeds - lowest, highest - speeds)),
+        }
+        if self.logical.obstacles[index].encounter == "crossing":
+            head_on_half_width = 180.0 - ENCOUNTER_CROSSING_DEG["head-on"][0]
+            margins[f"{name} crosses rather than meets head-on"] = np.abs(self.column(X, f"{name}.crossing_deg") - 180.0) - head_on_half_width
         return margins
 
     def feasible(self, X: np.ndarray) -> np.ndarray:

@@ -11,14 +11,20 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
 from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
+from harness.scenario.motion import arc_points, intruder_speed, intruder_track, smooth_points
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
-from sim_bridge.spec import (Atmosphere, Body, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface, Uav, Waypoint,
-                             WorldSpec)
+from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface,
+                             Turbulence, Uav, Waypoint, WorldSpec)
 from sim_bridge.terrain import terrain_height_m
 
 # PX4 SITL's default home (Zurich), so that logs of either SUT line up on the same map.
 ORIGIN = Origin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
+# Failures of readings the simulator owns are applied there, as PX4's simulator does for its own
+# sensors; the others reach the SUT as MAV_CMD_INJECT_FAILURE (docs/scenarios.md, Failures).
+SIMULATOR_FAILURE_UNITS = ("distance sensor", "gps")
+# Points per curved path in the world spec: about 0.5 m apart for a 30 m arc.
+PATH_SAMPLES = 64
 
 
 def sensor_range_m(sensor: Mapping[str, Any], visibility_m: float) -> float:
@@ -48,15 +54,68 @@ def _obstacle(space: SearchSpace, concrete: Mapping[str, Any], index: int) -> di
         return obstacle
     motion = entry["motion"]
     up = ground + motion["altitude_m"] + height_m / 2.0
-    heading = math.radians(motion["heading_deg"])
-    obstacle["a"] = {"north_m": north, "east_m": east, "up_m": up}
-    obstacle["b"] = {
-        "north_m": north + motion["travel_m"] * math.cos(heading),
-        "east_m": east + motion["travel_m"] * math.sin(heading),
-        "up_m": up,
-    }
+    kind = motion.get("type", "straight")
+    if kind == "vertical":
+        obstacle["a"] = {"north_m": north, "east_m": east, "up_m": up}
+        obstacle["b"] = {"north_m": north, "east_m": east, "up_m": up + motion["rise_m"]}
+        obstacle["speed_m_s"] = motion["speed_m_s"]
+        return obstacle
+    if kind == "straight":
+        heading = math.radians(motion["heading_deg"])
+        obstacle["a"] = {"north_m": north, "east_m": east, "up_m": up}
+        obstacle["b"] = {
+            "north_m": north + motion["travel_m"] * math.cos(heading),
+            "east_m": east + motion["travel_m"] * math.sin(heading),
+            "up_m": up,
+        }
+        obstacle["speed_m_s"] = motion["speed_m_s"]
+        return obstacle
     obstacle["speed_m_s"] = motion["speed_m_s"]
-    return obstacle
+    if kind == "arc":
+        path_n, path_e = arc_points(north, east, motion["heading_deg"], motion["radius_m"], motion["turn_deg"], PATH_SAMPLES + 1)
+    else:
+        vias = [(motion[via]["north_m"], motion[via]["east_m"]) for via in ("via_1", "via_2")]
+        path_n, path_e = smooth_points([(north, east), *vias], PATH_SAMPLES // 2)
+    return _with_path(obstacle, [(n, e, up) for n, e in zip(path_n.tolist(), path_e.tolist())], "back_and_forth")
+
+
+def _with_path(obstacle: dict[str, Any], points: list[tuple[float, float, float]], repeat: str) -> dict[str, Any]:
+    path = [{"north_m": n, "east_m": e, "up_m": u} for n, e, u in points]
+    return {**obstacle, "a": path[0], "b": path[-1], "path": path, "repeat": repeat}
+
+
+def _intruder(space: SearchSpace, concrete: Mapping[str, Any], index: int, start_up_m: float, until_s: float) -> dict[str, Any]:
+    """Another multirotor flying level at constant speed that passes the point where the UAV is
+    expected at the time of closest approach, crossing the route at the searched angle."""
+    entry = concrete["obstacles"][index]
+    geometry = entry["geometry"]
+    meet_n, meet_e, meet_up, route_heading = (float(v) for v in space.timing.at(geometry["closest_approach_s"]))
+    speed = float(intruder_speed(space.mission.cruise_speed_m_s, geometry["crossing_deg"], geometry["closing_speed_m_s"]))
+    heading_deg = (route_heading + geometry["crossing_deg"]) % 360.0
+    track = intruder_track((meet_n, meet_e, start_up_m + meet_up + geometry["vertical_offset_m"]), heading_deg, speed,
+                           geometry.get("turn_rate_deg_s", 0.0), geometry["closest_approach_s"], until_s)
+    obstacle = {"id": f"obstacle_{index + 1}", "kind": "intruder", "form": "cuboid", "size": dict(entry["size"]),
+                "yaw_rad": math.radians(heading_deg), "speed_m_s": speed}
+    return _with_path(obstacle, track, "once")
+
+
+def _atmosphere(environment: Mapping[str, Any], gusts: Mapping[str, Any]) -> Atmosphere:
+    wind_toward = math.radians(environment["wind_from_deg"] + 180.0)
+    turbulence = gust = None
+    if "turbulence_m_s" in environment:
+        sigma = environment["turbulence_m_s"]
+        lengths = gusts["turbulence_length_m"]
+        turbulence = Turbulence(sigma_horizontal_m_s=sigma, sigma_vertical_m_s=sigma * gusts["vertical_ratio"],
+                                length_horizontal_m=lengths["horizontal"], length_vertical_m=lengths["vertical"])
+    if "gust" in environment:
+        gust = Gust(**environment["gust"])
+    return Atmosphere(
+        wind_north_m_s=environment["wind_speed_m_s"] * math.cos(wind_toward),
+        wind_east_m_s=environment["wind_speed_m_s"] * math.sin(wind_toward),
+        temperature_c=environment["temperature_c"],
+        turbulence=turbulence,
+        gust=gust,
+    )
 
 
 def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
@@ -65,32 +124,34 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
     environment = concrete["environment"]
     profile = space.profile
     landform = profile.landforms[space.logical.landform]
-    wind_toward = math.radians(environment["wind_from_deg"] + 180.0)
     mission = space.mission
     start_up_m = terrain_height_m(landform.terrain, 0.0, 0.0)
     sensor = {k: v for k, v in profile.sensor.items() if k != "description"}
+    time_limit_s = _time_limit_s(mission, profile.time_limit_s)
+    obstacles = tuple(_intruder(space, concrete, i, start_up_m, time_limit_s) if entry["kind"] == "intruder" else _obstacle(space, concrete, i)
+                      for i, entry in enumerate(concrete["obstacles"]))
+    failures = tuple(FailureSpec(unit=f["unit"], type=f["type"], onset_s=f["onset_s"], duration_s=f["duration_s"],
+                                 delivery="simulator" if f["unit"] in SIMULATOR_FAILURE_UNITS else "sut")
+                     for f in concrete.get("failures", ()))
     return WorldSpec(
         scenario=space.logical.name,
         seed=int(seed),
         origin=ORIGIN if mission.plan is None else Origin(**{**mission.plan.origin, "alt_m": mission.plan.home[2] - start_up_m}),
         terrain=dict(landform.terrain),
         surface=Surface(kind=space.logical.surface, water=tuple(profile.surfaces[space.logical.surface]["water"])),
-        atmosphere=Atmosphere(
-            wind_north_m_s=environment["wind_speed_m_s"] * math.cos(wind_toward),
-            wind_east_m_s=environment["wind_speed_m_s"] * math.sin(wind_toward),
-            temperature_c=environment["temperature_c"],
-        ),
+        atmosphere=_atmosphere(environment, profile.section("gusts")),
         visibility_m=environment["visibility_m"],
         sensor=RangeSensor(**sensor, range_m=sensor_range_m(profile.sensor, environment["visibility_m"])),
-        obstacles=tuple(_obstacle(space, concrete, i) for i in range(len(concrete["obstacles"]))),
+        obstacles=obstacles,
         uav=Uav(start=Point(north_m=0.0, east_m=0.0, up_m=start_up_m),
                 body=Body(**{k: v for k, v in profile.uav["body"].items() if k != "description"})),
         mission=_mission(mission),
         safety_distance_m=profile.safety_distance_m,
-        time_limit_s=_time_limit_s(mission, profile.time_limit_s),
+        time_limit_s=time_limit_s,
         not_simulated=concrete["not_simulated"],
         drive=mission.drive,
         pilot=PilotSpec(**concrete["pilot"]) if mission.drive == "pilot" else None,
+        failures=failures or None,
     )
 
 
