@@ -11,7 +11,7 @@ from autopilot.app import Autopilot
 from autopilot.params import ParamError, Params
 
 
-def _address(text: str, scheme: str) -> tuple[str, int]:
+def address(text: str, scheme: str) -> tuple[str, int]:
     prefix = f"{scheme}:"
     if not text.startswith(prefix):
         raise argparse.ArgumentTypeError(f"expected {scheme}:HOST:PORT, got {text!r}")
@@ -19,7 +19,7 @@ def _address(text: str, scheme: str) -> tuple[str, int]:
     return host.lstrip("/") or "127.0.0.1", int(port)
 
 
-def main(argv: list[str] | None = None) -> int:
+def arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m autopilot", description="The bundled PX4-like autopilot.")
     parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol)")
     parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
@@ -29,16 +29,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spin-us", type=float, default=0.0,
                         help="poll this long for the simulator's next message before sleeping; only worth it when the simulator runs on another core")
     parser.add_argument("-v", "--verbose", action="store_true")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def load_params(args: argparse.Namespace) -> Params:
+    return Params.from_file(args.params, args.fault) if args.params else Params(fault=args.fault)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = arguments(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="autopilot %(levelname)s: %(message)s")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
-        params = Params.from_file(args.params, args.fault) if args.params else Params(fault=args.fault)
+        params = load_params(args)
     except (ParamError, OSError, ValueError) as error:
         print(f"{args.params or '--fault'}: {error}", file=sys.stderr)
         return 2
     try:
-        return Autopilot(params).serve(_address(args.sim, "tcp"), _address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)
+        return Autopilot(params).serve(address(args.sim, "tcp"), address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)
     except OSError as error:
         print(f"autopilot: simulator at {args.sim} unreachable: {error}", file=sys.stderr)
         return 3

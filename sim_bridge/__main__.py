@@ -15,10 +15,12 @@ import signal
 import socket
 import sys
 from pathlib import Path
+from typing import Callable
 
 from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import WorldSpec
+from sim_bridge.sut_link import SocketLink, SutLink
 
 NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed", "blocked"}
 
@@ -29,6 +31,14 @@ def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
     listener.bind((host, port))
     listener.listen(1)
     return listener
+
+
+def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], SutLink] | None) -> SutLink:
+    if inline_sut is not None:
+        return inline_sut()
+    listener.settimeout(args.connect_timeout_s)
+    sock, _ = listener.accept()
+    return SocketLink(sock, args.stall_timeout_s)
 
 
 def _interrupt(signum, frame) -> None:
@@ -43,7 +53,8 @@ def _range_messages(text: str) -> tuple[str, ...]:
     return names
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None = None) -> int:
+    """inline_sut: a SUT in this process (sut_adapter/inline.py): its link instead of the simulator port."""
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
     parser.add_argument("--world", required=True, help="world spec JSON (stella sample --json prints one)")
     parser.add_argument("--sim-port", type=int, default=4560)
@@ -76,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
-    sim_listener = listen(args.sim_port, args.host)
+    sim_listener = listen(args.sim_port, args.host) if inline_sut is None else None
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     if world.atmosphere.turbulence is not None or world.atmosphere.gust is not None:
@@ -85,15 +96,13 @@ def main(argv: list[str] | None = None) -> int:
         recorder.metadata("world", {"json": json.dumps(world.as_dict())})
         recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})
         bridge = Bridge(world, config, recorder)
-        sim_listener.settimeout(args.connect_timeout_s)
+        sut = None
         try:
-            sut, _ = sim_listener.accept()
+            sut = _connect_sut(sim_listener, args, inline_sut)
         except socket.timeout:
             bridge.summary.end_reason = "sut_never_connected"
-            sut = None
         except KeyboardInterrupt:
             bridge.summary.end_reason = "interrupted"
-            sut = None
         if sut is not None:
             try:
                 bridge.run(sut, control)
@@ -106,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
     control.send({"event": "finished", **summary})
     control.close()
-    sim_listener.close()
+    if sim_listener is not None:
+        sim_listener.close()
     print(json.dumps(summary), flush=True)
     return 0 if summary["end_reason"] in NORMAL_ENDS else 3
 

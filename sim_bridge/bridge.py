@@ -54,6 +54,7 @@ from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
 from sim_bridge.sensors import FIELDS_ALL, quaternion_from_euler
 from sim_bridge.spec import WorldSpec
+from sim_bridge.sut_link import SutLink
 from sim_bridge.world import SECTOR_DEG, World
 from simlink import codec
 from simlink.failures import wrong_distances, wrong_gps_position
@@ -416,7 +417,7 @@ class Bridge:
 
     # -- failures told to the SUT -------------------------------------------------------------
 
-    def _ask_for_injection(self, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
+    def _ask_for_injection(self, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Each MAV_CMD_INJECT_FAILURE now due, through the harness: frozen, wait for its answer
         here; paced, the loop runs on at real-time pace until it comes."""
         while self._awaiting_injection is None and self.world.running:
@@ -447,18 +448,16 @@ class Bridge:
 
     # -- the loop ----------------------------------------------------------------------------
 
-    def _receive_answer(self, sut: socket.socket, splitter: codec.FrameSplitter, lockstep: bool, waiting_since: float) -> bool:
+    def _receive_answer(self, sut: SutLink, splitter: codec.FrameSplitter, lockstep: bool, waiting_since: float) -> bool:
         """Read the SUT until this step's HIL_ACTUATOR_CONTROLS (lockstep), or for one step at
         most (before it); whether the answer came. Ends the world's run if the SUT went away,
         stalled or floods without answering."""
         world = self.world
         while True:
-            if not lockstep:
-                readable, _, _ = select.select([sut], [], [], world.dt)
-                if not readable:
-                    return False
             try:
-                data = codec.receive(sut, self.config.spin_s if lockstep else 0.0)
+                if not lockstep and not sut.readable(world.dt):
+                    return False
+                data = sut.receive(self.config.spin_s if lockstep else 0.0)
             except BlockingIOError:
                 world.end("sut_stalled")
                 return False
@@ -484,14 +483,12 @@ class Bridge:
                 world.end("sut_stalled")
                 return False
 
-    def run(self, sut: socket.socket, control: ControlChannel) -> Summary:
+    def run(self, sut: SutLink, control: ControlChannel) -> Summary:
         summary = self.summary
         world = self.world
         config = self.config
         self._control = control
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
-        sut.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        codec.set_receive_timeout(sut, config.stall_timeout_s)
         wall_start = time.perf_counter()
         perf = time.perf_counter
         hold_enabled = config.hold_after_s > 0
@@ -533,7 +530,7 @@ class Bridge:
             t_send = perf()
             summary.sensors_s += t_send - ts
             try:
-                sut.sendall(frames_out)
+                sut.send(frames_out)
             except OSError:
                 world.end("sut_disconnected")
                 break
@@ -600,12 +597,12 @@ class Bridge:
         if time.monotonic() > self._hold_deadline:
             self.world.end("hold_timeout")
 
-    def _hold(self, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
+    def _hold(self, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Pause the simulation until the harness says run; keep reading what the SUT sends."""
         self._event(time_s, "holding")
         self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce={"event": "holding", "t": time_s})
 
-    def _frozen_until(self, done, sut: socket.socket, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float,
+    def _frozen_until(self, done, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float,
                       announce: Mapping[str, Any] | None = None) -> None:
         """Simulated time stands still until done() (the harness's ops are handled meanwhile) or
         the hold timeout; the SUT's traffic is read so that it never blocks on a full socket."""
@@ -618,12 +615,12 @@ class Bridge:
             if time.monotonic() > deadline:
                 world.end("hold_timeout")
                 return
-            readable, _, _ = select.select([sut], [], [], 0.0)
-            if readable:
-                data = sut.recv(65536)
-                if not data:
-                    world.end("sut_disconnected")
-                    return
+            try:
+                data = sut.idle()
+            except OSError:
+                world.end("sut_disconnected")
+                return
+            if data:
                 self._link_in += data
                 splitter.feed(data)
             self._handle_ops(control.poll(0.01), time_s)

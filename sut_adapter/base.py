@@ -13,6 +13,9 @@ how to treat it without knowing which SUT it is:
 * `spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it
   may poll for the simulator's next message this long before sleeping. The bundled autopilot
   does; PX4 and command SUTs wait their own way.
+* `inline_arguments` (optional): a SUT that can run inside the bridge's process, its simulator
+  link through memory (`--transport memory`; the bundled autopilot), gives the arguments it
+  takes there. PX4 and command SUTs have none: they keep TCP.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """

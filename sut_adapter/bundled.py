@@ -34,16 +34,22 @@ class BundledAutopilot:
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:
-        argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", "--api", f"udp:127.0.0.1:{api_port}"]
+        argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", *self.inline_arguments(api_port=api_port, workdir=workdir, params=params)]
+        if spin_s > 0.0:
+            argv += ["--spin-us", str(spin_s * 1e6)]
+        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))
+
+    def inline_arguments(self, *, api_port: int, workdir: Path, params: Mapping[str, float]) -> list[str]:
+        """`python -m autopilot`'s arguments but the simulator's, for running it inside the bridge's
+        process (`python -m sut_adapter.inline`, --transport memory)."""
+        argv = ["--api", f"udp:127.0.0.1:{api_port}"]
         if params:
             params_file = workdir / "autopilot_params.json"
             params_file.write_text(json.dumps(dict(params)))
             argv += ["--params", str(params_file)]
         if self.fault is not None:
             argv += ["--fault", self.fault]
-        if spin_s > 0.0:
-            argv += ["--spin-us", str(spin_s * 1e6)]
-        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))
+        return argv
 
 
 def seeded_faults() -> dict[str, Any]:

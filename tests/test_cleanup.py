@@ -31,7 +31,7 @@ def our_processes() -> list[str]:
                 argv = handle.read().split(b"\0")
         except OSError:
             continue
-        if b"-m" in argv and (b"sim_bridge" in argv or b"autopilot" in argv):
+        if b"-m" in argv and ({b"sim_bridge", b"autopilot", b"sut_adapter.inline"} & set(argv)):
             found.append(f"{pid}: {b' '.join(argv).decode(errors='replace')}")
     return found
 

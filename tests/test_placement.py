@@ -73,7 +73,7 @@ def _placement(tmp_path, profile, cores: int) -> tuple[set[int], set[int], list[
     space = SearchSpace(load_logical(FIG4, profile), profile)
     x = space.sample_feasible(np.random.default_rng(1), 1)[0]
     system = sut_adapter.get("bundled", {})
-    with simulation_stack(world_spec(space, x, 1), RunOptions(cores=cores), system, tmp_path) as stack:
+    with simulation_stack(world_spec(space, x, 1), RunOptions(cores=cores, transport="tcp"), system, tmp_path) as stack:
         sut_pid = stack.sut.pids[0]
         with open(f"/proc/{sut_pid}/cmdline", "rb") as cmdline:
             sut_argv = cmdline.read().decode().split("\0")
@@ -119,3 +119,14 @@ def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
         assert placement["evaluation_cost_in_jsbsim_alone"] > 1.0 / placement["flight_speed_of_jsbsim_alone"]
     # Every step of the flight is replayed, with the SUT's own motor commands.
     assert report["jsbsim_alone"]["steps"] == round(report["placements"][0]["median"]["sim_time_s"] * report["rate_hz"])
+
+
+@pytest.mark.slow
+def test_by_default_one_core_runs_the_bundled_autopilot_inside_the_simulators_process(tmp_path, profile):
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    with simulation_stack(world_spec(space, x, 1), RunOptions(cores=1), sut_adapter.get("bundled", {}), tmp_path) as stack:
+        assert stack.bridge.argv[1:3] == ["-m", "sut_adapter.inline"] and "--api" in stack.bridge.argv
+        assert stack.sut.pids == [] and stack.sut.alive() and len(os.sched_getaffinity(stack.bridge.pid)) == 1
+    with simulation_stack(world_spec(space, x, 1), RunOptions(cores=1), sut_adapter.get("command", {"command": "sleep 30 --sim {sim_port} --api {api_port}"}), tmp_path) as stack:
+        assert stack.bridge.argv[1:3] == ["-m", "sim_bridge"]  # a SUT in a process of its own keeps TCP

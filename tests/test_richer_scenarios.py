@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.errors import InputError
 from harness.scenario.logical import load_logical, logical_problems
 from harness.scenario.motion import arc_points, intruder_speed, smooth_points
 from harness.scenario.space import SearchSpace

@@ -33,12 +33,15 @@ import numpy as np
 
 DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
-PLACEMENTS = (2, 1)  # cores per evaluation
-PLACEMENT_NAMES = {2: "a core each for the simulator and the SUT, polling", 1: "both on one core, sleeping while the other works"}
+# How an evaluation runs: (cores per evaluation, transport between the simulator and the SUT).
+PLACEMENTS = ((2, "tcp"), (1, "tcp"), (1, "memory"))
+PLACEMENT_NAMES = {(2, "tcp"): "a core each for the simulator and the SUT, polling",
+                   (1, "tcp"): "both on one core, sleeping while the other works",
+                   (1, "memory"): "the SUT inside the simulator's process, on one core"}
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
-              sut: RunOptions = RunOptions(), placements: tuple[int, ...] = PLACEMENTS, drive: str | None = None,
+              sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str], ...] = PLACEMENTS, drive: str | None = None,
               mission_plan: Path | None = None) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
     default. `drive` overrides the scenario's drive, `mission_plan` its route."""
@@ -51,12 +54,14 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     autopilot = None
     physics_alone = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
-        for cores in [c for c in placements if c <= machine_cores]:
+        # A SUT that runs in its own process only (PX4, a command) has no in-memory placement.
+        inline = sut.sut.name == "bundled"
+        for cores, transport in [(c, t) for c, t in placements if c <= machine_cores and (t == "tcp" or inline)]:
             rows = []
             for index in range(runs):
-                options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores)
+                options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores, transport=transport)
                 started = time.monotonic()
-                result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{cores}-{index}")
+                result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{cores}-{transport}-{index}")
                 # The whole call, log writing included (the result's own wall time ends before it).
                 wall = time.monotonic() - started
                 if result.real_time_factor is None:
@@ -69,7 +74,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
             median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
             workers = machine_cores // cores
             alone_s = median["sim_time_s"] / physics_alone["real_time_factor"]
-            report_placements.append({"cores_per_evaluation": cores, "workers": workers, "median": median,
+            report_placements.append({"cores_per_evaluation": cores, "transport": transport, "workers": workers, "median": median,
                                       "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows,
                                       # Comparable across machines: the flight's speed and an evaluation's cost against JSBSim stepped alone.
                                       "flight_speed_of_jsbsim_alone": median["real_time_factor"] / physics_alone["real_time_factor"],
@@ -156,7 +161,7 @@ def bench_text(report: dict[str, Any]) -> str:
         m = placement["median"]
         workers = placement["workers"]
         lines += [
-            f"  {PLACEMENT_NAMES[placement['cores_per_evaluation']]}:",
+            f"  {PLACEMENT_NAMES[(placement['cores_per_evaluation'], placement['transport'])]}:",
             f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's",
             f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s), "
             f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
@@ -174,7 +179,8 @@ def bench_text(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50) -> dict[str, Any]:
+def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50,
+                       transport: str = "auto") -> dict[str, Any]:
     """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
 
     from harness.campaigns.campaign import CampaignConfig, run_campaign
@@ -188,7 +194,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
             try:
-                run_campaign(config, store, executor, Path(folder) / "logs")
+                run_campaign(config, store, executor, Path(folder) / "logs", options=RunOptions(transport=transport))
             finally:
                 executor.close()
             wall = time.monotonic() - started
@@ -200,6 +206,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         "evaluations": len(rows),
         "flown": len(flown),
         "workers": executor.workers,
+        "transport": transport,
         "wall_time_s": wall,
         "evaluations_per_hour": 3600.0 * len(rows) / wall,
         "mean_evaluation_wall_s": busy / len(flown) if flown else None,
@@ -212,7 +219,8 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
 def campaign_bench_text(report: dict[str, Any]) -> str:
     return "\n".join(
         [
-            f"NSGA-II campaign on {report['scenario']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers",
+            f"NSGA-II campaign on {report['scenario']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers, "
+            f"transport {report['transport']}",
             f"  wall time                   {report['wall_time_s']:.0f} s",
             f"  evaluations per hour        {report['evaluations_per_hour']:.0f}",
             f"  mean wall per evaluation    {report['mean_evaluation_wall_s']:.2f} s (in a worker)",

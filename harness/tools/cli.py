@@ -31,6 +31,7 @@ from harness.scenario.space import CONCRETE_FORMAT
 if TYPE_CHECKING:
     from sut_adapter import SutConfig
 from harness.scenario.world import space_from_concrete
+from sim_bridge.sut_link import TRANSPORTS
 from harness.search import DEFAULT_BATCH
 
 log = logging.getLogger("stella")
@@ -232,6 +233,11 @@ def _sut_spec(args: argparse.Namespace) -> SutConfig:
     return config
 
 
+def _check_transport(transport: str, sut: SutConfig) -> None:
+    if transport == "memory" and sut.name != "bundled":
+        raise InputError([Problem("--transport", "", f"memory carries the bundled autopilot only; {sut.name} runs in a process of its own: use --transport tcp")])
+
+
 @command("run")
 def cmd_run(args: argparse.Namespace) -> int:
     from harness.flight.evaluation import RunOptions, evaluate
@@ -246,7 +252,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
-    options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores)
+    _check_transport(args.transport, sut)
+    options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport)
     if args.repeat == 1:
         result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
         emit(args, result, _result_text(result))
@@ -375,12 +382,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.campaign:
         from harness.tools.bench import campaign_bench_text, run_campaign_bench
 
-        report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None)
+        report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None,
+                                    transport=args.transport or "auto")
         emit(args, report, campaign_bench_text(report))
         return 0
     sut = _sut_spec(args)
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
-                       sut=RunOptions(sut=sut), placements=(args.cores,) if args.cores else PLACEMENTS,
+                       sut=RunOptions(sut=sut), placements=tuple(p for p in PLACEMENTS if args.cores in (None, p[0]) and args.transport in (None, p[1])),
                        drive=args.drive, mission_plan=_mission_plan(args))
     emit(args, report, bench_text(report))
     return 0
@@ -389,7 +397,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 @command("campaign")
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import CampaignConfig, run_campaign
-    from harness.flight.evaluation import EvaluationResult
+    from harness.flight.evaluation import EvaluationResult, RunOptions
     from harness.execution.registry import make_executor
     from harness.search.optimizers import parse_algorithm
     from harness.campaigns.store import Store
@@ -403,6 +411,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     for scenario in args.scenarios:
         load_logical(Path(scenario), load_profile(args.profile), args.drive, _mission_plan(args))
     sut = _sut_spec(args)
+    _check_transport(args.transport, sut)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
                             args.mission_plan)
@@ -427,7 +436,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
     try:
         with store:
-            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress)
+            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress,
+                                   options=RunOptions(transport=args.transport))
     finally:
         bar.close()
         executor.close()
@@ -700,6 +710,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=positive_float, default=250.0, help="lockstep rate")
     p.add_argument("--cores", type=int, choices=(1, 2), default=2,
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
+    p.add_argument("--transport", choices=TRANSPORTS, default="auto",
+                   help="memory: the bundled autopilot steps inside the simulator's process, on one core (the same flight, bit for bit); "
+                        "tcp: in its own process; auto (default): memory with --cores 1 and the bundled autopilot, else tcp")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run (with --repeat: any repeat) violates the safety distance")
     p.add_argument("--repeat", type=positive_int, default=1,
                    help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
@@ -726,7 +739,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=seed_int, default=4)
     p.add_argument("--rate-hz", type=positive_float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
-    p.add_argument("--cores", type=int, choices=(1, 2), help="measure only this placement (cores per evaluation; default: both)")
+    p.add_argument("--cores", type=int, choices=(1, 2), help="measure only placements with this many cores per evaluation (default: all)")
+    p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory: the bundled autopilot only)")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
@@ -751,6 +765,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
                    help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
     p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
+    p.add_argument("--transport", choices=TRANSPORTS, default="auto",
+                   help="memory: the bundled autopilot steps inside the simulator's process (the same flights); tcp: in its own process; "
+                        "auto (default): memory where an evaluation gets one core (as many workers as cores) and the SUT is the bundled autopilot")
     p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
     p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
     p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")

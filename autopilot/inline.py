@@ -1,0 +1,88 @@
+"""The bundled autopilot inside the simulator's process: its simulator link through memory.
+
+`InProcessLink` is what the bridge's SutLink protocol (sim_bridge/sut_link.py) asks of a SUT:
+the bridge hands it a step's frames, the autopilot steps on them at once as it does on bytes from
+its socket, and its answer waits in a buffer for the bridge to read. Same bytes, same order, so
+the same flight as over TCP, without a socket round trip and a process switch per step. Its
+API link stays a UDP socket (MAVSDK knows no other), served between steps as `serve` does.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import traceback
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from autopilot.api import ApiLink
+from autopilot.app import _CRC_EXTRAS, TELEMETRY_CHECK_S, Autopilot
+from simlink import codec
+
+
+class InProcessLink:
+    def __init__(self, autopilot: Autopilot, api_address: tuple[str, int]):
+        self.autopilot = autopilot
+        autopilot.api = ApiLink(autopilot, api_address)
+        self._splitter = codec.FrameSplitter(_CRC_EXTRAS)
+        self._decoder = mavlink.MAVLink(None)
+        self._decoder.robust_parsing = True
+        self._answers = bytearray()
+        self._next_check = 0.0
+
+    # The autopilot's side: its simulator "socket".
+    def sendall(self, data: bytes) -> None:
+        self._answers += data
+
+    # The bridge's side.
+    def send(self, data: bytes) -> None:
+        try:
+            self.autopilot._on_sim_data(self, self._splitter, self._decoder, data)
+        except Exception as error:  # the SUT crashed: in a process of its own it would have died
+            raise _crashed(error) from error
+
+    def receive(self, spin_s: float) -> bytes:
+        self._serve_api()
+        if not self._answers:
+            raise BlockingIOError("the autopilot did not answer")
+        return self._take()
+
+    def readable(self, timeout_s: float) -> bool:
+        self._serve_api()
+        if not self._answers and timeout_s > 0.0:
+            time.sleep(timeout_s)
+        return bool(self._answers)
+
+    def idle(self) -> bytes:
+        self._serve_api()
+        return self._take()
+
+    def close(self) -> None:
+        self.autopilot.api.sock.close()
+
+    def _take(self) -> bytes:
+        data = bytes(self._answers)
+        self._answers.clear()
+        return data
+
+    def _serve_api(self) -> None:
+        """The API link at most every TELEMETRY_CHECK_S of wall time, as Autopilot.serve does."""
+        wall = time.perf_counter()
+        if wall < self._next_check:
+            return
+        api = self.autopilot.api
+        try:
+            api.receive()
+            api.report_events()
+            api.telemetry(wall)
+            api.check_link(self.autopilot.params["COM_DL_LOSS_T"])
+        except Exception as error:  # as in send(): the SUT crashed
+            raise _crashed(error) from error
+        self._next_check = wall + TELEMETRY_CHECK_S
+
+
+def _crashed(error: Exception) -> ConnectionAbortedError:
+    """The bridge ends the run as sut_disconnected on an OSError; the harness reports a crashed
+    SUT with the end of the process's stderr, which gets the traceback."""
+    traceback.print_exception(error, file=sys.stderr)
+    return ConnectionAbortedError(f"the autopilot crashed: {error!r}")

@@ -1,0 +1,66 @@
+"""How the bridge's bytes reach the SUT and its answers come back.
+
+Over TCP as PX4's simulator_mavlink connects (`SocketLink`), or, for a SUT that runs inside the
+bridge's process (the bundled autopilot, `python -m sut_adapter.inline`), through memory: the
+same MAVLink bytes, handed over by a call instead of a socket. Either way the bridge sees the
+protocol below; what it sends and what it reads back are the same bytes.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+from typing import Protocol
+
+from simlink import codec
+
+# "tcp": the SUT in a process of its own (any SUT); "memory": inside the bridge's process (a
+# SUT that can run there); "auto": memory where an evaluation has one core and the SUT can, else tcp.
+TRANSPORTS = ("auto", "tcp", "memory")
+
+
+class SutLink(Protocol):
+    def send(self, data: bytes) -> None:
+        """The simulator's frames of one step; OSError when the SUT has gone."""
+
+    def receive(self, spin_s: float) -> bytes:
+        """What the SUT has sent since, waiting up to the stall timeout: b"" when it has gone,
+        BlockingIOError when it stayed silent that long, OSError when the link broke."""
+
+    def readable(self, timeout_s: float) -> bool:
+        """Whether receive() has something now, waiting up to timeout_s."""
+
+    def idle(self) -> bytes:
+        """While simulated time stands still: what the SUT sent meanwhile, without waiting (b"":
+        nothing yet); OSError when it has gone."""
+
+    def close(self) -> None: ...
+
+
+class SocketLink:
+    """A SUT connected over TCP."""
+
+    def __init__(self, sock: socket.socket, stall_timeout_s: float):
+        self.sock = sock
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        codec.set_receive_timeout(sock, stall_timeout_s)
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def receive(self, spin_s: float) -> bytes:
+        return codec.receive(self.sock, spin_s)
+
+    def readable(self, timeout_s: float) -> bool:
+        return bool(select.select([self.sock], [], [], timeout_s)[0])
+
+    def idle(self) -> bytes:
+        if not self.readable(0.0):
+            return b""
+        data = self.sock.recv(65536)
+        if not data:
+            raise ConnectionResetError("the SUT closed its simulator link")
+        return data
+
+    def close(self) -> None:
+        self.sock.close()

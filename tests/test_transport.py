@@ -1,0 +1,69 @@
+"""The bundled autopilot inside the simulator's process (--transport memory) flies the same
+flights as over TCP, to the last bit: the same bytes on the simulator link, the same log."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from harness.flight import logs
+from harness.flight.evaluation import RunOptions, evaluate
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+from harness.tools.cli import main
+from autopilot.app import Autopilot
+from autopilot.inline import InProcessLink
+from autopilot.params import Params
+from sim_bridge.sut_link import SutLink
+
+# Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
+# scene and the events (the API link's traffic follows wall time and is left out).
+SIMULATED = ["/mavlink/sim", "/uav/state", "/clearance", "/scene", "/sensor/obstacle_distance", "/events", "/wind"]
+
+
+def both_ways(tmp_path, space, x, seed):
+    flights = {transport: evaluate(space, x, seed=seed, out_dir=tmp_path / transport, options=RunOptions(cores=1, transport=transport))
+               for transport in ("tcp", "memory")}
+    records = {transport: [(topic, ns, message) for topic, ns, message in logs.messages(result.log_path, SIMULATED)]
+               for transport, result in flights.items()}
+    return flights, records
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario, seed", [
+    (ROOT / "scenarios" / "table3" / "scenario_31.json", 4),
+    # A SUT-side failure: the bridge stops while MAVSDK tells the autopilot, whose API link is
+    # then served between the bridge's polls rather than by its own loop.
+    (ROOT / "tests" / "data" / "scenarios" / "wall_baro_wrong_gps_off.json", 2),
+    (ROOT / "scenarios" / "examples" / "intruder_gusts_failure.json", 7),
+])
+def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, scenario, seed):
+    space = SearchSpace(load_logical(scenario, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
+    flights, records = both_ways(tmp_path, space, x, seed)
+    assert flights["tcp"].status == flights["memory"].status and flights["tcp"].fitness == flights["memory"].fitness
+    assert len(records["tcp"]) > 1000 and records["tcp"] == records["memory"]
+
+
+def test_memory_is_refused_for_a_sut_in_a_process_of_its_own(capsys):
+    assert main(["run", str(ROOT / "scenarios" / "table3" / "scenario_05.json"), "--sut", "command",
+                 "--sut-command", "my-autopilot --sim {sim_port} --api {api_port}", "--transport", "memory"]) == 2
+    assert "--transport: /: memory carries the bundled autopilot only; command runs in a process of its own" in capsys.readouterr().err
+
+
+def test_an_autopilot_that_raises_inside_the_bridge_is_a_crashed_sut_not_a_crashed_simulator(capsys):
+    """The bridge ends a run whose SUT link raises OSError as sut_disconnected, which the harness
+    reports as a crashed SUT with the traceback from stderr."""
+    autopilot = Autopilot(Params())
+    link: SutLink = InProcessLink(autopilot, ("127.0.0.1", 9))
+    try:
+        def broken(*_args):
+            raise ZeroDivisionError("a bug in the autopilot")
+
+        autopilot._on_sim_data = broken
+        with pytest.raises(ConnectionAbortedError, match="the autopilot crashed"):
+            link.send(b"frames")
+        assert "ZeroDivisionError: a bug in the autopilot" in capsys.readouterr().err
+    finally:
+        link.close()
