@@ -82,14 +82,22 @@ def children(parent_pid: int) -> list[int]:
 
 def flying(pid: int) -> bool:
     """Whether process pid, or a process it started, runs an evaluation: has the bridge and the
-    SUT as its children."""
+    SUT as its children, or the bridge with the SUT inside (--transport memory)."""
     family = [pid]
     while family:
         kids = children(family.pop())
-        if len(kids) >= 2:
+        if len(kids) >= 2 or any(_runs_module(kid, b"sut_adapter.inline") for kid in kids):
             return True
         family += kids
     return False
+
+
+def _runs_module(pid: int, module: bytes) -> bool:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as handle:
+            return module in handle.read().split(b"\0")
+    except OSError:
+        return False
 
 
 def wait_until_flying(pid: int, timeout_s: float = 60.0) -> None:
