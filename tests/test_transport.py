@@ -19,7 +19,7 @@ from sim_bridge.sut_link import SutLink
 
 # Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
 # scene and the events (the API link's traffic follows wall time and is left out).
-SIMULATED = ["/mavlink/sim", "/uav/state", "/clearance", "/scene", "/sensor/obstacle_distance", "/events", "/wind"]
+SIMULATED = ["/mavlink/sim", "/uav/state", "/clearance", "/scene", "/sensor/obstacle_distance", "/events", "/wind", "/pilot"]
 
 
 def both_ways(tmp_path, space, x, seed):
@@ -31,15 +31,17 @@ def both_ways(tmp_path, space, x, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scenario, seed", [
-    (ROOT / "scenarios" / "table3" / "scenario_31.json", 4),
+@pytest.mark.parametrize("scenario, seed, drive", [
+    (ROOT / "scenarios" / "table3" / "scenario_31.json", 4, None),
     # A SUT-side failure: the bridge stops while MAVSDK tells the autopilot, whose API link is
     # then served between the bridge's polls rather than by its own loop.
-    (ROOT / "tests" / "data" / "scenarios" / "wall_baro_wrong_gps_off.json", 2),
-    (ROOT / "scenarios" / "examples" / "intruder_gusts_failure.json", 7),
+    (ROOT / "tests" / "data" / "scenarios" / "wall_baro_wrong_gps_off.json", 2, None),
+    (ROOT / "scenarios" / "examples" / "intruder_gusts_failure.json", 7, None),
+    # RC frames on the simulator link, Position mode and collision prevention stopping at a wall.
+    (ROOT / "scenarios" / "examples" / "wall.json", 3, "pilot"),
 ])
-def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, scenario, seed):
-    space = SearchSpace(load_logical(scenario, profile), profile)
+def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, scenario, seed, drive):
+    space = SearchSpace(load_logical(scenario, profile, drive), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     flights, records = both_ways(tmp_path, space, x, seed)
     assert flights["tcp"].status == flights["memory"].status and flights["tcp"].fitness == flights["memory"].fitness
