@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     sim_listener = listen(args.sim_port, args.host) if inline_sut is None else None
     control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
-    if world.atmosphere.turbulence is not None or world.atmosphere.gust is not None:
+    if world.atmosphere.varies:
         optional_topics += ("/wind",)
     with open(args.mcap, "wb") as stream, Recorder(stream, optional_topics) as recorder:
         recorder.metadata("world", {"json": json.dumps(world.as_dict())})

@@ -83,6 +83,11 @@ class Atmosphere:
     def wind_speed_m_s(self) -> float:
         return math.hypot(self.wind_north_m_s, self.wind_east_m_s)
 
+    @property
+    def varies(self) -> bool:
+        """Whether the wind changes during the flight (turbulence or a gust), not only steady."""
+        return self.turbulence is not None or self.gust is not None
+
 
 @dataclass(frozen=True)
 class RangeSensor:

@@ -27,6 +27,7 @@ class WindField:
         self.steady = (atmosphere.wind_north_m_s, atmosphere.wind_east_m_s, 0.0)
         self.turbulence = atmosphere.turbulence
         self.gust = atmosphere.gust
+        self.varies = atmosphere.varies
         self.dt_s = dt_s
         self._rng = np.random.default_rng([seed, 0x6775])  # 'gu': a stream of its own
         self._draws: list[list[float]] = []
@@ -39,10 +40,6 @@ class WindField:
         if self.gust is not None:
             toward = math.radians(self.gust.from_deg + 180.0)
             self._gust_direction = (math.cos(toward), math.sin(toward))
-
-    @property
-    def varies(self) -> bool:
-        return self.turbulence is not None or self.gust is not None
 
     def _next_draw(self) -> list[float]:
         if not self._draws:
@@ -64,15 +61,18 @@ class WindField:
             return north, east, down
         turbulence = self.turbulence
         if turbulence is not None:
-            speed = max(airspeed_m_s, MIN_AIRSPEED_M_S)
+            travelled_m = max(airspeed_m_s, MIN_AIRSPEED_M_S) * self.dt_s
             draw = self._next_draw()
-            for axis, (length, sigma) in enumerate(((turbulence.length_horizontal_m, turbulence.sigma_horizontal_m_s),) * 2
-                                                    + ((turbulence.length_vertical_m, turbulence.sigma_vertical_m_s),)):
-                decay = math.exp(-speed * self.dt_s / length)
-                self._state[axis] = decay * self._state[axis] + sigma * math.sqrt(1.0 - decay * decay) * draw[axis]
-            north += self._state[0]
-            east += self._state[1]
-            down += self._state[2]
+            state = self._state
+            decay = math.exp(-travelled_m / turbulence.length_horizontal_m)
+            kick = turbulence.sigma_horizontal_m_s * math.sqrt(1.0 - decay * decay)
+            state[0] = decay * state[0] + kick * draw[0]
+            state[1] = decay * state[1] + kick * draw[1]
+            decay = math.exp(-travelled_m / turbulence.length_vertical_m)
+            state[2] = decay * state[2] + turbulence.sigma_vertical_m_s * math.sqrt(1.0 - decay * decay) * draw[2]
+            north += state[0]
+            east += state[1]
+            down += state[2]
         gust = self.gust_at(run_time_s)
         if gust:
             north += gust * self._gust_direction[0]

@@ -61,9 +61,8 @@ class World:
         atmosphere = spec.atmosphere
         self.terrain = spec.terrain
         self.water = spec.surface.water
-        self.wind = (atmosphere.wind_north_m_s, atmosphere.wind_east_m_s)
         self.wind_field = WindField(atmosphere, spec.seed, 1.0 / rate_hz)
-        self.wind_now = (*self.wind, 0.0)
+        self.wind_now = self.wind_field.steady  # north, east, down m/s: the air's velocity for the next step
         self._gust_announced = False
         self.vehicle = vehicle_for(spec, rate_hz)
         self.sensors = SensorModel(spec.seed, atmosphere.temperature_c)
@@ -165,9 +164,8 @@ class World:
         by the new time. check_end() follows once the step's control messages are handled."""
         s = self.vehicle.state
         if self.wind_field.varies:
-            self._step_in_varying_wind(motors)
-        else:
-            self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind)
+            self._advance_wind()
+        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind_now)
         self.steps += 1
         time_s = self.time_s
         run_time = self.run_time(time_s)
@@ -175,7 +173,7 @@ class World:
             self.apply(self._pending_ops.pop(0), time_s)
         self.field.move_to(run_time)
 
-    def _step_in_varying_wind(self, motors: tuple[float, float, float, float]) -> None:
+    def _advance_wind(self) -> None:
         s = self.vehicle.state
         run_time = None if self.run_start_s is None else self.run_time(self.time_s)
         steady_n, steady_e, _ = self.wind_field.steady
@@ -185,7 +183,6 @@ class World:
         if gust is not None and not self._gust_announced and run_time is not None and run_time >= gust.onset_s:
             self._gust_announced = True
             self.on_event(self.time_s, "gust", {"amplitude_m_s": gust.amplitude_m_s, "from_deg": gust.from_deg, "duration_s": gust.duration_s})
-        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind_now)
 
     def schedule(self, op: Mapping[str, Any]) -> None:
         """An obstacle change to make at run time op["at_s"]."""

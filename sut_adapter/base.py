@@ -86,6 +86,11 @@ def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
     return SutHandle(name=sut, **{**defaults, **fields})
 
 
+def runs_inline(system: "SystemUnderTest") -> bool:
+    """Whether the SUT can run inside the bridge's process (it gives `inline_arguments`)."""
+    return callable(getattr(system, "inline_arguments", None))
+
+
 class SystemUnderTest(Protocol):
     name: str
     hold_mode: str

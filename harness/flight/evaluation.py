@@ -264,7 +264,7 @@ class Stack:
 
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     """Whether the SUT runs inside the bridge's process (RunOptions.transport)."""
-    can = hasattr(system, "inline_arguments")
+    can = sut_adapter.runs_inline(system)
     if options.transport == "memory" and not can:
         raise sut_adapter.SutError(system.name, "runs in a process of its own only: use --transport tcp")
     return options.transport == "memory" or (options.transport == "auto" and can and options.cores == 1)
@@ -390,19 +390,16 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
 def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_s: float, alive) -> dict[str, Any] | None:
     """The bridge's "finished" event, injecting each failure it asks for on the way."""
     deadline = time.monotonic() + timeout_s
-    asked = 0
+    events = list(control.events)
     while True:
-        finished = control.wait_for("finished", 0.0)
-        if finished is not None:
-            return finished
-        requests = [e for e in control.events if e.get("event") == "inject_failure"]
-        for request in requests[asked:]:
-            result = session.inject_failure(request["unit"], request["type"])
-            control.send({"op": "failure_injected", "result": result})
-        asked = len(requests)
+        for event in events:
+            if event.get("event") == "finished":
+                return event
+            if event.get("event") == "inject_failure":
+                control.send({"op": "failure_injected", "result": session.inject_failure(event["unit"], event["type"])})
         if time.monotonic() > deadline or control.closed or not alive():
             return None
-        control.poll(0.05)
+        events = control.poll(0.05)
 
 
 def control_summary(control: BridgeControl) -> dict[str, Any]:

@@ -61,7 +61,6 @@ class RouteTiming:
     waypoints: tuple[tuple[float, float, float], ...]  # north_m, east_m, altitude_m above the start
     cruise_speed_m_s: float
     takeoff_s: float
-    start_up_m: float
 
     @property
     def legs(self) -> list[tuple[tuple[float, float, float], tuple[float, float, float], float]]:
@@ -78,11 +77,11 @@ class RouteTiming:
         return self.takeoff_s + self.length_m / self.cruise_speed_m_s
 
     def at(self, time_s):
-        """(north_m, east_m, up_m, heading_deg) expected at run time `time_s` (arrays broadcast)."""
+        """(north_m, east_m, altitude_m above the start, heading_deg) expected at run time `time_s` (arrays broadcast)."""
         travelled = np.clip((np.asarray(time_s, dtype=float) - self.takeoff_s) * self.cruise_speed_m_s, 0.0, self.length_m)
         north = np.zeros_like(travelled)
         east = np.zeros_like(travelled)
-        up = np.zeros_like(travelled)
+        altitude = np.zeros_like(travelled)
         heading = np.zeros_like(travelled)
         done = 0.0
         legs = [leg for leg in self.legs if leg[2] > 0.0] or self.legs[-1:]
@@ -91,10 +90,10 @@ class RouteTiming:
             fraction = np.clip((travelled - done) / length, 0.0, 1.0) if length > 0.0 else np.zeros_like(travelled)
             north = np.where(inside, a[0] + (b[0] - a[0]) * fraction, north)
             east = np.where(inside, a[1] + (b[1] - a[1]) * fraction, east)
-            up = np.where(inside, self.start_up_m + a[2] + (b[2] - a[2]) * fraction, up)
+            altitude = np.where(inside, a[2] + (b[2] - a[2]) * fraction, altitude)
             heading = np.where(inside, math.degrees(math.atan2(b[1] - a[1], b[0] - a[0])) % 360.0, heading)
             done += length
-        return north, east, up, heading
+        return north, east, altitude, heading
 
 
 def intruder_speed(own_speed_m_s, crossing_deg, closing_speed_m_s):

@@ -167,8 +167,7 @@ class SearchSpace:
         area = self.area
         north = Interval(area["north_min_m"], area["north_max_m"])
         east = Interval(area["east_min_m"], area["east_max_m"])
-        self.timing = RouteTiming(self.mission.waypoints, self.mission.cruise_speed_m_s,
-                                  self.mission.waypoints[0][2] / profile.climb_speed_m_s, 0.0)
+        self.timing = RouteTiming(self.mission.waypoints, self.mission.cruise_speed_m_s, self.mission.waypoints[0][2] / profile.climb_speed_m_s)
         during_route = Interval(0.0, round(self.timing.duration_s, 1))
         if logical.gusts != "none":
             gusts = profile.section("gusts")

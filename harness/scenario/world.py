@@ -89,10 +89,10 @@ def _intruder(space: SearchSpace, concrete: Mapping[str, Any], index: int, start
     expected at the time of closest approach, crossing the route at the searched angle."""
     entry = concrete["obstacles"][index]
     geometry = entry["geometry"]
-    meet_n, meet_e, meet_up, route_heading = (float(v) for v in space.timing.at(geometry["closest_approach_s"]))
+    meet_n, meet_e, meet_altitude, route_heading = (float(v) for v in space.timing.at(geometry["closest_approach_s"]))
     speed = float(intruder_speed(space.mission.cruise_speed_m_s, geometry["crossing_deg"], geometry["closing_speed_m_s"]))
     heading_deg = (route_heading + geometry["crossing_deg"]) % 360.0
-    track = intruder_track((meet_n, meet_e, start_up_m + meet_up + geometry["vertical_offset_m"]), heading_deg, speed,
+    track = intruder_track((meet_n, meet_e, start_up_m + meet_altitude + geometry["vertical_offset_m"]), heading_deg, speed,
                            geometry.get("turn_rate_deg_s", 0.0), geometry["closest_approach_s"], until_s)
     obstacle = {"id": f"obstacle_{index + 1}", "kind": "intruder", "form": "cuboid", "size": dict(entry["size"]),
                 "yaw_rad": math.radians(heading_deg), "speed_m_s": speed}

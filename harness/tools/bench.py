@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.flight.evaluation import RunOptions, evaluate
+import sut_adapter
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
@@ -55,7 +56,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     physics_alone = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement.
-        inline = sut.sut.name == "bundled"
+        inline = sut_adapter.runs_inline(sut_adapter.system_for(sut.sut))
         for cores, transport in [(c, t) for c, t in placements if c <= machine_cores and (t == "tcp" or inline)]:
             rows = []
             for index in range(runs):

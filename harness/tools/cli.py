@@ -234,7 +234,9 @@ def _sut_spec(args: argparse.Namespace) -> SutConfig:
 
 
 def _check_transport(transport: str, sut: SutConfig) -> None:
-    if transport == "memory" and sut.name != "bundled":
+    import sut_adapter
+
+    if transport == "memory" and not sut_adapter.runs_inline(sut_adapter.system_for(sut)):
         raise InputError([Problem("--transport", "", f"memory carries the bundled autopilot only; {sut.name} runs in a process of its own: use --transport tcp")])
 
 
