@@ -181,10 +181,8 @@ class Autopilot:
         With EKF2_GT_MODE=1 the simulator's truth stands in for the IMU and the barometer, and
         their failures do not act (GPS and distance sensor failures still do)."""
         est = self.estimator
-        gyro = self._delivered(FailureUnit.SENSOR_GYRO, (values[3], values[4], values[5]))
-        accel = self._delivered(FailureUnit.SENSOR_ACCEL, (values[0], values[1], values[2]))
-        mag = self._delivered(FailureUnit.SENSOR_MAG, (values[6], values[7], values[8]))
-        pressure_alt = self._delivered(FailureUnit.SENSOR_BARO, values[11])
+        gyro, accel, mag, pressure_alt = (self._delivered(unit, _sensor_reading(unit, values)) for unit in
+                                          (FailureUnit.SENSOR_GYRO, FailureUnit.SENSOR_ACCEL, FailureUnit.SENSOR_MAG, FailureUnit.SENSOR_BARO))
         if gyro is not None:
             est.update_imu(self.now_s, dt, gyro, accel, mag)
         if pressure_alt is not None:
