@@ -17,13 +17,10 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
+from sim_bridge.bridge import NORMAL_ENDS, RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
-
-NORMAL_ENDS = {"landed", "time_limit", "stopped", "crashed", "blocked"}
-
 
 def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
     listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -56,11 +53,12 @@ def _range_messages(text: str) -> tuple[str, ...]:
 def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None = None) -> int:
     """inline_sut: a SUT in this process (sut_adapter/inline.py): its link instead of the simulator port."""
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
-    parser.add_argument("--world", required=True, help="world spec JSON (stella sample --json prints one)")
+    parser.add_argument("--world", help="world spec JSON (stella sample --json prints one)")
     parser.add_argument("--sim-port", type=int, default=4560)
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--mcap", required=True)
+    parser.add_argument("--mcap", help="where to record the flight")
+    parser.add_argument("--serve", action="store_true", help="fly world after world, each named on the control channel (a SUT inside this process only)")
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
     parser.add_argument("--hold-mode", choices=["frozen", "paced"], default="frozen",
@@ -73,32 +71,55 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                         help="poll this long for the SUT's answer before sleeping; only worth it when the SUT runs on another core")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
+    if args.serve and (inline_sut is None or not args.control_port):
+        parser.error("--serve needs a SUT inside this process (python -m sut_adapter.inline) and a --control-port")
+    if not args.serve and (args.world is None or args.mcap is None):
+        parser.error("--world and --mcap are required (unless --serve)")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)
-
+    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
+                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
+    control_listener = listen(args.control_port, args.host) if args.control_port else None
+    if args.serve:
+        return _serve(control_listener, config, args, inline_sut)
     try:
-        document = json.loads(Path(args.world).read_text())
-        if "world" in document:  # accept `stella sample --json` output as it is
-            document = document["world"]
-        world = WorldSpec.from_dict(document)
+        world = load_world(args.world)
     except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
         print(f"{args.world}: {error}", file=sys.stderr)
         return 2
-    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
-                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     sim_listener = listen(args.sim_port, args.host) if inline_sut is None else None
-    control = ControlChannel(listen(args.control_port, args.host) if args.control_port else None)
+    control = ControlChannel(control_listener)
+    try:
+        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut))
+    finally:
+        control.close()
+        if sim_listener is not None:
+            sim_listener.close()
+    print(json.dumps(summary), flush=True)
+    return 0 if summary["end_reason"] in NORMAL_ENDS else 3
+
+
+def load_world(path: str) -> WorldSpec:
+    document = json.loads(Path(path).read_text())
+    if "world" in document:  # accept `stella sample --json` output as it is
+        document = document["world"]
+    return WorldSpec.from_dict(document)
+
+
+def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: ControlChannel, connect_sut: Callable[[], SutLink]) -> dict:
+    """One flight from start to its finished MCAP file; its summary, which the harness gets as the
+    "finished" event once the file is complete."""
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     if world.atmosphere.varies:
         optional_topics += ("/wind",)
-    with open(args.mcap, "wb") as stream, Recorder(stream, optional_topics) as recorder:
+    with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics) as recorder:
         recorder.metadata("world", {"json": json.dumps(world.as_dict())})
-        recorder.metadata("bridge", {"rate_hz": str(args.rate_hz), "pid": str(os.getpid())})
+        recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
         bridge = Bridge(world, config, recorder)
         sut = None
         try:
-            sut = _connect_sut(sim_listener, args, inline_sut)
+            sut = connect_sut()
         except socket.timeout:
             bridge.summary.end_reason = "sut_never_connected"
         except KeyboardInterrupt:
@@ -114,12 +135,46 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         summary = bridge.summary.as_dict()
         recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
     control.send({"event": "finished", **summary})
-    control.close()
-    if sim_listener is not None:
-        sim_listener.close()
-    print(json.dumps(summary), flush=True)
-    return 0 if summary["end_reason"] in NORMAL_ENDS else 3
+    return summary
 
+
+def _serve(listener: socket.socket, config: BridgeConfig, args, inline_sut: Callable[[], SutLink]) -> int:
+    """Flight after flight in this one process (the harness's warm workers): each harness
+    connection on the control port names a world and an MCAP file ({"op": "load", "world": PATH,
+    "mcap": PATH}) and gets a fresh world and a fresh SUT for them; {"op": "quit"} or the
+    harness's SIGTERM ends it. A flight that did not end normally ends it too, with exit code 3,
+    so that nothing of it can leak into the next."""
+    try:
+        while True:
+            control = ControlChannel(listener, own_listener=False)
+            try:
+                request = _next_request(control)
+                if request is None:
+                    return 0
+                try:
+                    world = load_world(request["world"])
+                except (OSError, ValueError, KeyError) as error:
+                    control.send({"event": "load_refused", "why": f"{request.get('world')}: {error}"})
+                    continue
+                summary = fly(world, config, Path(request["mcap"]), control, inline_sut)
+                if summary["end_reason"] not in NORMAL_ENDS:
+                    return 3
+            finally:
+                control.close()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        listener.close()
+
+
+def _next_request(control: ControlChannel) -> dict | None:
+    """The next harness's load request; None when it asks us to quit."""
+    while True:
+        for op in control.poll(1.0):
+            if op.get("op") == "quit":
+                return None
+            if op.get("op") == "load":
+                return op
 
 if __name__ == "__main__":
     sys.exit(main())

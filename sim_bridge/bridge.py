@@ -20,6 +20,10 @@ Control channel (newline-delimited JSON over TCP, one client, the harness):
       since "run"); without it the change applies at the next step.
       {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
       slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
+  Serving (`--serve`, a SUT inside the bridge's process): each harness connection starts with
+      {"op": "load", "world": PATH, "mcap": PATH} and ends after {"event": "finished"}, which
+      then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
+      world that does not load); {"op": "quit"} ends the process.
   Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
       end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
       end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the
@@ -71,6 +75,8 @@ RANGE_MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
+# The ends of a run that are the flight's own, not the simulator's or the SUT's failure.
+NORMAL_ENDS = frozenset({"landed", "time_limit", "stopped", "crashed", "blocked"})
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 
 
@@ -118,8 +124,10 @@ class Summary:
 class ControlChannel:
     """The harness's side channel; absent until the harness connects."""
 
-    def __init__(self, listener: socket.socket | None):
+    def __init__(self, listener: socket.socket | None, own_listener: bool = True):
+        """own_listener=False: close() hangs up on the harness but keeps listening for the next."""
         self._listener = listener
+        self._own_listener = own_listener
         self._conn: socket.socket | None = None
         self._buffer = b""
         self._backlog: list[Mapping[str, Any]] = []
@@ -177,7 +185,7 @@ class ControlChannel:
             self._conn.setblocking(False)
 
     def close(self) -> None:
-        for sock in (self._conn, self._listener):
+        for sock in (self._conn, self._listener if self._own_listener else None):
             if sock is not None:
                 sock.close()
 

@@ -33,6 +33,7 @@ from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
+from harness.flight import warm
 from harness.flight.evaluation import EvaluationResult, RunOptions, fly
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.space import SearchSpace
@@ -184,3 +185,4 @@ class Executor:
 
     def close(self) -> None:
         self.cancel()
+        warm.close_all()  # what evaluations in this process kept (RunOptions.warm)

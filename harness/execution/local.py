@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import multiprocessing.util
 import os
 import signal
 
+from harness.flight import warm
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, run_job_with_watchdog
 from sut_adapter.processes import die_with_parent
 
@@ -39,7 +41,7 @@ class LocalExecutor(Executor):
         # A worker is killed with the campaign, however the campaign ends (even kill -9); its
         # evaluation's processes follow it the same way (processes.die_with_parent).
         return concurrent.futures.ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                                      initializer=die_with_parent, initargs=(signal.SIGKILL, os.getpid()))
+                                                      initializer=_start_worker, initargs=(os.getpid(),))
 
     def submit(self, job: Job) -> concurrent.futures.Future:
         try:
@@ -63,3 +65,10 @@ class LocalExecutor(Executor):
     def close(self) -> None:
         super().close()
         self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _start_worker(parent_pid: int) -> None:
+    """A pool worker dies with the campaign; when the pool shuts it down, it first closes the
+    stack its evaluations kept warm (RunOptions.warm), so that no process or port outlives it."""
+    die_with_parent(signal.SIGKILL, parent_pid)
+    multiprocessing.util.Finalize(None, warm.close_all, exitpriority=0)

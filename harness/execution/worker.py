@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from harness.execution.executor import Job, run_job
+from harness.flight import warm
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,7 +22,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--result", help="where to write the result JSON (default: stdout)")
     args = parser.parse_args(argv)
     document = json.loads(Path(args.job).read_text() if args.job else sys.stdin.read())
-    result = run_job(Job.from_json(document))
+    try:
+        result = run_job(Job.from_json(document))
+    finally:
+        warm.close_all()  # one job per process: nothing to keep it for
     text = json.dumps(result.as_dict())
     if args.result:
         temporary = Path(args.result).with_suffix(".tmp")

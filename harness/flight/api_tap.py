@@ -40,6 +40,13 @@ class ApiTap:
         self._sut_side.close()
         self._client_side.close()
 
+    def restart(self) -> None:
+        """A new SUT behind the same port (a warm stack's next flight): new records, its own clock,
+        and nothing relayed to it before it speaks."""
+        self.records = []
+        self._sut_time_ns = 0
+        self._sut_address = None
+
     def _stamp_from(self, datagram: bytes) -> None:
         for message in self._parser.parse_buffer(datagram) or []:
             time_boot_ms = getattr(message, "time_boot_ms", None)

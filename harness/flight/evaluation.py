@@ -15,8 +15,8 @@ import shutil
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from contextlib import ExitStack, contextmanager
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
@@ -26,13 +26,14 @@ from pymavlink.dialects.v20 import common as mavlink
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight import fitness as scoring
 from harness.flight.fitness import COULD_NOT_FINISH, Status
-from harness.flight import logs
+from harness.flight import logs, warm
 from harness.flight.api_tap import ApiTap
 from harness.flight.bridge_control import BridgeControl
 from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
 from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.bridge import NORMAL_ENDS
 from sim_bridge.spec import WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 import sut_adapter
@@ -70,6 +71,11 @@ class RunOptions:
     # faster than both processes sharing it. "auto": memory where an evaluation has one core
     # and the SUT can; with two cores the polling pair over TCP is faster still.
     transport: str = "auto"
+    # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
+    # fly this process's next evaluation with the same options in it: a fresh world and a fresh
+    # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
+    # is kept (warm.close_all); executors do when they close.
+    warm: bool = False
 
 
 @dataclass(frozen=True)
@@ -222,6 +228,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
             failure, summary, mavsdk_info = _fly(world, options, stack, timings)
+            stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
         artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
@@ -260,6 +267,10 @@ class Stack:
     tap: ApiTap
     sut: SutHandle
     session: MavsdkSession
+    # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
+    load: dict[str, str] | None = None
+    # Set once the flight ended normally: a warm stack may then fly the next evaluation.
+    clean: bool = False
 
 
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
@@ -273,40 +284,95 @@ def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
 @contextmanager
 def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
     """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
-    on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first)."""
-    with PortLease() as ports:
-        world_path = workdir / "world.json"
-        world_path.write_text(json.dumps(world.as_dict()))
-        bridge_log = workdir / "bridge.mcap"
-        inline = in_memory(options, system)
-        # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
-        cores = 1 if inline else min(options.cores, len(os.sched_getaffinity(0)))
-        spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
-        bridge_argv = [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                       "--mcap", str(bridge_log), "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
-                       "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6)]
-        if inline:
-            bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
-                           *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
-        session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
+    on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first).
+    With options.warm and the SUT in memory, a stack kept from this process's last evaluation
+    flies it instead (harness/flight/warm.py), and is kept for the next if the flight ended cleanly."""
+    world_path = workdir / "world.json"
+    world_path.write_text(json.dumps(world.as_dict()))
+    bridge_log = workdir / "bridge.mcap"
+    if options.warm and in_memory(options, system):
+        with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
+            stack = serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
+            yield stack
+            serving.flown(stack)
+        return
+    with ExitStack() as contexts:
+        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log)
+
+
+def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None) -> Stack:
+    """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
+    run_arguments (a world and its log, or --serve)."""
+    ports = contexts.enter_context(PortLease())
+    inline = in_memory(options, system)
+    # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
+    cores = 1 if inline else min(options.cores, len(os.sched_getaffinity(0)))
+    spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
+    bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+                   "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
+                   "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6)]
+    if inline:
+        bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
+                       *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
+    session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
+    contexts.callback(session.close)
+    bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
+    tap = contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET))
+    if inline:
+        sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
+    else:
+        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s)
+
+    def stop() -> None:
+        session.close()
+        sut_exit = sut.stop()
+        if bridge_log is not None:  # a bridge flying one world ends by itself once its log is written
+            bridge.wait(5.0)
+        bridge.stop()
+        log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
+
+    contexts.callback(stop)
+    if options.pin_cpu:
+        _pin(bridge.pid, sut.pids, ports.slot, cores)
+    return Stack(ports, bridge, bridge_log, tap, sut, session)
+
+
+class _ServingStack:
+    """A warm stack: the bridge with the SUT inside, serving flight after flight (its --serve),
+    with its own directory for its logs and the SUT's files."""
+
+    def __init__(self, contexts: ExitStack, home: Path, stack: Stack):
+        self._contexts = contexts
+        self._home = home
+        self._stack = stack
+        self._clean = True
+
+    @classmethod
+    def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
+        home = Path(tempfile.mkdtemp(prefix="stella-warm-"))
+        contexts = ExitStack()
+        contexts.callback(shutil.rmtree, home, ignore_errors=True)
         try:
-            with ManagedProcess("bridge", bridge_argv, log_dir=workdir) as bridge, ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET) as tap:
-                if inline:
-                    sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
-                else:
-                    sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s)
-                try:
-                    if options.pin_cpu:
-                        _pin(bridge.pid, sut.pids, ports.slot, cores)
-                    yield Stack(ports, bridge, bridge_log, tap, sut, session)
-                finally:
-                    session.close()
-                    sut_exit = sut.stop()
-                    bridge.wait(5.0)
-                    bridge.stop()
-                    log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
-        finally:
-            session.close()
+            return cls(contexts, home, _start(contexts, options, system, home, ["--serve"], None))
+        except BaseException:
+            contexts.close()
+            raise
+
+    def begin(self, bridge_log: Path, load: dict[str, str]) -> Stack:
+        """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
+        self._clean = False
+        self._stack.tap.restart()
+        self._stack.session.restart()
+        return replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
+
+    def flown(self, stack: Stack) -> None:
+        self._clean = stack.clean
+
+    def reusable(self) -> bool:
+        return self._clean and self._stack.bridge.poll() is None
+
+    def close(self) -> None:
+        self._contexts.close()
 
 
 def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
@@ -340,16 +406,22 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
     t0 = time.monotonic()
     control = BridgeControl(stack.ports.control)
     try:
+        if stack.load is not None:
+            control.send(stack.load)
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
-        try:
-            session.discover(options.setup_timeout_s, alive)
-            timings["discover_s"] = time.monotonic() - t0
-        except InfrastructureError as error:
-            return _setup_failure(bridge, sut, control, str(error)), control_summary(control), {}
-        held = control.wait_for("holding", options.setup_timeout_s, alive)
-        if held is None:
-            return _setup_failure(bridge, sut, control, "the simulation never reached its hold point"), control_summary(control), {}
-        timings["hold_s"] = time.monotonic() - t0
+        # From a cold start MAVSDK finds the SUT while the simulation runs up to its hold; a warm
+        # stack's session is connected already, to the fresh SUT once that has spoken, by the hold.
+        for stage in ("discover", "hold") if stack.load is None else ("hold", "discover"):
+            if stage == "discover":
+                try:
+                    session.discover(options.setup_timeout_s, alive)
+                except InfrastructureError as error:
+                    return _setup_failure(bridge, sut, control, str(error)), control_summary(control), {}
+            elif control.wait_for("holding", options.setup_timeout_s, alive) is None:
+                refused = next((e["why"] for e in control.events if e.get("event") == "load_refused"), None)
+                what = f"the simulator refused the world: {refused}" if refused else "the simulation never reached its hold point"
+                return _setup_failure(bridge, sut, control, what), control_summary(control), {}
+            timings[f"{stage}_s"] = time.monotonic() - t0
         try:
             session.set_params(sut.mavlink_params)
             if any(f.delivery == "sut" for f in world.failures or ()):

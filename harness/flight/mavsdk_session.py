@@ -92,11 +92,27 @@ class MavsdkSession:
         self.status_texts: list[str] = []
         self.mission_progress: tuple[int, int] = (0, 0)
         self._lock = threading.Lock()
+        self.system = None
+        self.failure: Failure | None = None
+
+    def restart(self) -> None:
+        """A new flight with the same connection (a warm stack's next evaluation): forget what the
+        last one's autopilot said."""
+        with self._lock:
+            self.status_texts = []
+            self.mission_progress = (0, 0)
+        self.failure = None
 
     def discover(self, timeout_s: float = 20.0, alive=lambda: True) -> "MavsdkSession":
-        """Wait for the autopilot's heartbeat, giving up early when alive() turns false."""
+        """Wait for the autopilot's heartbeat, giving up early when alive() turns false; with a
+        system found before (a warm stack), until MAVSDK counts it connected."""
         deadline = time.monotonic() + timeout_s
-        self.system = None
+        if self.system is not None:
+            while not self.system.is_connected():
+                if time.monotonic() > deadline or not alive():
+                    raise InfrastructureError(f"the autopilot on UDP {self.port} did not reconnect within {timeout_s:.0f} s")
+                time.sleep(0.01)
+            return self
         while self.system is None and time.monotonic() < deadline and alive():
             self.system = self.sdk.first_autopilot(timeout_s=0.25)
         if self.system is None:
@@ -105,7 +121,6 @@ class MavsdkSession:
         self.action = Action(self.system)
         self.mission = MissionRaw(self.system)
         self.param = Param(self.system)
-        self.failure: Failure | None = None
         self.telemetry.subscribe_status_text(self._on_status_text)
         self.mission.subscribe_mission_progress(self._on_progress)
         return self

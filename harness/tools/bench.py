@@ -22,6 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from harness.flight import warm
 from harness.flight.evaluation import RunOptions, evaluate
 import sut_adapter
 from harness.flight.fitness import Status
@@ -34,11 +35,13 @@ import numpy as np
 
 DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
-# How an evaluation runs: (cores per evaluation, transport between the simulator and the SUT).
-PLACEMENTS = ((2, "tcp"), (1, "tcp"), (1, "memory"))
-PLACEMENT_NAMES = {(2, "tcp"): "a core each for the simulator and the SUT, polling",
-                   (1, "tcp"): "both on one core, sleeping while the other works",
-                   (1, "memory"): "the SUT inside the simulator's process, on one core"}
+# How an evaluation runs: (cores per evaluation, transport between the simulator and the SUT,
+# whether the worker keeps the simulator with the SUT inside between evaluations: RunOptions.warm).
+PLACEMENTS = ((2, "tcp", False), (1, "tcp", False), (1, "memory", False), (1, "memory", True))
+PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT, polling",
+                   (1, "tcp", False): "both on one core, sleeping while the other works",
+                   (1, "memory", False): "the SUT inside the simulator's process, on one core",
+                   (1, "memory", True): "the same, kept warm between evaluations (a worker's steady state)"}
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
@@ -57,25 +60,31 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement.
         inline = sut_adapter.runs_inline(sut_adapter.system_for(sut.sut))
-        for cores, transport in [(c, t) for c, t in placements if c <= machine_cores and (t == "tcp" or inline)]:
+        for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and (t == "tcp" or inline)]:
             rows = []
-            for index in range(runs):
-                options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores, transport=transport)
-                started = time.monotonic()
-                result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{cores}-{transport}-{index}")
-                # The whole call, log writing included (the result's own wall time ends before it).
-                wall = time.monotonic() - started
-                if result.real_time_factor is None:
-                    raise RuntimeError(f"bench run {index} on {cores} core(s) did not fly: {result.status} {result.why}")
-                rows.append(_run_figures(result, rate_hz, wall))
-                if autopilot is None and sut.sut.name == "bundled":
-                    autopilot = autopilot_step_bench(Path(result.log_path))
-                if physics_alone is None:
-                    physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
+            options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores, transport=transport, warm=keep_warm)
+            try:
+                # Warm: the first run starts the stack the measured ones reuse, as a worker's first evaluation does.
+                for index in range(-1 if keep_warm else 0, runs):
+                    started = time.monotonic()
+                    result = evaluate(space, x, seed=seed, out_dir=Path(out), options=options, name=f"bench-{cores}-{transport}-{keep_warm}-{index}")
+                    # The whole call, log writing included (the result's own wall time ends before it).
+                    wall = time.monotonic() - started
+                    if result.real_time_factor is None:
+                        raise RuntimeError(f"bench run {index} on {cores} core(s) did not fly: {result.status} {result.why}")
+                    if index < 0:
+                        continue
+                    rows.append(_run_figures(result, rate_hz, wall))
+                    if autopilot is None and sut.sut.name == "bundled":
+                        autopilot = autopilot_step_bench(Path(result.log_path))
+                    if physics_alone is None:
+                        physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
+            finally:
+                warm.close_all()
             median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
             workers = machine_cores // cores
             alone_s = median["sim_time_s"] / physics_alone["real_time_factor"]
-            report_placements.append({"cores_per_evaluation": cores, "transport": transport, "workers": workers, "median": median,
+            report_placements.append({"cores_per_evaluation": cores, "transport": transport, "warm": keep_warm, "workers": workers, "median": median,
                                       "evaluations_per_hour": workers * 3600.0 / median["wall_time_s"], "per_run": rows,
                                       # Comparable across machines: the flight's speed and an evaluation's cost against JSBSim stepped alone.
                                       "flight_speed_of_jsbsim_alone": median["real_time_factor"] / physics_alone["real_time_factor"],
@@ -162,7 +171,7 @@ def bench_text(report: dict[str, Any]) -> str:
         m = placement["median"]
         workers = placement["workers"]
         lines += [
-            f"  {PLACEMENT_NAMES[(placement['cores_per_evaluation'], placement['transport'])]}:",
+            f"  {PLACEMENT_NAMES[(placement['cores_per_evaluation'], placement['transport'], placement['warm'])]}:",
             f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's",
             f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s), "
             f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
@@ -181,7 +190,7 @@ def bench_text(report: dict[str, Any]) -> str:
 
 
 def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50,
-                       transport: str = "auto") -> dict[str, Any]:
+                       transport: str = "auto", warm: bool = True) -> dict[str, Any]:
     """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
 
     from harness.campaigns.campaign import CampaignConfig, run_campaign
@@ -195,7 +204,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
             try:
-                run_campaign(config, store, executor, Path(folder) / "logs", options=RunOptions(transport=transport))
+                run_campaign(config, store, executor, Path(folder) / "logs", options=RunOptions(transport=transport, warm=warm))
             finally:
                 executor.close()
             wall = time.monotonic() - started
@@ -208,6 +217,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         "flown": len(flown),
         "workers": executor.workers,
         "transport": transport,
+        "warm": warm,
         "wall_time_s": wall,
         "evaluations_per_hour": 3600.0 * len(rows) / wall,
         "mean_evaluation_wall_s": busy / len(flown) if flown else None,
@@ -221,7 +231,7 @@ def campaign_bench_text(report: dict[str, Any]) -> str:
     return "\n".join(
         [
             f"NSGA-II campaign on {report['scenario']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers, "
-            f"transport {report['transport']}",
+            f"transport {report['transport']}, {'warm workers' if report['warm'] else 'cold starts'}",
             f"  wall time                   {report['wall_time_s']:.0f} s",
             f"  evaluations per hour        {report['evaluations_per_hour']:.0f}",
             f"  mean wall per evaluation    {report['mean_evaluation_wall_s']:.2f} s (in a worker)",

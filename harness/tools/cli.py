@@ -15,6 +15,7 @@ import os
 import signal
 import sqlite3
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -269,17 +270,22 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]:
     """The same concrete scenario flown --repeat times with the same seed: what differs is the SUT's."""
+    from harness.flight import warm
     from harness.flight.evaluation import evaluate
     from harness.flight.logs import slug
     from harness.campaigns.statistics import spread
 
     stem = slug(f"{space.logical.name}-seed{args.seed}")
     results = []
-    for index in range(args.repeat):
-        results.append(evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options, name=f"{stem}-repeat{index + 1}").as_dict())
-        if not args.json:
-            r = results[-1]
-            print(f"repeat {index + 1}/{args.repeat}: {r['status']}, fitness {r['fitness']:.6f}", file=sys.stderr)
+    try:
+        for index in range(args.repeat):
+            results.append(evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=replace(options, warm=True),
+                                    name=f"{stem}-repeat{index + 1}").as_dict())
+            if not args.json:
+                r = results[-1]
+                print(f"repeat {index + 1}/{args.repeat}: {r['status']}, fitness {r['fitness']:.6f}", file=sys.stderr)
+    finally:
+        warm.close_all()
     report = {**spread(results), "runs": results}
     lines = [f"{report['repeats']} repeats: " + ", ".join(f"{n} {status}" for status, n in report["statuses"].items())]
     for name in ("fitness", "min_clearance_m"):
@@ -375,6 +381,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
         if given and (args.executor or args.campaign):
             raise InputError([Problem(option, "", f"the executor and campaign benchmarks fly the standard scenario's own mission; leave {option} out")])
+    if args.cold_start and not args.campaign:
+        raise InputError([Problem("--cold-start", "", "only the campaign benchmark takes it (--campaign); the flight benchmark measures cold and warm starts both")])
     if args.executor:
         from harness.tools.bench import executor_bench_text, run_executor_bench
 
@@ -385,7 +393,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from harness.tools.bench import campaign_bench_text, run_campaign_bench
 
         report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None,
-                                    transport=args.transport or "auto")
+                                    transport=args.transport or "auto", warm=not args.cold_start)
         emit(args, report, campaign_bench_text(report))
         return 0
     sut = _sut_spec(args)
@@ -445,7 +453,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         with store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress,
-                                   options=RunOptions(transport=args.transport))
+                                   options=RunOptions(transport=args.transport, warm=not args.cold_start))
     finally:
         bar.close()
         executor.close()
@@ -754,6 +762,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
     p.add_argument("--evaluations", type=positive_int, help="with --campaign (default 500) or --executor (default 10)")
     p.add_argument("--workers", type=positive_int, help="with --campaign (default: cores) or --executor (default 1)")
+    p.add_argument("--cold-start", action="store_true", help="with --campaign: every evaluation starts its processes afresh (as `stella campaign --cold-start`)")
 
     p = add("campaign", "search logical scenarios for worst cases; resumable from its store")
     p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
@@ -776,6 +785,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
                    help="memory: the bundled autopilot steps inside the simulator's process (the same flights); tcp: in its own process; "
                         "auto (default): memory where an evaluation gets one core (as many workers as cores) and the SUT is the bundled autopilot")
+    p.add_argument("--cold-start", action="store_true",
+                   help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
+                        "evaluation (a fresh world and autopilot in the same process: the same flights, about a quarter second less each)")
     p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
     p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
     p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")

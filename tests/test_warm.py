@@ -1,0 +1,165 @@
+"""Warm workers (RunOptions.warm): a worker keeps the simulator with the autopilot inside between
+evaluations, and every flight in it is the flight a cold start flies, to the last bit."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, port_bound
+from test_transport import SIMULATED
+from harness.flight import logs, warm
+from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.mavsdk_session import MavsdkSession
+from harness.flight.ports import PortLease
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
+
+MEMORY = RunOptions(transport="memory")
+WARM = RunOptions(transport="memory", warm=True)
+
+
+def point(profile, name: str, seed: int):
+    space = SearchSpace(load_logical(ROOT / "scenarios" / name, profile), profile)
+    return space, space.sample_feasible(np.random.default_rng(seed), 1)[0]
+
+
+def simulated(result) -> list:
+    return list(logs.messages(result.log_path, SIMULATED))
+
+
+def simulator_pid(result) -> str:
+    return logs.metadata(result.log_path)["bridge"]["pid"]
+
+
+@pytest.fixture(autouse=True)
+def nothing_kept_after():
+    yield
+    warm.close_all()
+
+
+@pytest.mark.slow
+def test_warm_flights_are_the_cold_flights_to_the_last_bit_in_one_process(tmp_path, profile):
+    wall = point(profile, "table3/scenario_31.json", 4)
+    # Gusts, an intruder and a failure MAVSDK injects: state that must not leak into the next flight.
+    busy = point(profile, "examples/intruder_gusts_failure.json", 7)
+    cold = {name: evaluate(*p, seed=seed, out_dir=tmp_path / "cold", options=MEMORY, name=name)
+            for name, p, seed in (("wall", wall, 4), ("busy", busy, 7))}
+    kept = [evaluate(*p, seed=seed, out_dir=tmp_path / "warm", options=WARM, name=f"{index}-{name}")
+            for index, (name, p, seed) in enumerate((("wall", wall, 4), ("busy", busy, 7), ("wall", wall, 4)))]
+    assert [simulator_pid(r) for r in kept] == [simulator_pid(kept[0])] * 3
+    assert simulator_pid(kept[0]) not in {simulator_pid(r) for r in cold.values()}
+    for result, name in zip(kept, ("wall", "busy", "wall")):
+        assert (result.status, result.fitness) == (cold[name].status, cold[name].fitness)
+        assert simulated(result) == simulated(cold[name]) and len(simulated(result)) > 1000
+    assert "failure" in {m["event"] for topic, _ns, m in simulated(kept[1]) if topic == "/events"}
+    # MAVSDK's view is the flight's own: the last flight's mission progress, not the one before.
+    assert kept[2].mavsdk["mission_progress"] == cold["wall"].mavsdk["mission_progress"]
+    # A warm flight skips the start: the process, its imports and MAVSDK's discovery.
+    assert kept[2].timings["setup_s"] < cold["wall"].timings["setup_s"]
+
+
+@pytest.mark.slow
+def test_a_flight_that_went_wrong_is_followed_by_a_fresh_process(tmp_path, profile, monkeypatch):
+    wall = point(profile, "table3/scenario_31.json", 4)
+    first = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="first")
+    real_upload = MavsdkSession.upload_and_start
+
+    def refused(self, items):
+        raise RuntimeError("COMMAND_DENIED")
+
+    monkeypatch.setattr(MavsdkSession, "upload_and_start", refused)
+    failed = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="failed")
+    assert failed.status == "mission_failed" and "COMMAND_DENIED" in failed.why
+    monkeypatch.setattr(MavsdkSession, "upload_and_start", real_upload)
+    after = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="after")
+    assert simulator_pid(failed) == simulator_pid(first) != simulator_pid(after)
+    assert simulated(after) == simulated(first)
+
+
+@pytest.mark.slow
+def test_a_kept_simulator_that_died_between_evaluations_is_replaced(tmp_path, profile):
+    wall = point(profile, "table3/scenario_31.json", 4)
+    first = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="first")
+    pid = int(simulator_pid(first))
+    subprocess.run(["kill", "-9", str(pid)], check=True)
+    deadline = time.monotonic() + 5.0
+    while _running(pid) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    after = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="after")
+    assert after.status == first.status and simulated(after) == simulated(first)
+    assert simulator_pid(after) != simulator_pid(first)
+
+
+@pytest.mark.slow
+def test_closing_what_is_kept_frees_its_process_and_ports(tmp_path, profile):
+    with PortLease() as free:
+        slot = free.slot
+    result = evaluate(*point(profile, "table3/scenario_31.json", 4), seed=4, out_dir=tmp_path, options=WARM)
+    pid = int(simulator_pid(result))
+    assert port_bound(free.control)
+    warm.close_all()
+    deadline = time.monotonic() + 5.0
+    while _running(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _running(pid)
+    assert not port_bound(free.control) and not port_bound(free.api, socket.SOCK_DGRAM)
+    with PortLease() as again:
+        assert again.slot == slot
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split()[2] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_a_serving_simulator_refuses_a_world_it_cannot_load_and_flies_on(tmp_path):
+    """The serving protocol itself (python -m sut_adapter.inline --serve): a load request that
+    names no world is refused with the reason; the process then waits for the next and quits
+    when asked."""
+    with PortLease(first_slot=130) as ports:
+        argv = [sys.executable, "-m", "sut_adapter.inline", "--serve", "--control-port", str(ports.control), "--",
+                "--api", f"udp:127.0.0.1:{ports.api}"]
+        process = subprocess.Popen(argv, stderr=subprocess.PIPE, cwd=ROOT)
+        try:
+            refused = _exchange(ports.control, {"op": "load", "world": str(tmp_path / "missing.json"), "mcap": str(tmp_path / "x.mcap")})
+            assert refused["event"] == "load_refused" and "missing.json" in refused["why"]
+            _exchange(ports.control, {"op": "quit"}, expect_answer=False)
+            assert process.wait(timeout=10) == 0
+        finally:
+            process.kill()
+
+
+def _exchange(port: int, request: dict, expect_answer: bool = True) -> dict | None:
+    deadline = time.monotonic() + 20.0
+    while True:
+        try:
+            connection = socket.create_connection(("127.0.0.1", port), timeout=10.0)
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+    with connection:
+        connection.sendall(json.dumps(request).encode() + b"\n")
+        if not expect_answer:
+            return None
+        return json.loads(connection.makefile().readline())
+
+
+def test_serving_needs_a_sut_inside_the_process(capsys):
+    from sim_bridge.__main__ import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--serve", "--control-port", "24999"])
+    assert exit_info.value.code == 2
+    assert "--serve needs a SUT inside this process" in capsys.readouterr().err
