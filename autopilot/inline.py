@@ -54,8 +54,12 @@ class InProcessLink:
         return bool(self._answers)
 
     def idle(self) -> bytes:
-        self._serve_api()
+        # Simulated time stands still while the harness sets up over the API link: answer it at once.
+        self._serve_api(now=True)
         return self._take()
+
+    def waitable(self):
+        return self.autopilot.api.sock
 
     def close(self) -> None:
         self.autopilot.api.sock.close()
@@ -65,12 +69,18 @@ class InProcessLink:
         self._answers.clear()
         return data
 
-    def _serve_api(self) -> None:
-        """The API link at most every TELEMETRY_CHECK_S of wall time, as Autopilot.serve does."""
+    def _serve_api(self, now: bool = False) -> None:
+        """The API link at most every TELEMETRY_CHECK_S of wall time, as Autopilot.serve does
+        (its incoming messages at once too when `now`)."""
         wall = time.perf_counter()
-        if wall < self._next_check:
-            return
         api = self.autopilot.api
+        if wall < self._next_check:
+            if now:
+                try:
+                    api.receive()
+                except Exception as error:
+                    raise _crashed(error) from error
+            return
         try:
             api.receive()
             api.report_events()

@@ -138,15 +138,18 @@ class ControlChannel:
     def connected(self) -> bool:
         return self._conn is not None
 
-    def poll(self, timeout_s: float = 0.0) -> list[dict[str, Any]]:
+    def poll(self, timeout_s: float = 0.0, wake: socket.socket | None = None) -> list[dict[str, Any]]:
+        """The harness's ops, waiting up to timeout_s for one, or for `wake` to turn readable."""
         sockets = [s for s in (self._listener, self._conn) if s is not None]
-        if not sockets:
+        if not sockets and wake is None:
             if timeout_s:
                 time.sleep(timeout_s)
             return []
-        readable, _, _ = select.select(sockets, [], [], timeout_s)
+        readable, _, _ = select.select(sockets + ([wake] if wake is not None else []), [], [], timeout_s)
         ops = []
         for sock in readable:
+            if sock is wake:
+                continue
             if sock is self._listener:
                 self._conn, _ = self._listener.accept()
                 self._conn.setblocking(False)
@@ -631,7 +634,7 @@ class Bridge:
             if data:
                 self._link_in += data
                 splitter.feed(data)
-            self._handle_ops(control.poll(0.01), time_s)
+            self._handle_ops(control.poll(0.01, wake=sut.waitable()), time_s)
 
 
 WEDGE_SECTORS = 4

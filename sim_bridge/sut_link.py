@@ -34,6 +34,10 @@ class SutLink(Protocol):
         """While simulated time stands still: what the SUT sent meanwhile, without waiting (b"":
         nothing yet); OSError when it has gone."""
 
+    def waitable(self) -> socket.socket:
+        """A socket that turns readable when idle() has something to do, so that a bridge holding
+        simulated time wakes for it at once rather than at its next poll."""
+
     def close(self) -> None: ...
 
 
@@ -61,6 +65,9 @@ class SocketLink:
         if not data:
             raise ConnectionResetError("the SUT closed its simulator link")
         return data
+
+    def waitable(self) -> socket.socket:
+        return self.sock
 
     def close(self) -> None:
         self.sock.close()
