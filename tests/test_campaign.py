@@ -275,10 +275,10 @@ def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_noth
 
     real_merge = logs.merge
 
-    def merge_until_the_disk_is_full(bridge_log, out, **kwargs):
+    def merge_until_the_disk_is_full(recording, out, **kwargs):
         if "eval00003" in str(out):  # the disk fills up while the fourth evaluation's log is written
             raise OSError(errno.ENOSPC, "No space left on device", str(out))
-        return real_merge(bridge_log, out, **kwargs)
+        return real_merge(recording, out, **kwargs)
 
     store = tmp_path / "full.db"
     monkeypatch.setattr(logs, "merge", merge_until_the_disk_is_full)

@@ -18,7 +18,7 @@ import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -131,17 +131,18 @@ def _logged_api_traffic(log_path: Path) -> Iterator[bytes]:
             yield bytes.fromhex(record["hex"])
 
 
-def _score(log_path: Path, world: WorldSpec, summary: Mapping[str, Any], failure: tuple[str, str] | None,
-           api_from_sut: Iterable[bytes], partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
-    """Status and fitness of a flight from the simulator's recording (the bridge's or the merged
-    log) and what the SUT sent on the API link; of a partial (truncated) log, the clearance of
-    what was recorded, as whether the mission was flown cannot be told from part of it."""
+def _score(recorded: Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]], world: WorldSpec, summary: Mapping[str, Any],
+           failure: tuple[str, str] | None, api_from_sut: Iterable[bytes], partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
+    """Status and fitness of a flight from the simulator's recording (recorded(topics): the
+    bridge's or the merged log's messages) and what the SUT sent on the API link; of a partial
+    (truncated) log, the clearance of what was recorded, as whether the mission was flown cannot
+    be told from part of it."""
     if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(api_from_sut):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
         failure = (Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
-    clearance = scoring.min_clearance(message for _t, _ns, message in logs.messages(log_path, ["/clearance"]))
+    clearance = scoring.min_clearance(message for _t, _ns, message in recorded(["/clearance"]))
     if failure is None and clearance.samples and not partial:
-        states = [message for _t, _ns, message in logs.messages(log_path, ["/uav/state"])]
+        states = [message for _t, _ns, message in recorded(["/uav/state"])]
         why = scoring.mission_check(states, world.mission, ACCEPTANCE_RADIUS_M, summary, world.drive)
         failure = (Status.MISSION_FAILED, why) if why else None
     status, value, why = scoring.judge(clearance, world.safety_distance_m, failure)
@@ -161,7 +162,8 @@ def rescore(log_path: Path) -> dict[str, Any]:
     failure = None
     if recorded.get("status") in COULD_NOT_FINISH:
         failure = (recorded["status"], recorded.get("why") or "")
-    status, value, why, clearance = _score(log_path, world, summary, failure, _logged_api_traffic(log_path), partial=cut is not None)
+    status, value, why, clearance = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, _logged_api_traffic(log_path),
+                                           partial=cut is not None)
     return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
             "truncation": cut}
 
@@ -236,12 +238,13 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
             raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
         t0 = time.monotonic()
-        # Scored from the simulator's own recording; the log is then written once, result included.
+        # Scored from the simulator's own recording, read once; the log is then written once, result included.
+        recording = logs.Recording(stack.bridge_log)
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
-        status, value, why, clearance = _score(stack.bridge_log, world, summary, failure, api_from_sut)
+        status, value, why, clearance = _score(recording.messages, world, summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
         result = finish(status, value, why, clearance, log_path)
-        logs.merge(stack.bridge_log, log_path, api_records=api_records, extra_metadata={
+        logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(),
         })

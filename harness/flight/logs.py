@@ -15,7 +15,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from harness.errors import InputError, Problem
+from harness.errors import InfrastructureError, InputError, Problem
 from sim_bridge.spec import SpecError, WorldSpec
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -165,20 +165,46 @@ def world_of(path: Path) -> WorldSpec | None:
         raise InputError([Problem(str(path), f"metadata world{error.pointer}", error.message)]) from None
 
 
-def merge(bridge_log: Path, out: Path, *, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
+class Recording:
+    """An intact log read once, its messages kept undecoded: the simulator's recording, scored and
+    then written out as the evaluation's log without reading the file again."""
+
+    def __init__(self, path: Path):
+        with open(path, "rb") as stream:
+            reader = make_reader(stream)
+            try:
+                self.summary = reader.get_summary()
+            except (McapError, ValueError, EOFError) as error:
+                raise InfrastructureError(f"the simulator's log {path} is not a finished MCAP file: {error}") from None
+            if self.summary is None:
+                raise InfrastructureError(f"the simulator's log {path} has no summary: it was not finished")
+            self.metadata = [(record.name, dict(record.metadata)) for record in reader.iter_metadata()]
+            in_file_order = [message for _schema, _channel, message in reader.iter_messages(log_time_order=False)]
+        # The order mcap's reader gives: log time, ties in file order (the sort is stable).
+        self.messages_in_order: list[Message] = sorted(in_file_order, key=lambda message: message.log_time)
+        self._topics = {cid: channel.topic for cid, channel in self.summary.channels.items()}
+
+    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        """(topic, log time ns, decoded JSON) of these topics, in log-time order (as `messages`)."""
+        wanted = {cid for cid, topic in self._topics.items() if topic in topics}
+        for message in self.messages_in_order:
+            if message.channel_id in wanted:
+                yield self._topics[message.channel_id], message.log_time, json.loads(message.data)
+
+
+def merge(recording: Recording, out: Path, *, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
     """The evaluation's log: the bridge's recording plus the API link's traffic and the harness's metadata.
     A merge that fails (a full disk) leaves no half-written log behind."""
     try:
-        _merge(bridge_log, out, api_records, extra_metadata)
+        _merge(recording, out, api_records, extra_metadata)
     except BaseException:
         Path(out).unlink(missing_ok=True)
         raise
 
 
-def _merge(bridge_log: Path, out: Path, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
-    with open(bridge_log, "rb") as source, open(out, "wb") as target:
-        reader = make_reader(source)
-        summary = reader.get_summary()
+def _merge(recording: Recording, out: Path, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
+    summary = recording.summary
+    with open(out, "wb") as target:
         writer = Writer(target, compression=CompressionType.ZSTD)
         writer.start(profile="", library="stella-uav")
         schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
@@ -187,14 +213,15 @@ def _merge(bridge_log: Path, out: Path, api_records: Sequence[tuple[int, str, by
             for cid, c in summary.channels.items()
         }
         # Metadata first: a log cut short later still says what was flown and how it was scored.
-        for record in reader.iter_metadata():
-            if record.name not in extra_metadata:
-                writer.add_metadata(record.name, dict(record.metadata))
+        for name, values in recording.metadata:
+            if name not in extra_metadata:
+                writer.add_metadata(name, values)
         for name, value in extra_metadata.items():
             writer.add_metadata(name, {"json": json.dumps(value)})
         api_channel = next((channel_ids[cid] for cid, c in summary.channels.items() if c.topic == "/mavlink/api"), None)
-        for _schema, channel, message in reader.iter_messages(log_time_order=True):
-            writer.add_message(channel_ids[channel.id], log_time=message.log_time, data=message.data, publish_time=message.publish_time, sequence=message.sequence)
+        for message in recording.messages_in_order:
+            writer.add_message(channel_ids[message.channel_id], log_time=message.log_time, data=message.data, publish_time=message.publish_time,
+                               sequence=message.sequence)
         if api_channel is not None:
             for time_ns, direction, datagram in api_records:
                 data = json.dumps({"link": "api", "direction": direction, "hex": datagram.hex()}).encode()
