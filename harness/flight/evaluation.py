@@ -266,7 +266,7 @@ class Stack:
 
     ports: PortBlock
     bridge: ManagedProcess
-    bridge_log: Path
+    bridge_log: Path | None  # None: a warm stack between its evaluations
     tap: ApiTap
     sut: SutHandle
     session: MavsdkSession
@@ -344,9 +344,8 @@ class _ServingStack:
     """A warm stack: the bridge with the SUT inside, serving flight after flight (its --serve),
     with its own directory for its logs and the SUT's files."""
 
-    def __init__(self, contexts: ExitStack, home: Path, stack: Stack):
+    def __init__(self, contexts: ExitStack, stack: Stack):
         self._contexts = contexts
-        self._home = home
         self._stack = stack
         self._clean = True
 
@@ -356,7 +355,7 @@ class _ServingStack:
         contexts = ExitStack()
         contexts.callback(shutil.rmtree, home, ignore_errors=True)
         try:
-            return cls(contexts, home, _start(contexts, options, system, home, ["--serve"], None))
+            return cls(contexts, _start(contexts, options, system, home, ["--serve"], None))
         except BaseException:
             contexts.close()
             raise
@@ -412,19 +411,28 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         if stack.load is not None:
             control.send(stack.load)
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
+
+        def discovered() -> str | None:
+            try:
+                session.discover(options.setup_timeout_s, alive)
+            except InfrastructureError as error:
+                return str(error)
+            timings["discover_s"] = time.monotonic() - t0
+            return None
+
+        def held() -> str | None:
+            if control.wait_for("holding", options.setup_timeout_s, alive) is None:
+                refused = next((e["why"] for e in control.events if e.get("event") == "load_refused"), None)
+                return f"the simulator refused the world: {refused}" if refused else "the simulation never reached its hold point"
+            timings["hold_s"] = time.monotonic() - t0
+            return None
+
         # From a cold start MAVSDK finds the SUT while the simulation runs up to its hold; a warm
         # stack's session is connected already, to the fresh SUT once that has spoken, by the hold.
-        for stage in ("discover", "hold") if stack.load is None else ("hold", "discover"):
-            if stage == "discover":
-                try:
-                    session.discover(options.setup_timeout_s, alive)
-                except InfrastructureError as error:
-                    return _setup_failure(bridge, sut, control, str(error)), control_summary(control), {}
-            elif control.wait_for("holding", options.setup_timeout_s, alive) is None:
-                refused = next((e["why"] for e in control.events if e.get("event") == "load_refused"), None)
-                what = f"the simulator refused the world: {refused}" if refused else "the simulation never reached its hold point"
-                return _setup_failure(bridge, sut, control, what), control_summary(control), {}
-            timings[f"{stage}_s"] = time.monotonic() - t0
+        for stage in (discovered, held) if stack.load is None else (held, discovered):
+            problem = stage()
+            if problem is not None:
+                return _setup_failure(bridge, sut, control, problem), control_summary(control), {}
         try:
             session.set_params(sut.mavlink_params)
             if any(f.delivery == "sut" for f in world.failures or ()):
