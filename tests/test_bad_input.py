@@ -55,6 +55,7 @@ CORPUS = [
       "--sut-command", "x {sim_port} {api_port}", "--transport", "memory"], "memory carries the bundled autopilot only"),
     (["bench", "--transport", "memory", "--sut", "command", "--sut-command", "x {sim_port} {api_port}"], "memory carries the bundled autopilot only"),
     (["bench", "--transport", "memory", "--cores", "2"], "no placement has --cores 2 with --transport memory"),
+    (["bench", "--cold-start"], "--cold-start: /: only the campaign benchmark takes it (--campaign)"),
     (["validate", "BROKEN_JSON"], "invalid JSON at line 1"),
     (["validate", "ARRAY_JSON"], "expected object, got array"),
     (["validate", "EMPTY_FOLDER"], "a folder without *.json or *.plan files"),
