@@ -3,6 +3,8 @@
 Listens for the SUT on the simulator port, runs the lockstep simulation, records to MCAP and
 prints the run's summary as one JSON line on stdout. Exit code 0 when the run ended normally
 (landed, time limit, stopped), 3 when the SUT never connected, stalled or disconnected.
+With a SUT inside the process (`python -m sut_adapter.inline`), `--serve` instead flies world
+after world, each named on the control channel (sim_bridge/bridge.py has the protocol).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from sim_bridge.bridge import NORMAL_ENDS, RANGE_MESSAGES, Bridge, BridgeConfig,
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
+
 
 def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
     listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -151,10 +154,13 @@ def _serve(listener: socket.socket, config: BridgeConfig, args, inline_sut: Call
                 request = _next_request(control)
                 if request is None:
                     return 0
+                if not isinstance(request.get("world"), str) or not isinstance(request.get("mcap"), str):
+                    control.send({"event": "load_refused", "why": f"a load request names a world and an mcap file: got {request}"})
+                    continue
                 try:
                     world = load_world(request["world"])
-                except (OSError, ValueError, KeyError) as error:
-                    control.send({"event": "load_refused", "why": f"{request.get('world')}: {error}"})
+                except (OSError, ValueError) as error:
+                    control.send({"event": "load_refused", "why": f"{request['world']}: {error}"})
                     continue
                 summary = fly(world, config, Path(request["mcap"]), control, inline_sut)
                 if summary["end_reason"] not in NORMAL_ENDS:
@@ -175,6 +181,7 @@ def _next_request(control: ControlChannel) -> dict | None:
                 return None
             if op.get("op") == "load":
                 return op
+
 
 if __name__ == "__main__":
     sys.exit(main())

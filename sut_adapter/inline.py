@@ -2,6 +2,7 @@
 inside the bridge's process, its simulator link through memory (autopilot/inline.py) rather
 than TCP. The harness starts it for `--transport memory`; the bridge's arguments are
 `python -m sim_bridge`'s, the autopilot's `python -m autopilot`'s (--api, --params, --fault).
+With the bridge's `--serve` (warm workers) every flight gets a fresh autopilot.
 """
 
 from __future__ import annotations

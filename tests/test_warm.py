@@ -123,9 +123,9 @@ def _running(pid: int) -> bool:
 
 
 def test_a_serving_simulator_refuses_a_world_it_cannot_load_and_flies_on(tmp_path):
-    """The serving protocol itself (python -m sut_adapter.inline --serve): a load request that
-    names no world is refused with the reason; the process then waits for the next and quits
-    when asked."""
+    """The serving protocol itself (python -m sut_adapter.inline --serve): a load request whose
+    world does not load, or that names none, is refused with the reason; the process then waits
+    for the next and quits when asked."""
     with PortLease(first_slot=130) as ports:
         argv = [sys.executable, "-m", "sut_adapter.inline", "--serve", "--control-port", str(ports.control), "--",
                 "--api", f"udp:127.0.0.1:{ports.api}"]
@@ -133,6 +133,8 @@ def test_a_serving_simulator_refuses_a_world_it_cannot_load_and_flies_on(tmp_pat
         try:
             refused = _exchange(ports.control, {"op": "load", "world": str(tmp_path / "missing.json"), "mcap": str(tmp_path / "x.mcap")})
             assert refused["event"] == "load_refused" and "missing.json" in refused["why"]
+            incomplete = _exchange(ports.control, {"op": "load", "world": str(tmp_path / "missing.json")})
+            assert incomplete["event"] == "load_refused" and "names a world and an mcap file" in incomplete["why"]
             _exchange(ports.control, {"op": "quit"}, expect_answer=False)
             assert process.wait(timeout=10) == 0
         finally:
