@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from sim_bridge.bridge import NORMAL_ENDS, RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
+from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import Recorder
-from sim_bridge.spec import WorldSpec
+from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
 
 
@@ -162,6 +162,8 @@ def _serve(listener: socket.socket, config: BridgeConfig, args, inline_sut: Call
                 except (OSError, ValueError) as error:
                     control.send({"event": "load_refused", "why": f"{request['world']}: {error}"})
                     continue
+                # The harness reports a crash with the end of our stderr: say where each flight's part begins.
+                print(f"flying {request['world']}", file=sys.stderr, flush=True)
                 summary = fly(world, config, Path(request["mcap"]), control, inline_sut)
                 if summary["end_reason"] not in NORMAL_ENDS:
                     return 3

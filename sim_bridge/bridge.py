@@ -75,8 +75,6 @@ RANGE_MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
-# The ends of a run that are the flight's own, not the simulator's or the SUT's failure.
-NORMAL_ENDS = frozenset({"landed", "time_limit", "stopped", "crashed", "blocked"})
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 
 

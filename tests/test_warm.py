@@ -25,8 +25,8 @@ MEMORY = RunOptions(transport="memory")
 WARM = RunOptions(transport="memory", warm=True)
 
 
-def point(profile, name: str, seed: int):
-    space = SearchSpace(load_logical(ROOT / "scenarios" / name, profile), profile)
+def point(profile, name: str, seed: int, drive: str | None = None):
+    space = SearchSpace(load_logical(ROOT / "scenarios" / name, profile, drive), profile)
     return space, space.sample_feasible(np.random.default_rng(seed), 1)[0]
 
 
@@ -46,23 +46,28 @@ def nothing_kept_after():
 
 @pytest.mark.slow
 def test_warm_flights_are_the_cold_flights_to_the_last_bit_in_one_process(tmp_path, profile):
-    wall = point(profile, "table3/scenario_31.json", 4)
-    # Gusts, an intruder and a failure MAVSDK injects: state that must not leak into the next flight.
-    busy = point(profile, "examples/intruder_gusts_failure.json", 7)
-    cold = {name: evaluate(*p, seed=seed, out_dir=tmp_path / "cold", options=MEMORY, name=name)
-            for name, p, seed in (("wall", wall, 4), ("busy", busy, 7))}
-    kept = [evaluate(*p, seed=seed, out_dir=tmp_path / "warm", options=WARM, name=f"{index}-{name}")
-            for index, (name, p, seed) in enumerate((("wall", wall, 4), ("busy", busy, 7), ("wall", wall, 4)))]
-    assert [simulator_pid(r) for r in kept] == [simulator_pid(kept[0])] * 3
+    points = {
+        "wall": (point(profile, "table3/scenario_31.json", 4), 4),
+        # Gusts, an intruder and a failure MAVSDK injects: state that must not leak into the next flight.
+        "busy": (point(profile, "examples/intruder_gusts_failure.json", 7), 7),
+        # The pilot drive sets parameters over MAVLink (its RC mapping, a takeoff altitude of
+        # MIS_TAKEOFF_ALT) that the next flight's autopilot must not inherit.
+        "pilot": (point(profile, "examples/wall.json", 3, "pilot"), 3),
+    }
+    order = ("wall", "busy", "pilot", "wall")
+    cold = {name: evaluate(*p, seed=seed, out_dir=tmp_path / "cold", options=MEMORY, name=name) for name, (p, seed) in points.items()}
+    kept = [evaluate(*points[name][0], seed=points[name][1], out_dir=tmp_path / "warm", options=WARM, name=f"{index}-{name}")
+            for index, name in enumerate(order)]
+    assert [simulator_pid(r) for r in kept] == [simulator_pid(kept[0])] * len(order)
     assert simulator_pid(kept[0]) not in {simulator_pid(r) for r in cold.values()}
-    for result, name in zip(kept, ("wall", "busy", "wall")):
+    for result, name in zip(kept, order):
         assert (result.status, result.fitness) == (cold[name].status, cold[name].fitness)
         assert simulated(result) == simulated(cold[name]) and len(simulated(result)) > 1000
     assert "failure" in {m["event"] for topic, _ns, m in simulated(kept[1]) if topic == "/events"}
     # MAVSDK's view is the flight's own: the last flight's mission progress, not the one before.
-    assert kept[2].mavsdk["mission_progress"] == cold["wall"].mavsdk["mission_progress"]
+    assert kept[-1].mavsdk["mission_progress"] == cold["wall"].mavsdk["mission_progress"]
     # A warm flight skips the start: the process, its imports and MAVSDK's discovery.
-    assert kept[2].timings["setup_s"] < cold["wall"].timings["setup_s"]
+    assert kept[-1].timings["setup_s"] < cold["wall"].timings["setup_s"]
 
 
 @pytest.mark.slow
@@ -156,6 +161,22 @@ def _exchange(port: int, request: dict, expect_answer: bool = True) -> dict | No
         if not expect_answer:
             return None
         return json.loads(connection.makefile().readline())
+
+
+def test_each_flight_of_a_serving_process_starts_from_the_start_up_parameters():
+    from autopilot.params import Params
+    from sut_adapter.inline import fresh_autopilots
+
+    start_up = Params({"MPC_XY_CRUISE": 4.0})
+    autopilots = fresh_autopilots(start_up, ("127.0.0.1", 9))
+    first, second = autopilots(), autopilots()
+    try:
+        first.autopilot.params.set("MIS_TAKEOFF_ALT", 12.0)  # as MAVSDK's PARAM_SET during the first flight
+        assert second.autopilot.params["MIS_TAKEOFF_ALT"] == Params()["MIS_TAKEOFF_ALT"] != 12.0
+        assert second.autopilot.params["MPC_XY_CRUISE"] == 4.0 and start_up["MIS_TAKEOFF_ALT"] != 12.0
+    finally:
+        first.close()
+        second.close()
 
 
 def test_serving_needs_a_sut_inside_the_process(capsys):

@@ -140,8 +140,9 @@ def termination_for(config: CampaignConfig) -> Termination:
 
 def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
                  on_result: Callable[[EvaluationResult], None] = lambda r: None) -> CampaignSummary:
-    """options: how each flight runs; its SUT is always the campaign's (config.sut)."""
-    options = replace(options, sut=config.sut)
+    """options: how each flight runs; its SUT is always the campaign's (config.sut), and it runs
+    warm only where the executor's processes live on."""
+    options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity())
     profile = load_profile(config.profile)

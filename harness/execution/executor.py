@@ -117,6 +117,9 @@ class Executor:
     """The retrying loop every executor shares; subclasses say how one try is submitted."""
 
     name = "base"
+    # Whether its tries run one after another in processes that live on (RunOptions.warm pays
+    # there); an executor that starts a process or container per try says no.
+    keeps_stacks = False
 
     def __init__(self, workers: int, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
         if attempts < 1:

@@ -15,6 +15,7 @@ from sut_adapter.processes import die_with_parent
 
 class SequentialExecutor(Executor):
     name = "sequential"
+    keeps_stacks = True
 
     def __init__(self, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
         super().__init__(1, attempts, timeout_s)
@@ -31,6 +32,7 @@ class LocalExecutor(Executor):
     failed ones with the cause recorded."""
 
     name = "local"
+    keeps_stacks = True
 
     def __init__(self, workers: int | None = None, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S):
         super().__init__(workers or len(os.sched_getaffinity(0)), attempts, timeout_s)

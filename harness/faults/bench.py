@@ -27,6 +27,7 @@ from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
+from harness.flight.evaluation import RunOptions
 from harness.flight.fitness import Status
 from harness.scenario.world import space_from_concrete
 from sut_adapter import SutConfig
@@ -78,7 +79,7 @@ def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tup
         config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population,
                                 sut=SutConfig(params=dict(sut_params or {}), fault=None if fault == CONTROL else fault))
         with Store.for_campaign(folder / f"{fault}.db") as store:
-            run_campaign(config, store, executor, folder / "logs" / fault, on_result=on_result)
+            run_campaign(config, store, executor, folder / "logs" / fault, on_result=on_result, options=RunOptions(warm=True))
         _fly_fault_free(folder / f"{fault}.db", folder, executor)
 
 

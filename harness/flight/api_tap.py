@@ -67,6 +67,8 @@ class ApiTap:
                     self._stamp_from(datagram)
                     self.records.append((self._sut_time_ns, "from_sut", datagram))
                     self._client_side.sendto(datagram, self._client_address)
-                elif self._sut_address is not None:
-                    self.records.append((self._sut_time_ns, "to_sut", datagram))
-                    self._sut_side.sendto(datagram, self._sut_address)
+                else:
+                    sut_address = self._sut_address  # once: restart() may clear it meanwhile
+                    if sut_address is not None:
+                        self.records.append((self._sut_time_ns, "to_sut", datagram))
+                        self._sut_side.sendto(datagram, sut_address)

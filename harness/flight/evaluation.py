@@ -33,8 +33,7 @@ from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mi
 from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.bridge import NORMAL_ENDS
-from sim_bridge.spec import WorldSpec
+from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 import sut_adapter
 from sut_adapter import SutConfig, SutHandle, SystemUnderTest
@@ -347,7 +346,7 @@ class _ServingStack:
     def __init__(self, contexts: ExitStack, stack: Stack):
         self._contexts = contexts
         self._stack = stack
-        self._clean = True
+        self._clean = False  # until a flight in it ended normally
 
     @classmethod
     def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
@@ -374,6 +373,9 @@ class _ServingStack:
         return self._clean and self._stack.bridge.poll() is None
 
     def close(self) -> None:
+        bridge = self._stack.bridge
+        if self._clean and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
+            log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
         self._contexts.close()
 
 
@@ -412,27 +414,29 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             control.send(stack.load)
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
 
-        def discovered() -> str | None:
+        def discovered() -> tuple[str, str] | None:
             try:
                 session.discover(options.setup_timeout_s, alive)
             except InfrastructureError as error:
-                return str(error)
+                return _setup_failure(bridge, sut, control, str(error))
             timings["discover_s"] = time.monotonic() - t0
             return None
 
-        def held() -> str | None:
+        def held() -> tuple[str, str] | None:
             if control.wait_for("holding", options.setup_timeout_s, alive) is None:
                 refused = next((e["why"] for e in control.events if e.get("event") == "load_refused"), None)
-                return f"the simulator refused the world: {refused}" if refused else "the simulation never reached its hold point"
+                if refused is not None:  # as a cold-started simulator exits on a world it cannot load
+                    return Status.SIM_CRASHED, f"the simulator refused the world: {refused}"
+                return _setup_failure(bridge, sut, control, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None
 
         # From a cold start MAVSDK finds the SUT while the simulation runs up to its hold; a warm
         # stack's session is connected already, to the fresh SUT once that has spoken, by the hold.
         for stage in (discovered, held) if stack.load is None else (held, discovered):
-            problem = stage()
-            if problem is not None:
-                return _setup_failure(bridge, sut, control, problem), control_summary(control), {}
+            failure = stage()
+            if failure is not None:
+                return failure, control_summary(control), {}
         try:
             session.set_params(sut.mavlink_params)
             if any(f.delivery == "sut" for f in world.failures or ()):

@@ -45,7 +45,7 @@ PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT
 
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
-              sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str], ...] = PLACEMENTS, drive: str | None = None,
+              sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str, bool], ...] = PLACEMENTS, drive: str | None = None,
               mission_plan: Path | None = None) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
     default. `drive` overrides the scenario's drive, `mission_plan` its route."""
@@ -71,7 +71,8 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     # The whole call, log writing included (the result's own wall time ends before it).
                     wall = time.monotonic() - started
                     if result.real_time_factor is None:
-                        raise RuntimeError(f"bench run {index} on {cores} core(s) did not fly: {result.status} {result.why}")
+                        which = "the warm-up run" if index < 0 else f"bench run {index}"
+                        raise RuntimeError(f"{which} on {cores} core(s) ({transport}) did not fly: {result.status} {result.why}")
                     if index < 0:
                         continue
                     rows.append(_run_figures(result, rate_hz, wall))
