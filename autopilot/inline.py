@@ -74,14 +74,11 @@ class InProcessLink:
         (its incoming messages at once too when `now`)."""
         wall = time.perf_counter()
         api = self.autopilot.api
-        if wall < self._next_check:
-            if now:
-                try:
-                    api.receive()
-                except Exception as error:
-                    raise _crashed(error) from error
-            return
         try:
+            if wall < self._next_check:
+                if now:
+                    api.receive()
+                return
             api.receive()
             api.report_events()
             api.telemetry(wall)

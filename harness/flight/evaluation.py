@@ -294,9 +294,7 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
     bridge_log = workdir / "bridge.mcap"
     if options.warm and in_memory(options, system):
         with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
-            stack = serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
-            yield stack
-            serving.flown(stack)
+            yield serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
         return
     with ExitStack() as contexts:
         yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log)
@@ -346,7 +344,7 @@ class _ServingStack:
     def __init__(self, contexts: ExitStack, stack: Stack):
         self._contexts = contexts
         self._stack = stack
-        self._clean = False  # until a flight in it ended normally
+        self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
 
     @classmethod
     def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
@@ -361,20 +359,20 @@ class _ServingStack:
 
     def begin(self, bridge_log: Path, load: dict[str, str]) -> Stack:
         """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
-        self._clean = False
         self._stack.tap.restart()
         self._stack.session.restart()
-        return replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
+        self._flight = replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
+        return self._flight
 
-    def flown(self, stack: Stack) -> None:
-        self._clean = stack.clean
+    def _flew_cleanly(self) -> bool:
+        return self._flight is not None and self._flight.clean
 
     def reusable(self) -> bool:
-        return self._clean and self._stack.bridge.poll() is None
+        return self._flew_cleanly() and self._stack.bridge.poll() is None
 
     def close(self) -> None:
         bridge = self._stack.bridge
-        if self._clean and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
+        if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
             log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
         self._contexts.close()
 
