@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import ctypes
+import functools
 import logging
 import os
 import signal
 import subprocess
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +31,7 @@ class ManagedProcess:
         log.info("starting %s: %s", self.name, " ".join(self.argv))
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
             self.process = subprocess.Popen(
-                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=die_with_parent
+                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=dies_with_this_process()
             )
         return self
 
@@ -92,12 +93,20 @@ _PR_SET_PDEATHSIG = 1
 
 def die_with_parent(sig: int = signal.SIGTERM, parent_pid: int | None = None) -> None:
     """In the child: get `sig` when the harness dies, even by SIGKILL, so nothing is orphaned.
-    A child that sets this up long after it was started (a spawned pool worker, after its
-    imports) passes `parent_pid`: if the parent died before, no signal would ever come."""
+    A child that sets this up after it was started (a spawned pool worker, after its imports)
+    passes `parent_pid`: if the parent died before, no signal would ever come."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, sig)
     if parent_pid is not None and os.getppid() != parent_pid:
         os.kill(os.getpid(), sig)
+
+
+def dies_with_this_process(sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A Popen preexec_fn: the child gets `sig` when this process dies. Even a preexec_fn runs
+    after the fork, so this process may die first (a campaign killed while a worker starts its
+    simulator: the child, not yet in a session of its own, is stopped and continued with the
+    campaign's group); the child then kills itself instead of running on as an orphan."""
+    return functools.partial(die_with_parent, sig, os.getpid())
 
 
 def _signal_group(group: int, sig: int) -> None:

@@ -27,7 +27,7 @@ from typing import Any, Mapping
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
 from harness.flight.evaluation import EvaluationResult
 from harness.flight.fitness import Status
-from sut_adapter.processes import die_with_parent
+from sut_adapter.processes import dies_with_this_process
 
 
 def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str, Any]:
@@ -39,7 +39,7 @@ def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str
         job_file.write_text(json.dumps(document))
         process = subprocess.Popen([sys.executable, "-m", "harness.execution.worker", "--job", str(job_file), "--result", str(result_file)],
                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                   start_new_session=True, preexec_fn=die_with_parent)
+                                   start_new_session=True, preexec_fn=dies_with_this_process())
         try:
             _out, err = process.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired:

@@ -27,7 +27,7 @@ from harness.scenario.documents import load_json
 from harness.scenario.logical import load_logical, logical_problems
 from harness.scenario.profile import load_profile
 from harness.search.optimizers import parse_algorithm
-from sut_adapter.processes import die_with_parent
+from sut_adapter.processes import dies_with_this_process
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 UPLOADS = "uploads"
@@ -157,7 +157,7 @@ class Campaigns:
                 return
             with open(self.store_dir / f"{name}.log", "ab") as console:
                 self._processes[name] = subprocess.Popen(self.command(name), stdout=console, stderr=console, stdin=subprocess.DEVNULL,
-                                                         start_new_session=True, preexec_fn=die_with_parent)
+                                                         start_new_session=True, preexec_fn=dies_with_this_process())
 
     def resume(self, name: str) -> None:
         self._start(name)
