@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
     parser.add_argument("--serve", action="store_true", help="fly world after world, each named on the control channel (a SUT inside this process only)")
+    parser.add_argument("--harness-pid", type=int, help="with --serve: quit when this process, the harness that started us, is gone (default: our parent)")
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
     parser.add_argument("--hold-mode", choices=["frozen", "paced"], default="frozen",
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:
-        return _serve(control_listener, config, args, inline_sut)
+        return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid())
     try:
         world = load_world(args.world)
     except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
@@ -141,17 +142,17 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
     return summary
 
 
-def _serve(listener: socket.socket, config: BridgeConfig, args, inline_sut: Callable[[], SutLink]) -> int:
+def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[], SutLink], harness_pid: int) -> int:
     """Flight after flight in this one process (the harness's warm workers): each harness
     connection on the control port names a world and an MCAP file ({"op": "load", "world": PATH,
-    "mcap": PATH}) and gets a fresh world and a fresh SUT for them; {"op": "quit"} or the
-    harness's SIGTERM ends it. A flight that did not end normally ends it too, with exit code 3,
+    "mcap": PATH}) and gets a fresh world and a fresh SUT for them; {"op": "quit"}, the
+    harness's SIGTERM or its death ends it. A flight that did not end normally ends it too, with exit code 3,
     so that nothing of it can leak into the next."""
     try:
         while True:
             control = ControlChannel(listener, own_listener=False)
             try:
-                request = _next_request(control)
+                request = _next_request(control, harness_pid)
                 if request is None:
                     return 0
                 if not isinstance(request.get("world"), str) or not isinstance(request.get("mcap"), str):
@@ -175,14 +176,17 @@ def _serve(listener: socket.socket, config: BridgeConfig, args, inline_sut: Call
         listener.close()
 
 
-def _next_request(control: ControlChannel) -> dict | None:
-    """The next harness's load request; None when it asks us to quit."""
-    while True:
+def _next_request(control: ControlChannel, harness_pid: int) -> dict | None:
+    """The next harness's load request; None when it asks us to quit or is gone (no longer our
+    parent). Its death normally signals us (die_with_parent), but a server left waiting forever
+    would hold its port block, so we look for ourselves too."""
+    while os.getppid() == harness_pid:
         for op in control.poll(1.0):
             if op.get("op") == "quit":
                 return None
             if op.get("op") == "load":
                 return op
+    return None
 
 
 if __name__ == "__main__":

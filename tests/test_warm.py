@@ -186,3 +186,23 @@ def test_serving_needs_a_sut_inside_the_process(capsys):
         main(["--serve", "--control-port", "24999"])
     assert exit_info.value.code == 2
     assert "--serve needs a SUT inside this process" in capsys.readouterr().err
+
+
+def test_a_serving_simulator_whose_harness_is_gone_quits(tmp_path):
+    """Its harness's death normally signals it; if that signal never came (a harness killed
+    while it was being started), it must not wait forever on its port block."""
+    with PortLease(first_slot=131) as ports:
+        bridge = [sys.executable, "-m", "sut_adapter.inline", "--serve", "--control-port", str(ports.control)]
+        autopilot = ["--", "--api", f"udp:127.0.0.1:{ports.api}"]
+        # A harness that starts it without the death signal (naming itself, as the harness
+        # does), sees it serving, and dies.
+        start = (f"import os, subprocess, time; p = subprocess.Popen({bridge!r} + ['--harness-pid', str(os.getpid())] + {autopilot!r}, "
+                 "start_new_session=True, stdout=subprocess.DEVNULL); time.sleep(1.5); print(p.pid, p.poll() is None)")
+        harness = subprocess.run([sys.executable, "-c", start], capture_output=True, text=True, cwd=ROOT, timeout=30, check=True)
+        server, serving = harness.stdout.split()
+        server = int(server)
+        assert serving == "True"
+        deadline = time.monotonic() + 20.0
+        while _running(server) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running(server)

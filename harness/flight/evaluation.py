@@ -352,7 +352,7 @@ class _ServingStack:
         contexts = ExitStack()
         contexts.callback(shutil.rmtree, home, ignore_errors=True)
         try:
-            return cls(contexts, _start(contexts, options, system, home, ["--serve"], None))
+            return cls(contexts, _start(contexts, options, system, home, ["--serve", "--harness-pid", str(os.getpid())], None))
         except BaseException:
             contexts.close()
             raise
