@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 setup: $(VENV)/.installed
 
 # setup.py compiles these: an edit to one rebuilds it (the autopilot refuses stale builds).
-COMPILED := $(wildcard autopilot/*.py)
+COMPILED := $(wildcard autopilot/*.py autopilot/*.pxd simlink/*.py simlink/*.pxd)
 
 $(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)
 	$(PYTHON) -m venv $(VENV)

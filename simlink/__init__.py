@@ -4,3 +4,21 @@ A precompiled codec for the two messages exchanged on every lockstep step (HIL_S
 HIL_ACTUATOR_CONTROLS) and a MAVLink 2 frame splitter; pymavlink stays the codec for every
 other message. Its own package so that the autopilot need not import the simulator.
 """
+
+from pathlib import Path
+
+
+def check_compiled(package_init: str) -> None:
+    """Refuse to import a package whose compiled modules (see setup.py) are older than their
+    sources or their static types (.pxd): Python would load the stale compiled code and silently
+    ignore the edit."""
+    folder = Path(package_init).parent
+    for compiled in folder.glob("*.so"):
+        stem = compiled.name.split(".", 1)[0]
+        for source in (folder / f"{stem}.py", folder / f"{stem}.pxd"):
+            if source.exists() and source.stat().st_mtime > compiled.stat().st_mtime:
+                raise ImportError(f"{compiled} is older than {source}: rebuild it with `make setup` "
+                                  f"(or `pip install -e .`), or delete the .so files to run the Python sources")
+
+
+check_compiled(__file__)

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from autopilot import check_compiled
+from simlink import check_compiled
 from conftest import FIG4, ROOT
 from harness.flight.evaluation import evaluate
 from harness.scenario.logical import load_logical
@@ -52,13 +52,14 @@ def test_the_compiled_autopilot_answers_a_recorded_flight_exactly_as_its_sources
     space = SearchSpace(load_logical(FIG4, profile), profile)
     result = evaluate(space, space.sample_feasible(np.random.default_rng(1), 1)[0], seed=1, out_dir=tmp_path / "flight")
     sources = tmp_path / "sources"
-    shutil.copytree(ROOT / "autopilot", sources / "autopilot", ignore=shutil.ignore_patterns("*.so", "*.c", "__pycache__"))
+    for package in ("autopilot", "simlink"):
+        shutil.copytree(ROOT / package, sources / package, ignore=shutil.ignore_patterns("*.so", "*.c", "__pycache__"))
     replays = {}
     for name, path in (("compiled", ""), ("sources", str(sources))):
         done = subprocess.run([sys.executable, "-c", REPLAY, result.log_path], capture_output=True, text=True, env={"PYTHONPATH": path}, cwd=tmp_path, check=True)
         replays[name] = json.loads(done.stdout)
-        module = subprocess.run([sys.executable, "-c", "import autopilot.control as c; print(c.__file__)"], capture_output=True, text=True,
-                                env={"PYTHONPATH": path}, cwd=tmp_path, check=True).stdout
-        assert module.strip().endswith(".so" if name == "compiled" else ".py")
+        modules = subprocess.run([sys.executable, "-c", "import autopilot.control, simlink.codec; print(autopilot.control.__file__, simlink.codec.__file__)"],
+                                 capture_output=True, text=True, env={"PYTHONPATH": path}, cwd=tmp_path, check=True).stdout.split()
+        assert all(module.endswith(".so" if name == "compiled" else ".py") for module in modules)
     assert replays["compiled"]["flew_mission"] and replays["compiled"]["steps"] > 5000
     assert replays["compiled"]["answers_sha256"] == replays["sources"]["answers_sha256"]

@@ -1,0 +1,24 @@
+# Static types for the compiled module (setup.py): collision.py stays the plain Python source.
+import cython
+
+cdef class ObstacleMap:
+    cdef public object fault
+    cdef public list distances, occupied, unknown
+    cdef public double updated_s, max_range_m
+
+    cpdef bint fresh(self, double now_s)
+
+cpdef int _bin_of(double angle_rad)
+
+cpdef _clearance_around(list distances, int index)
+
+@cython.locals(b=cython.double)
+cpdef double max_speed_from_distance(double jerk, double accel, double distance)
+
+@cython.locals(home=cython.int, span=cython.int, offset=cython.int)
+cpdef double guided_direction(ObstacleMap obstacles, double direction_rad, double guide_angle_rad, double needed_m)
+
+@cython.locals(cp_dist=cython.double, vn=cython.double, ve=cython.double, speed=cython.double, acc=cython.double, jerk=cython.double, delay=cython.double,
+               narrow_view=cython.bint, braking_m=cython.double, direction=cython.double, bin_n=cython.double, bin_e=cython.double,
+               distance=cython.double, towards=cython.double, stop_distance=cython.double, allowed=cython.double, along=cython.double, changed=cython.bint)
+cpdef tuple constrain_velocity(params, ObstacleMap obstacles, double now_s, setpoint_ne, velocity_ne)

@@ -1,0 +1,19 @@
+# Static types for the compiled module (setup.py): estimator.py stays the plain Python source.
+import cython
+
+cdef class Estimator:
+    cdef public double declination
+    cdef public object q, rates, acc_ned, origin, _baro_ref, last_gps
+    cdef public list pos, vel, _gyro_bias
+    cdef public bint attitude_ready
+    cdef public double _baro_alt, last_gps_s, last_imu_s
+
+    @cython.locals(ex=cython.double, ey=cython.double, ez=cython.double, a_norm=cython.double, ux=cython.double, uy=cython.double, uz=cython.double,
+                   px=cython.double, py=cython.double, pz=cython.double, mn=cython.double, me=cython.double, yaw_error=cython.double,
+                   bx=cython.double, by=cython.double, bz=cython.double, wx=cython.double, wy=cython.double, wz=cython.double,
+                   w=cython.double, x=cython.double, y=cython.double, z=cython.double, half=cython.double, fn=cython.double, fe=cython.double, fd=cython.double,
+                   axis=cython.int)
+    cpdef update_imu(self, double now_s, double dt, gyro, accel, mag)
+
+    @cython.locals(innovation=cython.double)
+    cpdef update_baro(self, double dt, double pressure_alt_m)
