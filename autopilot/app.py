@@ -63,6 +63,10 @@ FRAMES_WITH_POSITION = {
 }
 
 
+# The simulator's messages the autopilot reads besides HIL_SENSOR, by message id.
+_SIM_MESSAGES = {message.msgid: message for message in (codec.HIL_GPS, codec.HIL_STATE_QUATERNION, codec.OBSTACLE_DISTANCE, codec.RC_CHANNELS)}
+
+
 class Autopilot:
     def __init__(self, params: Params):
         self.params = params
@@ -89,9 +93,9 @@ class Autopilot:
         self._last_sensor_values: tuple | None = None
         self._last_gps_fix: GpsFix | None = None
         self._last_obstacle_reading: tuple | None = None
-        self._wanted_sim_messages = {mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE, mavlink.MAVLINK_MSG_ID_RC_CHANNELS}
+        self._wanted_sim_messages = {codec.HIL_GPS.msgid, codec.OBSTACLE_DISTANCE.msgid, codec.RC_CHANNELS.msgid}
         if params["EKF2_GT_MODE"]:
-            self._wanted_sim_messages.add(mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION)
+            self._wanted_sim_messages.add(codec.HIL_STATE_QUATERNION.msgid)
 
     # -- state helpers used by the API --------------------------------------------------------
 
@@ -190,10 +194,10 @@ class Autopilot:
 
     # -- the flight stack, once per HIL_SENSOR --------------------------------------------------
 
-    def _handle_sim_message(self, msgid: int, payload: bytes, frame: bytes, decoder: mavlink.MAVLink) -> None:
-        message = decoder.decode(bytearray(frame))
-        kind = message.get_type()
-        if kind == "HIL_GPS":
+    def _handle_sim_message(self, msgid: int, payload: bytes) -> None:
+        kind = _SIM_MESSAGES[msgid]
+        message = kind.decode(payload)
+        if kind is codec.HIL_GPS:
             fix = GpsFix(message.lat * 1e-7, message.lon * 1e-7, message.alt / 1000.0, message.vn / 100.0, message.ve / 100.0, message.vd / 100.0, message.fix_type, message.satellites_visible)
             self._last_gps_fix = fix
             if self.failures:
@@ -205,9 +209,9 @@ class Autopilot:
             else:
                 self.estimator.last_gps = fix
                 self.estimator.last_gps_s = self.now_s
-        elif kind == "HIL_STATE_QUATERNION":
+        elif kind is codec.HIL_STATE_QUATERNION:
             self._ground_truth = message
-        elif kind == "OBSTACLE_DISTANCE":
+        elif kind is codec.OBSTACLE_DISTANCE:
             increment = message.increment_f if message.increment_f > 0 else float(message.increment)
             reading = (list(message.distances), increment, message.angle_offset, message.min_distance, message.max_distance)
             self._last_obstacle_reading = reading
@@ -216,7 +220,7 @@ class Autopilot:
                 if reading is None:
                     return
             self.obstacles.update(self.now_s, self.yaw_rad(), *reading)
-        elif kind == "RC_CHANNELS" and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
+        elif kind is codec.RC_CHANNELS and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
             raw = [getattr(message, f"chan{n}_raw") for n in range(1, 9)]
             sticks = sticks_from_rc(self.params, self.now_s, message.chancount, raw)
             if sticks is not None:
@@ -291,8 +295,6 @@ class Autopilot:
         sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.api = api = ApiLink(self, api_address)
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
-        decoder = mavlink.MAVLink(None)
-        decoder.robust_parsing = True
         perf = time.perf_counter
         next_check = 0.0
         sim_lost_at: float | None = None
@@ -310,7 +312,7 @@ class Autopilot:
                         pass
                     else:
                         if data:
-                            self._on_sim_data(sim, splitter, decoder, data)
+                            self._on_sim_data(sim, splitter, data)
                         else:
                             sim_lost_at = perf()
                             api.statustext("Simulator link lost: stopping", mavlink.MAV_SEVERITY_CRITICAL)
@@ -329,8 +331,8 @@ class Autopilot:
             sim.close()
             api.sock.close()
 
-    def _on_sim_data(self, sim: socket.socket, splitter: codec.FrameSplitter, decoder, data: bytes) -> None:
-        for msgid, payload, frame in splitter.feed(data):
+    def _on_sim_data(self, sim: socket.socket, splitter: codec.FrameSplitter, data: bytes) -> None:
+        for msgid, payload, _frame in splitter.feed(data):
             if msgid == codec.HIL_SENSOR_ID:
                 fields = codec.decode_hil_sensor(payload)
                 motors = self.step(fields[0], fields[1:14])
@@ -341,7 +343,7 @@ class Autopilot:
                 )
                 self._seq = (self._seq + 1) & 0xFF
             elif msgid in self._wanted_sim_messages:
-                self._handle_sim_message(msgid, payload, frame, decoder)
+                self._handle_sim_message(msgid, payload)
 
 
 def _sensor_reading(unit: FailureUnit, values: tuple):

@@ -13,8 +13,6 @@ import sys
 import time
 import traceback
 
-from pymavlink.dialects.v20 import common as mavlink
-
 from autopilot.api import ApiLink
 from autopilot.app import _CRC_EXTRAS, TELEMETRY_CHECK_S, Autopilot
 from simlink import codec
@@ -25,8 +23,6 @@ class InProcessLink:
         self.autopilot = autopilot
         autopilot.api = ApiLink(autopilot, api_address)
         self._splitter = codec.FrameSplitter(_CRC_EXTRAS)
-        self._decoder = mavlink.MAVLink(None)
-        self._decoder.robust_parsing = True
         self._answers = bytearray()
         self._next_check = 0.0
 
@@ -37,7 +33,7 @@ class InProcessLink:
     # The bridge's side.
     def send(self, data: bytes) -> None:
         try:
-            self.autopilot._on_sim_data(self, self._splitter, self._decoder, data)
+            self.autopilot._on_sim_data(self, self._splitter, data)
         except Exception as error:  # the SUT crashed: in a process of its own it would have died
             raise _crashed(error) from error
 

@@ -35,7 +35,6 @@ def replay(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
     crc_extras = {m: c.crc_extra for m, c in mavlink.mavlink_map.items()}
     frames = codec.FrameSplitter(crc_extras).feed(stream)
     splitter = codec.FrameSplitter(crc_extras)
-    decoder = mavlink.MAVLink(None)
     last = mission["waypoints"][-1]
     items = [MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, mission["takeoff_altitude_m"])]
     items += [MissionItem(i + 1, NAV_WAYPOINT, w["north_m"], w["east_m"], w["altitude_m"], 0.0, 2.0) for i, w in enumerate(mission["waypoints"])]
@@ -45,7 +44,7 @@ def replay(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
     sock = _DigestSocket()
     for msgid, _payload, frame in frames:
         started = time.perf_counter()
-        autopilot._on_sim_data(sock, splitter, decoder, frame)
+        autopilot._on_sim_data(sock, splitter, frame)
         if msgid == codec.HIL_SENSOR_ID:
             durations.append(time.perf_counter() - started)
         if not armed and autopilot.now_s >= 3.0 and autopilot.ready_to_arm()[0]:

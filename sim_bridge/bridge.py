@@ -213,7 +213,7 @@ class Bridge:
         }
         if self.world.pilot is not None:
             self._every["rc"] = max(1, round(RC_PERIOD_S * config.rate_hz))
-        self._mav = mavlink.MAVLink(None, srcSystem=SYSTEM_ID, srcComponent=COMPONENT_ID)
+        self._seq = 0  # the simulator link's MAVLink sequence number
         self._link_out = bytearray()
         self._link_in = bytearray()
         self._clearance_batch: tuple[list, list, list, list] = ([], [], [], [])
@@ -310,53 +310,52 @@ class Bridge:
 
     # -- messages ----------------------------------------------------------------------------
 
+    def _encode(self, message: codec.MessageCodec, *values) -> bytes:
+        frame = message.encode(self._seq, SYSTEM_ID, COMPONENT_ID, *values)
+        self._seq = (self._seq + 1) & 0xFF
+        return frame
+
     def _sensor_frames(self, step: int, time_us: int) -> bytes:
         world = self.world
         s = world.state
-        sensor = codec.encode_hil_sensor(
-            seq=self._mav.seq, sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=world.imu(), fields_updated=FIELDS_ALL
-        )
-        self._mav.seq = (self._mav.seq + 1) & 0xFF
+        imu = world.imu()
         every = self._every
-        extra = []
+        frames = []
         g = self._gps_fix() if step % every["gps"] == 0 else None
         if g is not None:
-            extra.append(
-                self._mav.hil_gps_encode(
-                    time_us, g["fix_type"], g["lat"], g["lon"], g["alt"], g["eph"], g["epv"], g["vel"], g["vn"], g["ve"], g["vd"], g["cog"], g["satellites_visible"]
-                )
-            )
+            frames.append(self._encode(
+                codec.HIL_GPS, time_us, g["fix_type"], g["lat"], g["lon"], g["alt"], g["eph"], g["epv"], g["vel"], g["vn"], g["ve"], g["vd"], g["cog"],
+                g["satellites_visible"], 0, 0,
+            ))
         if step % every["truth"] == 0:
-            q = quaternion_from_euler(s.roll_rad, s.pitch_rad, s.yaw_rad)
-            extra.append(
-                self._mav.hil_state_quaternion_encode(
-                    time_us,
-                    q,
-                    s.p_rad_s,
-                    s.q_rad_s,
-                    s.r_rad_s,
-                    int(round(s.lat_deg * 1e7)),
-                    int(round(s.lon_deg * 1e7)),
-                    int(round(s.alt_msl_m * 1000)),
-                    int(round(s.v_north_m_s * 100)),
-                    int(round(s.v_east_m_s * 100)),
-                    int(round(s.v_down_m_s * 100)),
-                    0,
-                    0,
-                    _milli_g(s.ax_m_s2),
-                    _milli_g(s.ay_m_s2),
-                    _milli_g(s.az_m_s2),
-                )
-            )
+            frames.append(self._encode(
+                codec.HIL_STATE_QUATERNION,
+                time_us,
+                quaternion_from_euler(s.roll_rad, s.pitch_rad, s.yaw_rad),
+                s.p_rad_s,
+                s.q_rad_s,
+                s.r_rad_s,
+                int(round(s.lat_deg * 1e7)),
+                int(round(s.lon_deg * 1e7)),
+                int(round(s.alt_msl_m * 1000)),
+                int(round(s.v_north_m_s * 100)),
+                int(round(s.v_east_m_s * 100)),
+                int(round(s.v_down_m_s * 100)),
+                0,
+                0,
+                _milli_g(s.ax_m_s2),
+                _milli_g(s.ay_m_s2),
+                _milli_g(s.az_m_s2),
+            ))
         if step % every["sensor"] == 0:
-            extra.extend(self._obstacle_distance(time_us))
+            frames.extend(self._obstacle_distance(time_us))
         if world.pilot is not None and step % every["rc"] == 0:
-            extra.append(self._pilot_rc(time_us))
-        if not extra:
-            return sensor
+            frames.append(self._pilot_rc(time_us))
         # HIL_SENSOR goes last: a SUT that steps on it has then seen this step's other messages,
-        # however TCP splits the stream.
-        return b"".join(bytes(m.pack(self._mav)) for m in extra) + sensor
+        # however TCP splits the stream. Sequence numbers count up in the order frames are sent.
+        frames.append(codec.encode_hil_sensor(seq=self._seq, sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=imu, fields_updated=FIELDS_ALL))
+        self._seq = (self._seq + 1) & 0xFF
+        return b"".join(frames)
 
     def _gps_fix(self) -> dict[str, Any] | None:
         """This step's HIL_GPS fields as the receiver delivers them (None: nothing delivered)."""
@@ -382,16 +381,16 @@ class Bridge:
         min_cm = int(world.min_range_m * 100)
         messages = []
         if "OBSTACLE_DISTANCE" in self.config.range_messages:
-            messages.append(self._mav.obstacle_distance_encode(
-                time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
+            messages.append(self._encode(
+                codec.OBSTACLE_DISTANCE, time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
             ))
         # The same reading as DISTANCE_SENSOR wedges: PX4's simulator link ignores OBSTACLE_DISTANCE
         # but turns DISTANCE_SENSOR into the distance_sensor topic its collision prevention reads.
         for sensor_id, (quaternion, fov_rad, sectors) in enumerate(self._wedges if "DISTANCE_SENSOR" in self.config.range_messages else ()):
             nearest_cm = min(min(distances[i] for i in sectors), reach_cm)
-            messages.append(self._mav.distance_sensor_encode(
-                time_us // 1000, min_cm, reach_cm, nearest_cm, mavlink.MAV_DISTANCE_SENSOR_LASER, sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0,
-                fov_rad, fov_rad, quaternion,
+            messages.append(self._encode(
+                codec.DISTANCE_SENSOR, time_us // 1000, min_cm, reach_cm, nearest_cm, mavlink.MAV_DISTANCE_SENSOR_LASER, sensor_id,
+                mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, fov_rad, fov_rad, quaternion, 0,
             ))
         return messages
 
@@ -404,7 +403,7 @@ class Bridge:
             "mode_slot": frame.slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
         })
         unused = [UINT16_MAX] * (18 - CHANNEL_COUNT)
-        return self._mav.rc_channels_encode(time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
+        return self._encode(codec.RC_CHANNELS, time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
 
     # -- the control channel -----------------------------------------------------------------
 

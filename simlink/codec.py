@@ -1,8 +1,10 @@
-"""MAVLink 2 framing plus struct codecs for the per-step messages, byte-identical to pymavlink.
+"""MAVLink 2 framing plus struct codecs for the simulator link's messages, byte-identical to pymavlink.
 
-pymavlink spends about 7 us encoding and 10 us parsing one message; at 250 Hz in lockstep that
-is a large part of the step budget. tests/test_simlink_codec.py checks every byte against
-pymavlink.
+pymavlink spends 3-7 us encoding and about 10 us parsing one message; at 250 Hz in lockstep that
+is a large part of the step budget. HIL_SENSOR and HIL_ACTUATOR_CONTROLS, every step, have codecs
+of their own; the 10-50 Hz messages (GPS, ground truth, range, RC) go through `MessageCodec`,
+which packs and unpacks pymavlink's own layout of a message without building its message
+objects. tests/test_simlink_codec.py checks every byte against pymavlink.
 """
 
 from __future__ import annotations
@@ -10,8 +12,10 @@ from __future__ import annotations
 import socket
 import struct
 import time
+from collections import namedtuple
 
 from fastcrc import crc16
+from pymavlink.dialects.v20 import common as _mavlink
 
 STX_V2 = 0xFD
 HEADER_LEN = 10  # STX, len, incompat, compat, seq, sysid, compid, msgid (3 bytes)
@@ -70,6 +74,49 @@ def decode_hil_actuator_controls(payload: bytes) -> tuple[int, int, tuple[float,
     """(time_usec, flags, controls[16], mode); truncated or extended payloads as decode_hil_sensor."""
     fields = _HIL_ACTUATOR_CONTROLS.unpack(payload[: _HIL_ACTUATOR_CONTROLS.size].ljust(_HIL_ACTUATOR_CONTROLS.size, b"\x00"))
     return fields[0], fields[1], fields[2:18], fields[18]
+
+
+class MessageCodec:
+    """One message in pymavlink's layout (its wire-order struct, field order, array lengths and
+    CRC extra, read off pymavlink's message class), without pymavlink's message objects."""
+
+    def __init__(self, message_class):
+        if any(kind == "char" for kind in message_class.fieldtypes):
+            raise ValueError(f"{message_class.msgname}: char fields are not supported")
+        self.msgid = message_class.id
+        self._crc_extra = message_class.crc_extra
+        self._struct = message_class.unpacker
+        declared, wire = message_class.fieldnames, message_class.ordered_fieldnames
+        lengths = dict(zip(wire, message_class.array_lengths))
+        self._wire = [(declared.index(name), lengths[name]) for name in wire]
+        self._declared_at = [wire.index(name) for name in declared]
+        self._fields = namedtuple(message_class.msgname, declared)
+
+    def encode(self, seq: int, sysid: int, compid: int, *values) -> bytes:
+        """values: the fields in pymavlink's `*_encode` order, arrays as sequences."""
+        flat = []
+        for index, length in self._wire:
+            if length:
+                flat.extend(values[index])
+            else:
+                flat.append(values[index])
+        return _frame(self.msgid, self._crc_extra, self._struct.pack(*flat), seq, sysid, compid)
+
+    def decode(self, payload: bytes):
+        """The fields by name (arrays as tuples) from a frame's payload, truncated or extended as
+        decode_hil_sensor takes it."""
+        size = self._struct.size
+        flat = self._struct.unpack(payload[:size].ljust(size, b"\x00"))
+        wire = []
+        position = 0
+        for _index, length in self._wire:
+            if length:
+                wire.append(flat[position : position + length])
+                position += length
+            else:
+                wire.append(flat[position])
+                position += 1
+        return self._fields(*[wire[at] for at in self._declared_at])
 
 
 class FrameSplitter:
@@ -169,3 +216,10 @@ def receive(sock: socket.socket, spin_s: float = 0.0) -> bytes:
                 if time.perf_counter() > deadline:
                     break
     return sock.recv(65536)
+
+
+HIL_GPS = MessageCodec(_mavlink.MAVLink_hil_gps_message)
+HIL_STATE_QUATERNION = MessageCodec(_mavlink.MAVLink_hil_state_quaternion_message)
+OBSTACLE_DISTANCE = MessageCodec(_mavlink.MAVLink_obstacle_distance_message)
+DISTANCE_SENSOR = MessageCodec(_mavlink.MAVLink_distance_sensor_message)
+RC_CHANNELS = MessageCodec(_mavlink.MAVLink_rc_channels_message)

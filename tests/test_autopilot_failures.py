@@ -86,13 +86,12 @@ class Flight:
         self._sim = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         self._client = mavlink.MAVLink(None, srcSystem=245, srcComponent=190)
         self._splitter = codec.FrameSplitter({m: c.crc_extra for m, c in mavlink.mavlink_map.items()})
-        self._decoder = mavlink.MAVLink(None)
 
     def close(self) -> None:
         self.link.sock.close()
 
     def feed(self, frame: bytes) -> None:
-        self.ap._on_sim_data(_NoSocket(), self._splitter, self._decoder, frame)
+        self.ap._on_sim_data(_NoSocket(), self._splitter, frame)
 
     def step(self, *, accel=ACCEL, gyro=GYRO, mag=MAG, pressure_alt_m=PRESSURE_ALT_M) -> None:
         """One physics step: HIL_SENSOR, and HIL_GPS every GPS_EVERY steps, as the bridge sends them."""

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.scenario.logical import load_logical
@@ -116,8 +117,13 @@ def _bridge_with(obstacles, visibility_m=10_000.0, fov_deg=360.0):
     return Bridge(world, BridgeConfig(), recorder)
 
 
+def _range_messages(bridge) -> list:
+    """The bridge's range frames of this step, as pymavlink reads them."""
+    return [mavlink.MAVLink(None).decode(bytearray(frame)) for frame in bridge._obstacle_distance(0)]
+
+
 def _sectors(bridge):
-    message = bridge._obstacle_distance(0)[0]
+    message = _range_messages(bridge)[0]
     assert message.get_type() == "OBSTACLE_DISTANCE"
     return list(message.distances), message.max_distance
 
@@ -136,7 +142,7 @@ def test_the_same_reading_goes_out_as_distance_sensor_wedges_for_px4():
     north, east = 8.0 * math.cos(math.radians(30)), 8.0 * math.sin(math.radians(30))
     bridge = _bridge_with([{"id": "pole", "form": "cylinder", "size": {"diameter_m": 0.5, "height_m": 10.0}, "a": {"north_m": north, "east_m": east, "up_m": 5.0}, "b": None}],
                           fov_deg=100.0)
-    sectors, wedges = bridge._obstacle_distance(0)[0], bridge._obstacle_distance(0)[1:]
+    sectors, *wedges = _range_messages(bridge)
     assert [w.get_type() for w in wedges] == ["DISTANCE_SENSOR"] * 6 and [w.id for w in wedges] == list(range(6))
     yaws = [math.degrees(2 * math.atan2(w.quaternion[3], w.quaternion[0])) for w in wedges]
     assert yaws == pytest.approx([-42.5, -22.5, -2.5, 17.5, 37.5, 50.0])  # 4 sectors of 5 degrees each, the last one alone

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
@@ -16,6 +17,7 @@ from autopilot.app import Autopilot
 from autopilot.inline import InProcessLink
 from autopilot.params import Params
 from sim_bridge.sut_link import SutLink
+from simlink import codec
 
 # Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
 # scene and the events (the API link's traffic follows wall time and is left out).
@@ -46,6 +48,16 @@ def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, s
     flights, records = both_ways(tmp_path, space, x, seed)
     assert flights["tcp"].status == flights["memory"].status and flights["tcp"].fitness == flights["memory"].fitness
     assert len(records["tcp"]) > 1000 and records["tcp"] == records["memory"]
+    for direction in ("to_sut", "from_sut"):
+        numbers = sequence_numbers(records["memory"], direction)
+        assert len(numbers) > 5000 and all((b - a) % 256 == 1 for a, b in zip(numbers, numbers[1:])), f"{direction} skips or repeats a number"
+
+
+def sequence_numbers(records, direction: str) -> list[int]:
+    """The MAVLink sequence numbers on the simulator link, one way, in the order sent."""
+    splitter = codec.FrameSplitter({msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()})
+    return [frame[4] for topic, _ns, message in records if topic == "/mavlink/sim" and message["direction"] == direction
+            for _msgid, _payload, frame in splitter.feed(bytes.fromhex(message["hex"]))]
 
 
 def test_memory_is_refused_for_a_sut_in_a_process_of_its_own(capsys):
