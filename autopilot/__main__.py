@@ -1,4 +1,4 @@
-"""`python -m autopilot --sim tcp:127.0.0.1:4560 --api udp:127.0.0.1:14540 [--params FILE] [--spin-us US]`"""
+"""`python -m autopilot --sim tcp:127.0.0.1:4560|unix:PATH --api udp:127.0.0.1:14540 [--params FILE] [--spin-us US]`"""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import sys
 
 from autopilot.app import Autopilot
 from autopilot.params import ParamError, Params
+from simlink import codec
 
 
 def address(text: str, scheme: str) -> tuple[str, int]:
@@ -19,9 +20,15 @@ def address(text: str, scheme: str) -> tuple[str, int]:
     return host.lstrip("/") or "127.0.0.1", int(port)
 
 
+def sim_address(text: str) -> tuple[str, int] | str:
+    """tcp:HOST:PORT, or unix:PATH (unix:@NAME: Linux's abstract namespace) for a simulator
+    listening on a Unix-domain socket."""
+    return codec.unix_socket_address(text.removeprefix("unix:")) if text.startswith("unix:") else address(text, "tcp")
+
+
 def arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m autopilot", description="The bundled PX4-like autopilot.")
-    parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol)")
+    parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol): tcp:HOST:PORT, or unix:PATH or unix:@NAME (a Unix-domain socket)")
     parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
     parser.add_argument("--params", help="JSON file of PX4-named parameter overrides")
     parser.add_argument("--fault", help="switch on one seeded fault (autopilot/faults.py) to test a test")
@@ -46,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.params or '--fault'}: {error}", file=sys.stderr)
         return 2
     try:
-        return Autopilot(params).serve(address(args.sim, "tcp"), address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)
+        return Autopilot(params).serve(sim_address(args.sim), address(args.api, "udp"), args.connect_timeout_s, args.spin_us * 1e-6)
     except OSError as error:
         print(f"autopilot: simulator at {args.sim} unreachable: {error}", file=sys.stderr)
         return 3

@@ -290,9 +290,11 @@ class Autopilot:
 
     # -- the process loop -----------------------------------------------------------------------
 
-    def serve(self, sim_address: tuple[str, int], api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0) -> int:
+    def serve(self, sim_address: tuple[str, int] | str, api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0) -> int:
+        """sim_address: (host, port) over TCP, or a Unix-domain socket's path."""
         sim = _connect(sim_address, connect_timeout_s)
-        sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if sim.family != socket.AF_UNIX:
+            sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.api = api = ApiLink(self, api_address)
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         perf = time.perf_counter
@@ -379,11 +381,19 @@ _WRONG = {
 }
 
 
-def _connect(address: tuple[str, int], timeout_s: float) -> socket.socket:
+def _connect(address: tuple[str, int] | str, timeout_s: float) -> socket.socket:
     """Connect to the simulator as PX4 does: keep retrying until it accepts."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
+            if isinstance(address, str):
+                sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                try:
+                    sock.connect(address)
+                except OSError:
+                    sock.close()
+                    raise
+                return sock
             return socket.create_connection(address, timeout=2.0)
         except OSError:
             if time.monotonic() > deadline:

@@ -23,12 +23,20 @@ from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChann
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
+from simlink import codec
 
 
 def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
     listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     listener.bind((host, port))
+    listener.listen(1)
+    return listener
+
+
+def listen_unix(name: str) -> socket.socket:
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(codec.unix_socket_address(name))
     listener.listen(1)
     return listener
 
@@ -58,6 +66,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
     parser.add_argument("--world", help="world spec JSON (stella sample --json prints one)")
     parser.add_argument("--sim-port", type=int, default=4560)
+    parser.add_argument("--sim-socket", help="listen for the SUT on this Unix-domain socket (a path, or @NAME in the abstract namespace) instead of the simulator port")
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -92,7 +101,9 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
         print(f"{args.world}: {error}", file=sys.stderr)
         return 2
-    sim_listener = listen(args.sim_port, args.host) if inline_sut is None else None
+    sim_listener = None
+    if inline_sut is None:
+        sim_listener = listen_unix(args.sim_socket) if args.sim_socket else listen(args.sim_port, args.host)
     control = ControlChannel(control_listener)
     try:
         summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut))

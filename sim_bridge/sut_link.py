@@ -1,8 +1,9 @@
 """How the bridge's bytes reach the SUT and its answers come back.
 
-Over TCP as PX4's simulator_mavlink connects (`SocketLink`), or, for a SUT that runs inside the
-bridge's process (the bundled autopilot, `python -m sut_adapter.inline`), through memory: the
-same MAVLink bytes, handed over by a call instead of a socket. Either way the bridge sees the
+Over TCP as PX4's simulator_mavlink connects, or over a Unix-domain socket for a SUT that can
+connect to one (`SocketLink` either way; the kernel's round trip takes half TCP's), or, for a SUT
+that runs inside the bridge's process (the bundled autopilot, `python -m sut_adapter.inline`),
+through memory: the same MAVLink bytes, handed over by a call instead of a socket. Either way the bridge sees the
 protocol below; what it sends and what it reads back are the same bytes.
 """
 
@@ -14,9 +15,11 @@ from typing import Protocol
 
 from simlink import codec
 
-# "tcp": the SUT in a process of its own (any SUT); "memory": inside the bridge's process (a
-# SUT that can run there); "auto": memory where an evaluation has one core and the SUT can, else tcp.
-TRANSPORTS = ("auto", "tcp", "memory")
+# "tcp": the SUT in a process of its own (any SUT); "unix": the same over a Unix-domain socket
+# (a SUT that can connect to one: the bundled autopilot); "memory": inside the bridge's process
+# (a SUT that can run there); "auto": memory where an evaluation has one core, unix where it has
+# two, whichever the SUT can, else tcp.
+TRANSPORTS = ("auto", "tcp", "memory", "unix")
 
 
 class SutLink(Protocol):
@@ -42,11 +45,12 @@ class SutLink(Protocol):
 
 
 class SocketLink:
-    """A SUT connected over TCP."""
+    """A SUT connected over TCP or a Unix-domain socket."""
 
     def __init__(self, sock: socket.socket, stall_timeout_s: float):
         self.sock = sock
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if sock.family != socket.AF_UNIX:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         codec.set_receive_timeout(sock, stall_timeout_s)
 
     def send(self, data: bytes) -> None:

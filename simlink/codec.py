@@ -191,6 +191,12 @@ class FrameSplitter:
         return frames
 
 
+def unix_socket_address(name: str) -> str:
+    """A Unix-domain socket's address: a path, or "@NAME" for Linux's abstract namespace (no
+    file to remove, however its owner ends)."""
+    return "\0" + name[1:] if name.startswith("@") else name
+
+
 def set_receive_timeout(sock, timeout_s: float) -> None:
     """A kernel-side receive timeout on a blocking socket: one recv() syscall per message instead
     of Python's poll() + recv() for sockets with a timeout. recv() then raises BlockingIOError

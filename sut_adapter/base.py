@@ -16,6 +16,9 @@ how to treat it without knowing which SUT it is:
 * `inline_arguments` (optional): a SUT that can run inside the bridge's process, its simulator
   link through memory (`--transport memory`; the bundled autopilot), gives the arguments it
   takes there. PX4 and command SUTs have none: they keep TCP.
+* `connects_to_unix_socket` (optional, True): the SUT's `start` also takes `sim_socket`, a
+  Unix-domain socket to connect to instead of the simulator's TCP port (`--transport unix`; the
+  bundled autopilot). Same bytes, half the kernel's round trip.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -89,6 +92,11 @@ def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
 def runs_inline(system: "SystemUnderTest") -> bool:
     """Whether the SUT can run inside the bridge's process (it gives `inline_arguments`)."""
     return callable(getattr(system, "inline_arguments", None))
+
+
+def connects_to_unix_socket(system: "SystemUnderTest") -> bool:
+    """Whether the SUT's start takes `sim_socket`, a Unix-domain socket to connect to."""
+    return getattr(system, "connects_to_unix_socket", False) is True
 
 
 class SystemUnderTest(Protocol):

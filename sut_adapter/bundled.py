@@ -15,6 +15,7 @@ class BundledAutopilot:
     name = "bundled"
     hold_mode = "frozen"
     range_messages = ("OBSTACLE_DISTANCE",)
+    connects_to_unix_socket = True
 
     def __init__(self, config: Mapping[str, str] | None = None):
         config = dict(config or {})
@@ -33,8 +34,9 @@ class BundledAutopilot:
             raise SutError(self.name, f"{error} (`python -m autopilot.params` lists its parameters)") from None
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
-              spin_s: float = 0.0) -> SutHandle:
-        argv = [sys.executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{sim_port}", *self.inline_arguments(api_port=api_port, workdir=workdir, params=params)]
+              spin_s: float = 0.0, sim_socket: str | None = None) -> SutHandle:
+        sim = f"unix:{sim_socket}" if sim_socket is not None else f"tcp:127.0.0.1:{sim_port}"
+        argv = [sys.executable, "-m", "autopilot", "--sim", sim, *self.inline_arguments(api_port=api_port, workdir=workdir, params=params)]
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]
         return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))

@@ -1,7 +1,10 @@
-"""The bundled autopilot inside the simulator's process (--transport memory) flies the same
-flights as over TCP, to the last bit: the same bytes on the simulator link, the same log."""
+"""The bundled autopilot inside the simulator's process (--transport memory) and in its own
+process over a Unix-domain socket (--transport unix) flies the same flights as over TCP, to the
+last bit: the same bytes on the simulator link, the same log."""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -16,7 +19,7 @@ from harness.tools.cli import main
 from autopilot.app import Autopilot
 from autopilot.inline import InProcessLink
 from autopilot.params import Params
-from sim_bridge.sut_link import SutLink
+from sim_bridge.sut_link import TRANSPORTS, SutLink
 from simlink import codec
 
 # Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
@@ -26,7 +29,7 @@ SIMULATED = ["/mavlink/sim", "/uav/state", "/clearance", "/scene", "/sensor/obst
 
 def both_ways(tmp_path, space, x, seed):
     flights = {transport: evaluate(space, x, seed=seed, out_dir=tmp_path / transport, options=RunOptions(cores=1, transport=transport))
-               for transport in ("tcp", "memory")}
+               for transport in TRANSPORTS[1:]}
     records = {transport: [(topic, ns, message) for topic, ns, message in logs.messages(result.log_path, SIMULATED)]
                for transport, result in flights.items()}
     return flights, records
@@ -46,8 +49,9 @@ def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, s
     space = SearchSpace(load_logical(scenario, profile, drive), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     flights, records = both_ways(tmp_path, space, x, seed)
-    assert flights["tcp"].status == flights["memory"].status and flights["tcp"].fitness == flights["memory"].fitness
-    assert len(records["tcp"]) > 1000 and records["tcp"] == records["memory"]
+    for transport in ("memory", "unix"):
+        assert (flights[transport].status, flights[transport].fitness) == (flights["tcp"].status, flights["tcp"].fitness)
+        assert len(records["tcp"]) > 1000 and records[transport] == records["tcp"], transport
     for direction in ("to_sut", "from_sut"):
         numbers = sequence_numbers(records["memory"], direction)
         assert len(numbers) > 5000 and all((b - a) % 256 == 1 for a, b in zip(numbers, numbers[1:])), f"{direction} skips or repeats a number"
@@ -58,6 +62,23 @@ def sequence_numbers(records, direction: str) -> list[int]:
     splitter = codec.FrameSplitter({msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()})
     return [frame[4] for topic, _ns, message in records if topic == "/mavlink/sim" and message["direction"] == direction
             for _msgid, _payload, frame in splitter.feed(bytes.fromhex(message["hex"]))]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="an evaluation gets two cores only where there are two")
+def test_auto_runs_the_bundled_autopilot_in_memory_on_one_core_and_over_a_unix_socket_on_two(tmp_path, profile):
+    space = SearchSpace(load_logical(ROOT / "scenarios" / "table3" / "scenario_31.json", profile), profile)
+    x = space.sample_feasible(np.random.default_rng(4), 1)[0]
+    flights = {cores: evaluate(space, x, seed=4, out_dir=tmp_path / str(cores), options=RunOptions(cores=cores)) for cores in (1, 2)}
+    assert {cores: logs.json_metadata(result.log_path, "placement") for cores, result in flights.items()} == {
+        1: {"cores": 1, "transport": "memory"}, 2: {"cores": 2, "transport": "unix"}}
+    assert flights[1].fitness == flights[2].fitness and flights[2].status == "ok"
+
+
+def test_unix_is_refused_for_a_sut_that_connects_over_tcp_only(capsys):
+    assert main(["run", str(ROOT / "scenarios" / "table3" / "scenario_05.json"), "--sut", "command",
+                 "--sut-command", "my-autopilot --sim {sim_port} --api {api_port}", "--transport", "unix"]) == 2
+    assert "--transport: /: unix carries the bundled autopilot only; command connects to the simulator over TCP" in capsys.readouterr().err
 
 
 def test_memory_is_refused_for_a_sut_in_a_process_of_its_own(capsys):

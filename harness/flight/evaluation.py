@@ -64,11 +64,13 @@ class RunOptions:
     # flight runs about 1.5x faster but keeps two cores busy. Executors choose 2 only when every
     # concurrent evaluation can have two cores.
     cores: int = 1
-    # How the simulator's bytes reach the SUT: "tcp" (any SUT, its own process), or "memory": a
-    # SUT that can (the bundled autopilot) runs inside the bridge's process, the same bytes
-    # handed over by a call; the flight is the same to the last bit, on one core, about 1.6x
-    # faster than both processes sharing it. "auto": memory where an evaluation has one core
-    # and the SUT can; with two cores the polling pair over TCP is faster still.
+    # How the simulator's bytes reach the SUT: "tcp" (any SUT, its own process); "unix": the
+    # same over a Unix-domain socket, for a SUT that can connect to one (the bundled autopilot;
+    # half TCP's round trip); or "memory": a SUT that can (the bundled autopilot) runs inside the
+    # bridge's process, the same bytes handed over by a call. The flight is the same to the last
+    # bit whichever carries it. On one core memory is the fastest, about 1.6x faster than both
+    # processes sharing it; on two the polling pair over a Unix-domain socket is. "auto": memory
+    # where an evaluation has one core, unix where it has two, whichever the SUT can, else tcp.
     transport: str = "auto"
     # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
     # fly this process's next evaluation with the same options in it: a fresh world and a fresh
@@ -245,7 +247,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         result = finish(status, value, why, clearance, log_path)
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
-            "sut": options.sut.identity(),
+            "sut": options.sut.identity(), "placement": stack.placement,
         })
         return result
     except sut_adapter.SutError as error:
@@ -269,6 +271,8 @@ class Stack:
     tap: ApiTap
     sut: SutHandle
     session: MavsdkSession
+    # Where it runs: {"cores": N, "transport": "memory" | "unix" | "tcp"}, as the log records it.
+    placement: dict[str, Any]
     # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
     load: dict[str, str] | None = None
     # Set once the flight ended normally: a warm stack may then fly the next evaluation.
@@ -281,6 +285,15 @@ def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     if options.transport == "memory" and not can:
         raise sut_adapter.SutError(system.name, "runs in a process of its own only: use --transport tcp")
     return options.transport == "memory" or (options.transport == "auto" and can and options.cores == 1)
+
+
+def over_unix_socket(options: RunOptions, system: SystemUnderTest, cores: int) -> bool:
+    """Whether a SUT in a process of its own connects over a Unix-domain socket rather than TCP
+    (RunOptions.transport; `cores`: what the evaluation gets)."""
+    can = sut_adapter.connects_to_unix_socket(system)
+    if options.transport == "unix" and not can:
+        raise sut_adapter.SutError(system.name, "connects to the simulator over TCP only: use --transport tcp")
+    return options.transport == "unix" or (options.transport == "auto" and can and cores >= 2)
 
 
 @contextmanager
@@ -311,6 +324,11 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
                    "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6)]
+    # Named after the leased simulator port, so unique on this machine while the lease lasts; in
+    # the abstract namespace, so nothing is left behind however the processes end.
+    sim_socket = f"@stella-sim-{ports.sim}" if not inline and over_unix_socket(options, system, cores) else None
+    if sim_socket is not None:
+        bridge_argv += ["--sim-socket", sim_socket]
     if inline:
         bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
                        *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
@@ -321,7 +339,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     if inline:
         sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
     else:
-        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s)
+        extra = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
 
     def stop() -> None:
         session.close()
@@ -334,7 +353,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     contexts.callback(stop)
     if options.pin_cpu:
         _pin(bridge.pid, sut.pids, ports.slot, cores)
-    return Stack(ports, bridge, bridge_log, tap, sut, session)
+    placement = {"cores": cores, "transport": "memory" if inline else "unix" if sim_socket is not None else "tcp"}
+    return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
 
 
 class _ServingStack:

@@ -37,8 +37,9 @@ DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
 # How an evaluation runs: (cores per evaluation, transport between the simulator and the SUT,
 # whether the worker keeps the simulator with the SUT inside between evaluations: RunOptions.warm).
-PLACEMENTS = ((2, "tcp", False), (1, "tcp", False), (1, "memory", False), (1, "memory", True))
+PLACEMENTS = ((2, "tcp", False), (2, "unix", False), (1, "tcp", False), (1, "memory", False), (1, "memory", True))
 PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT, polling",
+                   (2, "unix", False): "the same over a Unix-domain socket instead of TCP",
                    (1, "tcp", False): "both on one core, sleeping while the other works",
                    (1, "memory", False): "the SUT inside the simulator's process, on one core",
                    (1, "memory", True): "the same, kept warm between evaluations (a worker's steady state)"}
@@ -58,9 +59,11 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     autopilot = None
     physics_alone = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
-        # A SUT that runs in its own process only (PX4, a command) has no in-memory placement.
-        inline = sut_adapter.runs_inline(sut_adapter.system_for(sut.sut))
-        for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and (t == "tcp" or inline)]:
+        # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
+        # that connects over TCP only, no Unix-domain socket one.
+        system = sut_adapter.system_for(sut.sut)
+        can = {"tcp": True, "memory": sut_adapter.runs_inline(system), "unix": sut_adapter.connects_to_unix_socket(system)}
+        for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and can[t]]:
             rows = []
             options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores, transport=transport, warm=keep_warm)
             try:

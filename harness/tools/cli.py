@@ -239,6 +239,8 @@ def _check_transport(transport: str, sut: SutConfig) -> None:
 
     if transport == "memory" and not sut_adapter.runs_inline(sut_adapter.system_for(sut)):
         raise InputError([Problem("--transport", "", f"memory carries the bundled autopilot only; {sut.name} runs in a process of its own: use --transport tcp")])
+    if transport == "unix" and not sut_adapter.connects_to_unix_socket(sut_adapter.system_for(sut)):
+        raise InputError([Problem("--transport", "", f"unix carries the bundled autopilot only; {sut.name} connects to the simulator over TCP: use --transport tcp")])
 
 
 @command("run")
@@ -728,7 +730,8 @@ def parser() -> argparse.ArgumentParser:
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
                    help="memory: the bundled autopilot steps inside the simulator's process, on one core (the same flight, bit for bit); "
-                        "tcp: in its own process; auto (default): memory with --cores 1 and the bundled autopilot, else tcp")
+                        "unix: in its own process over a Unix-domain socket; tcp: in its own process over TCP (any SUT); "
+                        "auto (default): memory with --cores 1, unix with --cores 2 for the bundled autopilot, tcp for other SUTs")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run (with --repeat: any repeat) violates the safety distance")
     p.add_argument("--repeat", type=positive_int, default=1,
                    help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
@@ -756,7 +759,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=positive_float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only placements with this many cores per evaluation (default: all)")
-    p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory: the bundled autopilot only)")
+    p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory and unix: the bundled autopilot only)")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
@@ -783,8 +786,9 @@ def parser() -> argparse.ArgumentParser:
                    help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
     p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
-                   help="memory: the bundled autopilot steps inside the simulator's process (the same flights); tcp: in its own process; "
-                        "auto (default): memory where an evaluation gets one core (as many workers as cores) and the SUT is the bundled autopilot")
+                   help="memory: the bundled autopilot steps inside the simulator's process (the same flights); unix: in its own process over a "
+                        "Unix-domain socket; tcp: in its own process over TCP; auto (default): memory where an evaluation gets one core (as many workers "
+                        "as cores), unix where it gets two, for the bundled autopilot; tcp for other SUTs")
     p.add_argument("--cold-start", action="store_true",
                    help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
                         "evaluation (a fresh world and autopilot in the same process: the same flights, about a quarter second less each)")
