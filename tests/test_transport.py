@@ -90,13 +90,12 @@ def test_memory_is_refused_for_a_sut_in_a_process_of_its_own(capsys):
 def test_an_autopilot_that_raises_inside_the_bridge_is_a_crashed_sut_not_a_crashed_simulator(capsys):
     """The bridge ends a run whose SUT link raises OSError as sut_disconnected, which the harness
     reports as a crashed SUT with the traceback from stderr."""
-    autopilot = Autopilot(Params())
-    link: SutLink = InProcessLink(autopilot, ("127.0.0.1", 9))
-    try:
-        def broken(*_args):
+    class Broken(Autopilot):
+        def _on_sim_data(self, *_args):
             raise ZeroDivisionError("a bug in the autopilot")
 
-        autopilot._on_sim_data = broken
+    link: SutLink = InProcessLink(Broken(Params()), ("127.0.0.1", 9))
+    try:
         with pytest.raises(ConnectionAbortedError, match="the autopilot crashed"):
             link.send(b"frames")
         assert "ZeroDivisionError: a bug in the autopilot" in capsys.readouterr().err
