@@ -24,6 +24,11 @@ cpdef tuple euler_from_quat(q)
 @cython.locals(norm=cython.double)
 cpdef tuple limit_norm2(double x, double y, double limit)
 
+cdef class Setpoint:
+    cdef public object north_m, east_m, down_m, yaw_rad
+    cdef public double v_north_m_s, v_east_m_s, v_down_m_s
+    cdef public bint idle, manual
+
 cdef class PositionControl:
     cdef public object params
     cdef public double _int_n, _int_e, _int_d, _ff_n, _ff_e

@@ -1,6 +1,10 @@
 # Static types for the compiled module (setup.py): estimator.py stays the plain Python source.
 import cython
 
+cdef class GpsFix:
+    cdef public double lat_deg, lon_deg, alt_m, v_north_m_s, v_east_m_s, v_down_m_s
+    cdef public int fix_type, satellites
+
 cdef class Estimator:
     cdef public double declination
     cdef public object q, rates, acc_ned, origin, _baro_ref, last_gps
