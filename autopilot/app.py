@@ -219,7 +219,8 @@ class Autopilot:
                 reading = self._delivered(FailureUnit.SENSOR_DISTANCE_SENSOR, reading)
                 if reading is None:
                     return
-            self.obstacles.update(self.now_s, self.yaw_rad(), *reading)
+            distances, increment, angle_offset, min_cm, max_cm = reading
+            self.obstacles.update(self.now_s, self.yaw_rad(), distances, increment, angle_offset, min_cm, max_cm)
         elif kind is codec.RC_CHANNELS and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
             raw = [getattr(message, f"chan{n}_raw") for n in range(1, 9)]
             sticks = sticks_from_rc(self.params, self.now_s, message.chancount, raw)

@@ -6,6 +6,10 @@ cdef class ObstacleMap:
     cdef public list distances, occupied, unknown
     cdef public double updated_s, max_range_m
 
+    @cython.locals(bins=list, step=cython.double, offset=cython.double, reference=cython.double, sign=cython.double, index=cython.Py_ssize_t,
+                   raw=cython.long, world=cython.double, target=cython.int, value=cython.double)
+    cpdef update(self, double now_s, double yaw_rad, list distances_cm, double increment_deg, double angle_offset_deg, long min_cm, long max_cm)
+
     cpdef bint fresh(self, double now_s)
 
 cpdef int _bin_of(double angle_rad)
