@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import RunOptions, cores_for, evaluate, in_memory, over_unix_socket
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -20,7 +20,9 @@ from autopilot.app import Autopilot
 from autopilot.inline import InProcessLink
 from autopilot.params import Params
 from sim_bridge.sut_link import TRANSPORTS, SutLink
+from sut_adapter import SutConfig
 from simlink import codec
+import sut_adapter
 
 # Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
 # scene and the events (the API link's traffic follows wall time and is left out).
@@ -73,6 +75,17 @@ def test_auto_runs_the_bundled_autopilot_in_memory_on_one_core_and_over_a_unix_s
     assert {cores: logs.json_metadata(result.log_path, "placement") for cores, result in flights.items()} == {
         1: {"cores": 1, "transport": "memory"}, 2: {"cores": 2, "transport": "unix"}}
     assert flights[1].fitness == flights[2].fitness and flights[2].status == "ok"
+
+
+def test_auto_counts_the_cores_the_machine_has(monkeypatch):
+    """Two cores asked for on a one-core machine: the pair would share it, so in memory."""
+    bundled, command = sut_adapter.system_for(SutConfig()), sut_adapter.system_for(SutConfig(name="command", command="my-autopilot --sim {sim_port} --api {api_port}"))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0})
+    assert in_memory(RunOptions(cores=2), bundled) and not over_unix_socket(RunOptions(cores=2), bundled, cores_for(RunOptions(cores=2)))
+    assert not in_memory(RunOptions(cores=2), command)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1})
+    assert not in_memory(RunOptions(cores=2), bundled) and over_unix_socket(RunOptions(cores=2), bundled, cores_for(RunOptions(cores=2)))
+    assert in_memory(RunOptions(cores=1), bundled) and not over_unix_socket(RunOptions(cores=2), command, 2)
 
 
 def test_unix_is_refused_for_a_sut_that_connects_over_tcp_only(capsys):

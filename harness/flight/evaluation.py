@@ -279,12 +279,17 @@ class Stack:
     clean: bool = False
 
 
+def cores_for(options: RunOptions) -> int:
+    """The cores an evaluation gets: those it may use, as far as this machine has them."""
+    return min(options.cores, len(os.sched_getaffinity(0)))
+
+
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     """Whether the SUT runs inside the bridge's process (RunOptions.transport)."""
     can = sut_adapter.runs_inline(system)
     if options.transport == "memory" and not can:
         raise sut_adapter.SutError(system.name, "runs in a process of its own only: use --transport tcp")
-    return options.transport == "memory" or (options.transport == "auto" and can and options.cores == 1)
+    return options.transport == "memory" or (options.transport == "auto" and can and cores_for(options) == 1)
 
 
 def over_unix_socket(options: RunOptions, system: SystemUnderTest, cores: int) -> bool:
@@ -319,7 +324,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     ports = contexts.enter_context(PortLease())
     inline = in_memory(options, system)
     # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
-    cores = 1 if inline else min(options.cores, len(os.sched_getaffinity(0)))
+    cores = 1 if inline else cores_for(options)
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
                    "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
