@@ -2,10 +2,11 @@
 simulator link's codec (which the bridge uses too).
 
 The modules stay plain Python, the source of truth. A `.pxd` file beside a module gives the
-compiler static types (C doubles for the controllers' arithmetic, extension types for the
-estimator, the obstacle map, the parameters and the frame splitter) without changing what the
-Python source means. Compiled, the autopilot's computation per lockstep step takes about a third
-of the Python time, with the same float arithmetic, so the same fitness to the last bit
+compiler static types (C doubles for the controllers' arithmetic; extension types for the
+estimator, the obstacle map, the parameters, the frame splitter, the autopilot, the commander
+and the dataclasses) without changing what the Python source computes for the values it gets
+(MAVLink's field types). Compiled, the autopilot's computation per lockstep step takes about a
+third of the Python time, with the same float arithmetic, so the same fitness to the last bit
 (tests/test_compiled.py). Without a C compiler or Python's headers the build skips them and the
 same modules run as Python.
 """
@@ -30,5 +31,8 @@ COMPILED = [
 extensions = cythonize(COMPILED, compiler_directives={"language_level": 3, "annotation_typing": False}, quiet=True)
 for extension in extensions:
     extension.optional = True  # no compiler: warn and keep the Python module
+    # C doubles round as Python's floats only without fused multiply-adds, which GCC would
+    # otherwise emit wherever the target has them (aarch64, x86 with -march=native).
+    extension.extra_compile_args.append("-ffp-contract=off")
 
 setup(ext_modules=extensions, options={"build_ext": {"parallel": len(os.sched_getaffinity(0))}})

@@ -21,7 +21,7 @@ cdef class Autopilot:
     cdef public set _wanted_sim_messages
 
     @cython.locals(est=Estimator, dt=cython.double, manual=cython.bint, vn=cython.double, ve=cython.double, yaw_sp=cython.double, collective=cython.double)
-    cpdef tuple step(self, long long time_us, tuple values)
+    cpdef tuple step(self, time_us, values)
 
     @cython.locals(msgid=cython.int, fields=tuple, motors=tuple)
     cpdef _on_sim_data(self, sim, FrameSplitter splitter, data)

@@ -25,4 +25,4 @@ cpdef double guided_direction(ObstacleMap obstacles, double direction_rad, doubl
 @cython.locals(cp_dist=cython.double, vn=cython.double, ve=cython.double, speed=cython.double, acc=cython.double, jerk=cython.double, delay=cython.double,
                narrow_view=cython.bint, braking_m=cython.double, direction=cython.double, bin_n=cython.double, bin_e=cython.double,
                distance=cython.double, towards=cython.double, stop_distance=cython.double, allowed=cython.double, along=cython.double, changed=cython.bint)
-cpdef tuple constrain_velocity(params, ObstacleMap obstacles, double now_s, setpoint_ne, velocity_ne)
+cpdef constrain_velocity(params, ObstacleMap obstacles, double now_s, setpoint_ne, velocity_ne)

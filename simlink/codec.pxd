@@ -1,7 +1,7 @@
 # Static types for the compiled module (setup.py): codec.py stays the plain Python source.
 import cython
 
-cpdef bytes _frame(int msgid, int crc_extra, bytes payload, int seq, int sysid, int compid)
+cpdef bytes _frame(int msgid, int crc_extra, payload, seq, sysid, compid)
 
 cdef class FrameSplitter:
     cdef public bytearray _buffer

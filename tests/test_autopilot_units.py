@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from autopilot.app import Autopilot
 from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction
 from autopilot.commander import DO_CHANGE_SPEED, MAIN_AUTO, NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
@@ -314,3 +315,10 @@ def test_a_clients_first_command_gets_every_stream_at_once():
         time.sleep(0.05)
         assert {"SYS_STATUS", "HEARTBEAT", "EXTENDED_SYS_STATE"} <= received(gcs)
         link.sock.close()
+
+
+def test_the_autopilot_takes_any_timestamp_hil_sensor_can_carry():
+    """time_usec is a uint64: the compiled autopilot must not overflow where Python would not."""
+    autopilot = Autopilot(Params())
+    assert autopilot.step(2**64 - 1, (0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 15.0)) == (0.0, 0.0, 0.0, 0.0)
+    assert autopilot.now_s == (2**64 - 1) / 1e6
