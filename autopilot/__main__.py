@@ -23,12 +23,22 @@ def address(text: str, scheme: str) -> tuple[str, int]:
 def sim_address(text: str) -> tuple[str, int] | str:
     """tcp:HOST:PORT, or unix:PATH (unix:@NAME: Linux's abstract namespace) for a simulator
     listening on a Unix-domain socket."""
-    return codec.unix_socket_address(text.removeprefix("unix:")) if text.startswith("unix:") else address(text, "tcp")
+    if not text.startswith("unix:"):
+        return address(text, "tcp")
+    try:
+        return codec.unix_socket_address(text.removeprefix("unix:"))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _checked_sim(text: str) -> str:
+    sim_address(text)
+    return text
 
 
 def arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m autopilot", description="The bundled PX4-like autopilot.")
-    parser.add_argument("--sim", default="tcp:127.0.0.1:4560", help="simulator to connect to (PX4's simulator protocol): tcp:HOST:PORT, or unix:PATH or unix:@NAME (a Unix-domain socket)")
+    parser.add_argument("--sim", default="tcp:127.0.0.1:4560", type=_checked_sim, help="simulator to connect to (PX4's simulator protocol): tcp:HOST:PORT, or unix:PATH or unix:@NAME (a Unix-domain socket)")
     parser.add_argument("--api", default="udp:127.0.0.1:14540", help="where the API client (MAVSDK) listens")
     parser.add_argument("--params", help="JSON file of PX4-named parameter overrides")
     parser.add_argument("--fault", help="switch on one seeded fault (autopilot/faults.py) to test a test")

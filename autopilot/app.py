@@ -294,8 +294,7 @@ class Autopilot:
     def serve(self, sim_address: tuple[str, int] | str, api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0) -> int:
         """sim_address: (host, port) over TCP, or a Unix-domain socket's path."""
         sim = _connect(sim_address, connect_timeout_s)
-        if sim.family != socket.AF_UNIX:
-            sim.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        codec.send_at_once(sim)
         self.api = api = ApiLink(self, api_address)
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         perf = time.perf_counter
@@ -389,6 +388,7 @@ def _connect(address: tuple[str, int] | str, timeout_s: float) -> socket.socket:
         try:
             if isinstance(address, str):
                 sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                sock.settimeout(2.0)
                 try:
                     sock.connect(address)
                 except OSError:

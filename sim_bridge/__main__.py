@@ -36,8 +36,12 @@ def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
 
 def listen_unix(name: str) -> socket.socket:
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    listener.bind(codec.unix_socket_address(name))
-    listener.listen(1)
+    try:
+        listener.bind(codec.unix_socket_address(name))
+        listener.listen(1)
+    except OSError:
+        listener.close()
+        raise
     return listener
 
 
@@ -88,6 +92,11 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         parser.error("--serve needs a SUT inside this process (python -m sut_adapter.inline) and a --control-port")
     if not args.serve and (args.world is None or args.mcap is None):
         parser.error("--world and --mcap are required (unless --serve)")
+    if args.sim_socket is not None:
+        try:
+            codec.unix_socket_address(args.sim_socket)
+        except ValueError as error:
+            parser.error(f"--sim-socket: {error}")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)
@@ -103,7 +112,12 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         return 2
     sim_listener = None
     if inline_sut is None:
-        sim_listener = listen_unix(args.sim_socket) if args.sim_socket else listen(args.sim_port, args.host)
+        try:
+            sim_listener = listen_unix(args.sim_socket) if args.sim_socket is not None else listen(args.sim_port, args.host)
+        except OSError as error:
+            where = f"--sim-socket {args.sim_socket}" if args.sim_socket is not None else f"--sim-port {args.sim_port}"
+            print(f"{where}: cannot listen: {error}", file=sys.stderr)
+            return 2
     control = ControlChannel(control_listener)
     try:
         summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut))
@@ -111,6 +125,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         control.close()
         if sim_listener is not None:
             sim_listener.close()
+            if args.sim_socket is not None and not args.sim_socket.startswith("@"):
+                os.unlink(args.sim_socket)  # a path's socket file outlives its listener
     print(json.dumps(summary), flush=True)
     return 0 if summary["end_reason"] in NORMAL_ENDS else 3
 

@@ -49,8 +49,7 @@ class SocketLink:
 
     def __init__(self, sock: socket.socket, stall_timeout_s: float):
         self.sock = sock
-        if sock.family != socket.AF_UNIX:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        codec.send_at_once(sock)
         codec.set_receive_timeout(sock, stall_timeout_s)
 
     def send(self, data: bytes) -> None:

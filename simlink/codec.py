@@ -191,10 +191,23 @@ class FrameSplitter:
         return frames
 
 
+UNIX_ADDRESS_MAX = 107  # sockaddr_un's sun_path less its terminating NUL
+
+
 def unix_socket_address(name: str) -> str:
     """A Unix-domain socket's address: a path, or "@NAME" for Linux's abstract namespace (no
-    file to remove, however its owner ends)."""
-    return "\0" + name[1:] if name.startswith("@") else name
+    file to remove, however its owner ends). ValueError for an empty or too long name."""
+    address = "\0" + name[1:] if name.startswith("@") else name
+    if not name.removeprefix("@") or len(address.encode()) > UNIX_ADDRESS_MAX:
+        raise ValueError(f"{name!r} is not a Unix-domain socket name: give a path or @NAME of 1 to {UNIX_ADDRESS_MAX - 1} bytes")
+    return address
+
+
+def send_at_once(sock: socket.socket) -> None:
+    """No Nagle delay on a TCP link: every lockstep message is small and awaited (a Unix-domain
+    socket has none to turn off)."""
+    if sock.family != socket.AF_UNIX:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
 def set_receive_timeout(sock, timeout_s: float) -> None:
