@@ -47,7 +47,7 @@ def both_ways(tmp_path, space, x, seed):
     # RC frames on the simulator link, Position mode and collision prevention stopping at a wall.
     (ROOT / "scenarios" / "examples" / "wall.json", 3, "pilot"),
 ])
-def test_memory_and_tcp_fly_the_same_flight_to_the_last_bit(tmp_path, profile, scenario, seed, drive):
+def test_every_transport_flies_the_same_flight_to_the_last_bit(tmp_path, profile, scenario, seed, drive):
     space = SearchSpace(load_logical(scenario, profile, drive), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     flights, records = both_ways(tmp_path, space, x, seed)
@@ -86,6 +86,10 @@ def test_auto_counts_the_cores_the_machine_has(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1})
     assert not in_memory(RunOptions(cores=2), bundled) and over_unix_socket(RunOptions(cores=2), bundled, cores_for(RunOptions(cores=2)))
     assert in_memory(RunOptions(cores=1), bundled) and not over_unix_socket(RunOptions(cores=2), command, 2)
+    with pytest.raises(sut_adapter.SutError, match="unix carries the bundled autopilot only; command connects to the simulator over TCP"):
+        over_unix_socket(RunOptions(transport="unix"), command, 2)
+    with pytest.raises(ValueError, match="transport 'Unix' is not one of auto, tcp, memory, unix"):
+        RunOptions(transport="Unix")
 
 
 def test_unix_is_refused_for_a_sut_that_connects_over_tcp_only(capsys):

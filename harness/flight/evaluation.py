@@ -35,6 +35,7 @@ from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
+from sim_bridge.sut_link import TRANSPORTS
 import sut_adapter
 from sut_adapter import SutConfig, SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
@@ -77,6 +78,10 @@ class RunOptions:
     # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
     # is kept (warm.close_all); executors do when they close.
     warm: bool = False
+
+    def __post_init__(self) -> None:
+        if self.transport not in TRANSPORTS:
+            raise ValueError(f"transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}")
 
 
 @dataclass(frozen=True)
@@ -284,21 +289,32 @@ def cores_for(options: RunOptions) -> int:
     return min(options.cores, len(os.sched_getaffinity(0)))
 
 
+def transport_problem(transport: str, system: SystemUnderTest) -> str | None:
+    """Why this SUT cannot fly over this transport (None: it can)."""
+    if transport == "memory" and not sut_adapter.runs_inline(system):
+        return f"memory carries the bundled autopilot only; {system.name} runs in a process of its own: use --transport tcp"
+    if transport == "unix" and not sut_adapter.connects_to_unix_socket(system):
+        return f"unix carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
+    return None
+
+
+def _check_transport(options: RunOptions, system: SystemUnderTest) -> None:
+    problem = transport_problem(options.transport, system)
+    if problem is not None:
+        raise sut_adapter.SutError(system.name, problem)
+
+
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     """Whether the SUT runs inside the bridge's process (RunOptions.transport)."""
-    can = sut_adapter.runs_inline(system)
-    if options.transport == "memory" and not can:
-        raise sut_adapter.SutError(system.name, "runs in a process of its own only: use --transport tcp")
-    return options.transport == "memory" or (options.transport == "auto" and can and cores_for(options) == 1)
+    _check_transport(options, system)
+    return options.transport == "memory" or (options.transport == "auto" and sut_adapter.runs_inline(system) and cores_for(options) == 1)
 
 
 def over_unix_socket(options: RunOptions, system: SystemUnderTest, cores: int) -> bool:
     """Whether a SUT in a process of its own connects over a Unix-domain socket rather than TCP
     (RunOptions.transport; `cores`: what the evaluation gets)."""
-    can = sut_adapter.connects_to_unix_socket(system)
-    if options.transport == "unix" and not can:
-        raise sut_adapter.SutError(system.name, "connects to the simulator over TCP only: use --transport tcp")
-    return options.transport == "unix" or (options.transport == "auto" and can and cores >= 2)
+    _check_transport(options, system)
+    return options.transport == "unix" or (options.transport == "auto" and sut_adapter.connects_to_unix_socket(system) and cores >= 2)
 
 
 @contextmanager

@@ -236,11 +236,11 @@ def _sut_spec(args: argparse.Namespace) -> SutConfig:
 
 def _check_transport(transport: str, sut: SutConfig) -> None:
     import sut_adapter
+    from harness.flight.evaluation import transport_problem
 
-    if transport == "memory" and not sut_adapter.runs_inline(sut_adapter.system_for(sut)):
-        raise InputError([Problem("--transport", "", f"memory carries the bundled autopilot only; {sut.name} runs in a process of its own: use --transport tcp")])
-    if transport == "unix" and not sut_adapter.connects_to_unix_socket(sut_adapter.system_for(sut)):
-        raise InputError([Problem("--transport", "", f"unix carries the bundled autopilot only; {sut.name} connects to the simulator over TCP: use --transport tcp")])
+    problem = transport_problem(transport, sut_adapter.system_for(sut))
+    if problem is not None:
+        raise InputError([Problem("--transport", "", problem)])
 
 
 @command("run")
