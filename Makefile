@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 .PHONY: setup demo test test-fast browser docker
 setup: $(VENV)/.installed
 
-# setup.py compiles these: an edit to one rebuilds it (the autopilot refuses stale builds).
+# setup.py compiles these: an edit to one rebuilds it (an import refuses a stale build: simlink.check_compiled).
 COMPILED := $(wildcard autopilot/*.py autopilot/*.pxd simlink/*.py simlink/*.pxd)
 
 $(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)

@@ -1,8 +1,8 @@
 """The simulator link's wire format, shared by sim_bridge and the bundled autopilot.
 
-A precompiled codec for the two messages exchanged on every lockstep step (HIL_SENSOR and
-HIL_ACTUATOR_CONTROLS) and a MAVLink 2 frame splitter; pymavlink stays the codec for every
-other message. Its own package so that the autopilot need not import the simulator.
+Struct codecs for the two messages exchanged on every lockstep step (HIL_SENSOR and
+HIL_ACTUATOR_CONTROLS) and, from pymavlink's own layouts, for the simulator's 10-50 Hz messages,
+and a MAVLink 2 frame splitter; compiled where a C compiler is found (setup.py). Its own package so that the autopilot need not import the simulator.
 """
 
 from pathlib import Path
