@@ -172,6 +172,17 @@ class Obstacle:
         return "rect", (n, e, self.size["length_m"] / 2.0, self.size["width_m"] / 2.0, self.yaw_rad)
 
 
+# Beyond rounding: a ray's computed distance never falls short of the geometric bound by this.
+CULL_MARGIN_M = 1e-6
+
+
+def _nearest_possible_m(origin_n: float, origin_e: float, cut: tuple[str, tuple[float, ...]]) -> float:
+    """A lower bound of every ray's distance to a cross-section: to its centre, less its bounding radius."""
+    kind, values = cut
+    bounding_m = values[2] if kind == "circle" else math.hypot(values[2], values[3])
+    return math.hypot(values[0] - origin_n, values[1] - origin_e) - bounding_m
+
+
 def ray_distances(origin_n: float, origin_e: float, angles_rad: np.ndarray, cut: tuple[str, tuple[float, ...]]) -> np.ndarray:
     """Distance along horizontal rays (angles clockwise from north) to one cross-section; inf on a miss."""
     un, ue = np.cos(angles_rad), np.sin(angles_rad)
@@ -246,10 +257,14 @@ class ObstacleField:
         distance, body, request, result = fcl.distance, self._body, self._request, self._result
         return [distance(body, o.collision, request, result) for o in self.obstacles]
 
-    def sector_distances(self, north_m: float, east_m: float, up_m: float, angles_rad: np.ndarray) -> np.ndarray:
-        nearest = np.full(angles_rad.shape, np.inf)
+    def sector_distances(self, north_m: float, east_m: float, up_m: float, angles_rad: np.ndarray, reach_m: float = math.inf) -> np.ndarray | None:
+        """Per ray, the distance to the nearest obstacle (inf: none); an obstacle wholly farther
+        than reach_m is left out, as every ray would find it farther than that. None: no
+        obstacle at this height within reach_m."""
+        nearest = None
         for obstacle in self.obstacles:
             cut = obstacle.cross_section(up_m)
-            if cut is not None:
-                np.minimum(nearest, ray_distances(north_m, east_m, angles_rad, cut), out=nearest)
+            if cut is not None and _nearest_possible_m(north_m, east_m, cut) <= reach_m + CULL_MARGIN_M:
+                distances = ray_distances(north_m, east_m, angles_rad, cut)
+                nearest = distances if nearest is None else np.minimum(nearest, distances, out=nearest)
         return nearest

@@ -76,6 +76,9 @@ class World:
         half_l, half_w = spec.uav.body.length_m / 2.0, spec.uav.body.width_m / 2.0
         with np.errstate(divide="ignore"):
             self._hull_offsets = np.minimum(half_l / np.abs(np.cos(self._sector_angles)), half_w / np.abs(np.sin(self._sector_angles)))
+        # Seen from the centre, a reading within range lies at most this far: obstacles beyond need no rays.
+        self._reach_from_centre_m = self.range_m + float(np.max(self._hull_offsets, initial=0.0))
+        self._nothing_in_reach = [int(self.range_m * 100) + 1 if visible else NO_READING for visible in self.sector_visible.tolist()]
         self.dt = 1.0 / rate_hz
         self.dt_us = int(round(1e6 / rate_hz))
         self.steps = 0
@@ -130,9 +133,12 @@ class World:
         convention): centimetres from the hull, range + 1 cm where nothing is in reach, NO_READING
         outside its field of view."""
         s = self.vehicle.state
-        distances = [NO_READING] * SECTORS
         reach_cm = int(self.range_m * 100)
-        nearest = self.field.sector_distances(s.north_m, s.east_m, s.up_m, self._sector_angles + s.yaw_rad) - self._hull_offsets
+        nearest = self.field.sector_distances(s.north_m, s.east_m, s.up_m, self._sector_angles + s.yaw_rad, self._reach_from_centre_m)
+        if nearest is None:
+            return list(self._nothing_in_reach)
+        nearest -= self._hull_offsets
+        distances = [NO_READING] * SECTORS
         visible = np.flatnonzero(self.sector_visible)
         for index, distance in zip(visible.tolist(), nearest.tolist()):
             if distance <= self.range_m:

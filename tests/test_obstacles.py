@@ -166,3 +166,27 @@ def test_sectors_outside_the_field_of_view_are_unknown():
     distances, _ = _sectors(_bridge_with([], fov_deg=100.0))
     visible = [i for i, d in enumerate(distances) if d != UINT16_MAX]
     assert visible == list(range(0, 11)) + list(range(62, 72))
+
+
+def test_obstacles_beyond_the_sensors_reach_are_left_out_without_changing_a_reading():
+    """Every ray that meets an obstacle within reach meets it at the same distance with or
+    without the obstacles wholly beyond reach; None only where no ray meets one within reach."""
+    rng = np.random.default_rng(5)
+    angles = np.radians(np.arange(72) * 5.0)
+    forms = [("sphere", {"diameter_m": 2.0}), ("cylinder", {"diameter_m": 1.0, "height_m": 20.0}), ("cuboid", {"length_m": 4.0, "width_m": 1.0, "height_m": 20.0})]
+    for trial in range(300):
+        obstacles = []
+        for index in range(3):
+            form, size = forms[rng.integers(3)]
+            north, east = rng.uniform(-25.0, 25.0, 2)
+            obstacles.append(Obstacle.from_spec({"id": f"o{index}", "form": form, "size": size, "yaw_rad": float(rng.uniform(0, 3)),
+                                                 "a": {"north_m": float(north), "east_m": float(east), "up_m": 5.0}, "b": None}))
+        field = ObstacleField(obstacles, BODY)
+        reach = float(rng.uniform(5.0, 20.0))
+        everything = field.sector_distances(0.0, 0.0, 5.0, angles)
+        within_reach = field.sector_distances(0.0, 0.0, 5.0, angles, reach)
+        seen = everything <= reach
+        if within_reach is None:
+            assert not seen.any(), trial
+        else:
+            assert np.array_equal(within_reach[seen], everything[seen]) and (within_reach[~seen] > reach).all(), trial
