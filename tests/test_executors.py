@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import FIG4, FIG4_SEED1_FITNESS, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
+from conftest import FIG4, FIG4_SEED1_FITNESS, ROOT, fig4_job, port_bound, run_seeded_campaign, wait_until_flying
 from harness.campaigns.campaign import CampaignConfig, run_campaign
 from harness.campaigns.store import Store
 from harness.execution.local import LocalExecutor, SequentialExecutor
@@ -24,9 +24,9 @@ from sut_adapter import SutConfig
 
 pytestmark = pytest.mark.slow
 SILENT_SUT = f"{sys.executable} -c 'import time; time.sleep(600)' {{sim_port}} {{api_port}}"
-AUTOPILOT = f"{sys.executable} -m autopilot --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}"
-# The bundled autopilot, frozen by SIGSTOP a second after it starts: alive but answering nothing.
-HANGING_SUT = f"sh -c '{AUTOPILOT} & sleep 1; kill -STOP $!; wait' -- {{sim_port}} {{api_port}}"
+# The bundled autopilot, frozen by SIGSTOP once connected to the simulator: alive but answering
+# nothing (a fixed delay raced the flight, which now ends within a second).
+HANGING_SUT = f"{sys.executable} {ROOT / 'tests' / 'hanging_sut.py'} {{sim_port}} {{api_port}}"
 
 
 def no_leftovers() -> None:
