@@ -508,8 +508,9 @@ class Bridge:
         self._event(0.0, "sut_connected")
         wall_run_started = None
         setup_timers: dict[str, float] = {}
-        # The step just simulated is scored and recorded after the next sensor messages went out,
-        # while the SUT computes its answer: on two cores this work costs the step nothing.
+        # The step just simulated is scored and recorded, and the obstacles moved on to the next
+        # step's time, after the next sensor messages went out, while the SUT computes its answer:
+        # on two cores this work costs the step nothing.
         unobserved_step: int | None = None
         while world.running:
             step = world.steps
@@ -548,6 +549,7 @@ class Bridge:
             if unobserved_step is not None:
                 self._observe(unobserved_step)
                 unobserved_step = None
+            world.move_obstacles_for_next_step()
             t0 = perf()
             summary.world_s += t0 - t_sent
             answered = self._receive_answer(sut, splitter, lockstep, t0)

@@ -90,6 +90,7 @@ class World:
         self.injections: list[dict[str, Any]] = []
         self.forced_slot: int | None = None
         self._pending_ops: list[Mapping[str, Any]] = []
+        self._moved_for_next_step = False
         self._landed_since: float | None = None
         self.pilot: Pilot | None = None
         if spec.drive == "pilot":
@@ -165,6 +166,13 @@ class World:
 
     # -- stepping ----------------------------------------------------------------------------
 
+    def move_obstacles_for_next_step(self) -> None:
+        """The obstacles' motion to the next step's time, which no motor command changes: done
+        while the SUT computes its answer, it is off the lockstep's critical path when the SUT
+        has a core of its own. step() then leaves it out."""
+        self.field.move_to(self.run_time((self.steps + 1) * self.dt))
+        self._moved_for_next_step = True
+
     def step(self, motors: tuple[float, float, float, float]) -> None:
         """One physics step with these motor commands, then the obstacles' changes and motion due
         by the new time. check_end() follows once the step's control messages are handled."""
@@ -175,9 +183,12 @@ class World:
         self.steps += 1
         time_s = self.time_s
         run_time = self.run_time(time_s)
+        # A change places its obstacle at this time itself; the others' motion may be done already.
         while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
             self.apply(self._pending_ops.pop(0), time_s)
-        self.field.move_to(run_time)
+        if not self._moved_for_next_step:
+            self.field.move_to(run_time)
+        self._moved_for_next_step = False
 
     def _advance_wind(self) -> None:
         s = self.vehicle.state

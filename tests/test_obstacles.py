@@ -190,3 +190,29 @@ def test_obstacles_beyond_the_sensors_reach_are_left_out_without_changing_a_read
             assert not seen.any(), trial
         else:
             assert np.array_equal(within_reach[seen], everything[seen]) and (within_reach[~seen] > reach).all(), trial
+
+
+def test_obstacles_moved_while_the_sut_computes_are_where_the_step_would_have_put_them():
+    """The bridge moves the obstacles on to the next step's time before the SUT's answer
+    (World.move_obstacles_for_next_step); changes scheduled for that step still apply in it."""
+    def world_with_changes():
+        pole = {"id": "pole", "form": "cylinder", "size": {"diameter_m": 0.5, "height_m": 10.0}, "a": {"north_m": 8.0, "east_m": 0.0, "up_m": 5.0},
+                "b": {"north_m": 8.0, "east_m": 6.0, "up_m": 5.0}, "speed_m_s": 1.5}
+        world = _bridge_with([pole]).world
+        world.start_run(0.0)
+        ball = {"id": "ball", "form": "sphere", "size": {"diameter_m": 1.0}, "a": {"north_m": 4.0, "east_m": 4.0, "up_m": 5.0},
+                "b": {"north_m": 4.0, "east_m": -4.0, "up_m": 5.0}, "speed_m_s": 3.0}
+        world.schedule({"op": "add_obstacle", "obstacle": ball, "at_s": 0.1})
+        world.schedule({"op": "move_obstacle", "id": "pole", "a": {"north_m": 9.0, "east_m": 0.0, "up_m": 5.0}, "b": None, "at_s": 0.2})
+        return world
+
+    def positions(world):
+        return {o.id: o.position.tolist() for o in world.field.obstacles}
+
+    plain, early = world_with_changes(), world_with_changes()
+    for _ in range(100):
+        early.move_obstacles_for_next_step()
+        for world in (plain, early):
+            world.step((0.0, 0.0, 0.0, 0.0))
+        assert positions(early) == positions(plain)
+    assert set(positions(plain)) == {"pole", "ball"} and positions(plain)["pole"] == [9.0, 0.0, 5.0]
