@@ -80,6 +80,15 @@ def children(parent_pid: int) -> list[int]:
     return found
 
 
+def alive(pid: int) -> bool:
+    """Running, not a zombie: a container whose init does not reap keeps dead orphans listed."""
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def flying(pid: int) -> bool:
     """Whether process pid, or a process it started, runs an evaluation: has the bridge and the
     SUT as its children, or the bridge with the SUT inside (--transport memory)."""

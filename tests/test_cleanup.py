@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from conftest import ROOT, children, port_bound
+from conftest import ROOT, alive, children, port_bound
 from harness.flight.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
@@ -72,15 +72,6 @@ def descendants(pid: int) -> list[int]:
         found += kids
         family += kids
     return found
-
-
-def alive(pid: int) -> bool:
-    """Running, not a zombie: a container whose init does not reap keeps dead orphans listed."""
-    try:
-        with open(f"/proc/{pid}/stat") as handle:
-            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def described(pid: int) -> str:

@@ -7,7 +7,7 @@ import sys
 import textwrap
 import time
 
-from conftest import ROOT
+from conftest import ROOT, alive
 
 # The parent makes the hook, forks, and exits at once; its child sets the hook up only after
 # that, as a Popen child does when the parent is killed between fork and preexec_fn.
@@ -25,18 +25,10 @@ LATE_CHILD = textwrap.dedent("""
 """)
 
 
-def running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
 def test_a_child_whose_parent_died_before_it_set_up_its_death_signal_ends_itself():
     parent = subprocess.run([sys.executable, "-c", LATE_CHILD], capture_output=True, text=True, cwd=ROOT, timeout=30, check=True)
     child = int(parent.stdout)
     deadline = time.monotonic() + 10.0
-    while running(child) and time.monotonic() < deadline:
+    while alive(child) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not running(child)
+    assert not alive(child)

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import ROOT, port_bound
+from conftest import ROOT, alive, port_bound
 from test_transport import SIMULATED
 from harness.flight import logs, warm
 from harness.flight.evaluation import RunOptions, evaluate
@@ -95,7 +95,7 @@ def test_a_kept_simulator_that_died_between_evaluations_is_replaced(tmp_path, pr
     pid = int(simulator_pid(first))
     subprocess.run(["kill", "-9", str(pid)], check=True)
     deadline = time.monotonic() + 5.0
-    while _running(pid) and time.monotonic() < deadline:
+    while alive(pid) and time.monotonic() < deadline:
         time.sleep(0.01)
     after = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="after")
     assert after.status == first.status and simulated(after) == simulated(first)
@@ -111,20 +111,12 @@ def test_closing_what_is_kept_frees_its_process_and_ports(tmp_path, profile):
     assert port_bound(free.control)
     warm.close_all()
     deadline = time.monotonic() + 5.0
-    while _running(pid) and time.monotonic() < deadline:
+    while alive(pid) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not _running(pid)
+    assert not alive(pid)
     assert not port_bound(free.control) and not port_bound(free.api, socket.SOCK_DGRAM)
     with PortLease() as again:
         assert again.slot == slot
-
-
-def _running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().split()[2] != "Z"
-    except FileNotFoundError:
-        return False
 
 
 def test_a_serving_simulator_refuses_a_world_it_cannot_load_and_flies_on(tmp_path):
@@ -203,6 +195,6 @@ def test_a_serving_simulator_whose_harness_is_gone_quits(tmp_path):
         server = int(server)
         assert serving == "True"
         deadline = time.monotonic() + 20.0
-        while _running(server) and time.monotonic() < deadline:
+        while alive(server) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not _running(server)
+        assert not alive(server)
