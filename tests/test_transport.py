@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, cores_for, evaluate, in_memory, over_unix_socket
+from harness.flight.evaluation import RunOptions, evaluate, in_memory, over_unix_socket
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -81,13 +81,13 @@ def test_auto_counts_the_cores_the_machine_has(monkeypatch):
     """Two cores asked for on a one-core machine: the pair would share it, so in memory."""
     bundled, command = sut_adapter.system_for(SutConfig()), sut_adapter.system_for(SutConfig(name="command", command="my-autopilot --sim {sim_port} --api {api_port}"))
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0})
-    assert in_memory(RunOptions(cores=2), bundled) and not over_unix_socket(RunOptions(cores=2), bundled, cores_for(RunOptions(cores=2)))
+    assert in_memory(RunOptions(cores=2), bundled) and not over_unix_socket(RunOptions(cores=2), bundled)
     assert not in_memory(RunOptions(cores=2), command)
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1})
-    assert not in_memory(RunOptions(cores=2), bundled) and over_unix_socket(RunOptions(cores=2), bundled, cores_for(RunOptions(cores=2)))
-    assert in_memory(RunOptions(cores=1), bundled) and not over_unix_socket(RunOptions(cores=2), command, 2)
+    assert not in_memory(RunOptions(cores=2), bundled) and over_unix_socket(RunOptions(cores=2), bundled)
+    assert in_memory(RunOptions(cores=1), bundled) and not over_unix_socket(RunOptions(cores=2), command)
     with pytest.raises(sut_adapter.SutError, match="unix carries the bundled autopilot only; command connects to the simulator over TCP"):
-        over_unix_socket(RunOptions(transport="unix"), command, 2)
+        over_unix_socket(RunOptions(transport="unix"), command)
     with pytest.raises(ValueError, match="transport 'Unix' is not one of auto, tcp, memory, unix"):
         RunOptions(transport="Unix")
 

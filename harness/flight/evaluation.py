@@ -310,11 +310,11 @@ def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     return options.transport == "memory" or (options.transport == "auto" and sut_adapter.runs_inline(system) and cores_for(options) == 1)
 
 
-def over_unix_socket(options: RunOptions, system: SystemUnderTest, cores: int) -> bool:
+def over_unix_socket(options: RunOptions, system: SystemUnderTest) -> bool:
     """Whether a SUT in a process of its own connects over a Unix-domain socket rather than TCP
-    (RunOptions.transport; `cores`: what the evaluation gets)."""
+    (RunOptions.transport)."""
     _check_transport(options, system)
-    return options.transport == "unix" or (options.transport == "auto" and sut_adapter.connects_to_unix_socket(system) and cores >= 2)
+    return options.transport == "unix" or (options.transport == "auto" and sut_adapter.connects_to_unix_socket(system) and cores_for(options) >= 2)
 
 
 @contextmanager
@@ -347,7 +347,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6)]
     # Named after the leased simulator port, so unique on this machine while the lease lasts; in
     # the abstract namespace, so nothing is left behind however the processes end.
-    sim_socket = f"@stella-sim-{ports.sim}" if not inline and over_unix_socket(options, system, cores) else None
+    sim_socket = f"@stella-sim-{ports.sim}" if not inline and over_unix_socket(options, system) else None
     if sim_socket is not None:
         bridge_argv += ["--sim-socket", sim_socket]
     if inline:
