@@ -310,10 +310,13 @@ class Bridge:
 
     # -- messages ----------------------------------------------------------------------------
 
+    def _next_seq(self) -> int:
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFF
+        return seq
+
     def _encode(self, message: codec.MessageCodec, *values) -> bytes:
-        frame = message.encode(self._seq, SYSTEM_ID, COMPONENT_ID, *values)
-        self._seq = (self._seq + 1) & 0xFF
-        return frame
+        return message.encode(self._next_seq(), SYSTEM_ID, COMPONENT_ID, *values)
 
     def _sensor_frames(self, step: int, time_us: int) -> bytes:
         world = self.world
@@ -353,8 +356,7 @@ class Bridge:
             frames.append(self._pilot_rc(time_us))
         # HIL_SENSOR goes last: a SUT that steps on it has then seen this step's other messages,
         # however TCP splits the stream. Sequence numbers count up in the order frames are sent.
-        frames.append(codec.encode_hil_sensor(seq=self._seq, sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=imu, fields_updated=FIELDS_ALL))
-        self._seq = (self._seq + 1) & 0xFF
+        frames.append(codec.encode_hil_sensor(seq=self._next_seq(), sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=imu, fields_updated=FIELDS_ALL))
         return b"".join(frames)
 
     def _gps_fix(self) -> dict[str, Any] | None:
