@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
-from sim_bridge.recording import Recorder
+from sim_bridge.recording import COMPRESSIONS, Recorder
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
 from simlink import codec
@@ -74,6 +74,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
+    parser.add_argument("--mcap-compression", choices=sorted(COMPRESSIONS), default="zstd",
+                        help="the recording's chunk compression: none for a log read once and rewritten, as the harness does (default zstd)")
     parser.add_argument("--serve", action="store_true", help="fly world after world, each named on the control channel (a SUT inside this process only)")
     parser.add_argument("--harness-pid", type=int, help="with --serve: quit when this process, the harness that started us, is gone (default: our parent)")
     parser.add_argument("--rate-hz", type=float, default=250.0)
@@ -104,7 +106,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:
-        return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid())
+        return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid(), args.mcap_compression)
     try:
         world = load_world(args.world)
     except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
@@ -120,7 +122,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             return 2
     control = ControlChannel(control_listener)
     try:
-        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut))
+        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut), args.mcap_compression)
     finally:
         control.close()
         if sim_listener is not None:
@@ -138,13 +140,14 @@ def load_world(path: str) -> WorldSpec:
     return WorldSpec.from_dict(document)
 
 
-def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: ControlChannel, connect_sut: Callable[[], SutLink]) -> dict:
+def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: ControlChannel, connect_sut: Callable[[], SutLink],
+        compression: str = "zstd") -> dict:
     """One flight from start to its finished MCAP file; its summary, which the harness gets as the
     "finished" event once the file is complete."""
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     if world.atmosphere.varies:
         optional_topics += ("/wind",)
-    with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics) as recorder:
+    with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
         recorder.metadata("world", {"json": json.dumps(world.as_dict())})
         recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
         bridge = Bridge(world, config, recorder)
@@ -169,7 +172,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
     return summary
 
 
-def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[], SutLink], harness_pid: int) -> int:
+def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[], SutLink], harness_pid: int, compression: str) -> int:
     """Flight after flight in this one process (the harness's warm workers): each harness
     connection on the control port names a world and an MCAP file ({"op": "load", "world": PATH,
     "mcap": PATH}) and gets a fresh world and a fresh SUT for them; {"op": "quit"}, the
@@ -192,7 +195,7 @@ def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[
                     continue
                 # The harness reports a crash with the end of our stderr: say where each flight's part begins.
                 print(f"flying {request['world']}", file=sys.stderr, flush=True)
-                summary = fly(world, config, Path(request["mcap"]), control, inline_sut)
+                summary = fly(world, config, Path(request["mcap"]), control, inline_sut, compression)
                 if summary["end_reason"] not in NORMAL_ENDS:
                     return 3
             finally:

@@ -260,13 +260,18 @@ def enu(north_m: float, east_m: float, up_m: float) -> dict[str, float]:
     return {"x": east_m, "y": north_m, "z": up_m}
 
 
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "none": CompressionType.NONE}
+
+
 class Recorder:
     """An MCAP writer with the project's channels; use as a context manager so the file is always finished."""
 
-    def __init__(self, stream: BinaryIO, optional_topics: tuple[str, ...] = ()):
+    def __init__(self, stream: BinaryIO, optional_topics: tuple[str, ...] = (), compression: str = "zstd"):
+        """compression: "zstd", or "none" for a log that is read once and rewritten (the harness
+        compresses the evaluation's log itself)."""
         self._stream = stream
         self._topics = {**TOPICS, **{topic: OPTIONAL_TOPICS[topic] for topic in optional_topics}}
-        self._writer = Writer(stream, compression=CompressionType.ZSTD)
+        self._writer = Writer(stream, compression=COMPRESSIONS[compression])
         self._channels: dict[str, int] = {}
 
     def __enter__(self) -> "Recorder":

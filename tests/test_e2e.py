@@ -10,6 +10,8 @@ from pathlib import Path
 import jsonschema
 import pytest
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 
 from conftest import ROOT
 from harness.flight import logs
@@ -54,6 +56,9 @@ def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_
             counts[(channel.topic, schema.name)] = counts.get((channel.topic, schema.name), 0) + 1
     # every channel the log declares carries messages under the schema the bridge documents
     assert set(counts) == set(TOPICS.items())
+    # The simulator records uncompressed for the harness to rewrite; the evaluation's log is compressed.
+    with open(result.log_path, "rb") as stream:
+        assert {record.compression for record in StreamReader(stream, emit_chunks=True).records if isinstance(record, Chunk)} == {"zstd"}
     meta = logs.metadata(result.log_path)
     assert {"world", "concrete_scenario", "sut", "result", "bridge_summary"} <= set(meta)
     assert json.loads(meta["result"]["json"])["fitness"] == result.fitness
