@@ -16,6 +16,7 @@ import os
 import signal
 import socket
 import sys
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -86,6 +87,9 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                         help="comma-separated: OBSTACLE_DISTANCE (72 sectors, read by the bundled autopilot), DISTANCE_SENSOR (six wedges, read by PX4)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--stall-timeout-s", type=float, default=10.0)
+    parser.add_argument("--linger-s", type=float, default=0.0,
+                        help="after the flight, keep the SUT's simulator link open until the SUT hangs up, at most this long "
+                             "(the harness stops the SUT first: PX4 spins on a closed simulator link)")
     parser.add_argument("--spin-us", type=float, default=0.0,
                         help="poll this long for the SUT's answer before sleeping; only worth it when the SUT runs on another core")
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -122,7 +126,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             return 2
     control = ControlChannel(control_listener)
     try:
-        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut), args.mcap_compression)
+        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut), args.mcap_compression,
+                      0.0 if inline_sut is not None else args.linger_s)
     finally:
         control.close()
         if sim_listener is not None:
@@ -141,35 +146,53 @@ def load_world(path: str) -> WorldSpec:
 
 
 def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: ControlChannel, connect_sut: Callable[[], SutLink],
-        compression: str = "zstd") -> dict:
+        compression: str = "zstd", linger_s: float = 0.0) -> dict:
     """One flight from start to its finished MCAP file; its summary, which the harness gets as the
     "finished" event once the file is complete."""
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     if world.atmosphere.varies:
         optional_topics += ("/wind",)
-    with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
-        recorder.metadata("world", {"json": json.dumps(world.as_dict())})
-        recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
-        bridge = Bridge(world, config, recorder)
-        sut = None
-        try:
-            sut = connect_sut()
-        except socket.timeout:
-            bridge.summary.end_reason = "sut_never_connected"
-        except KeyboardInterrupt:
-            bridge.summary.end_reason = "interrupted"
-        if sut is not None:
+    sut = None
+    try:
+        with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
+            recorder.metadata("world", {"json": json.dumps(world.as_dict())})
+            recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
+            bridge = Bridge(world, config, recorder)
             try:
-                bridge.run(sut, control)
+                sut = connect_sut()
+            except socket.timeout:
+                bridge.summary.end_reason = "sut_never_connected"
             except KeyboardInterrupt:
-                bridge.settle_outcome()
                 bridge.summary.end_reason = "interrupted"
-            finally:
-                sut.close()
-        summary = bridge.summary.as_dict()
-        recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
-    control.send({"event": "finished", **summary})
+            if sut is not None:
+                try:
+                    bridge.run(sut, control)
+                except KeyboardInterrupt:
+                    bridge.settle_outcome()
+                    bridge.summary.end_reason = "interrupted"
+            summary = bridge.summary.as_dict()
+            recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
+        control.send({"event": "finished", **summary})
+        if sut is not None:
+            _wait_for_hang_up(sut, linger_s)
+    finally:
+        if sut is not None:
+            sut.close()
     return summary
+
+
+def _wait_for_hang_up(sut: SutLink, linger_s: float) -> None:
+    """Keep the simulator link open after the flight until the SUT hangs up, at most linger_s
+    (or until we are stopped). The harness stops the SUT before us, and a SUT should go while
+    its simulator is still there: PX4 busy-waits on a closed simulator link, its real-time
+    threads starving its own shutdown for most of a second."""
+    deadline = time.monotonic() + linger_s
+    try:
+        while (remaining := deadline - time.monotonic()) > 0:
+            if sut.readable(remaining):
+                sut.idle()  # what the SUT still says goes unread; its hang-up raises
+    except (OSError, KeyboardInterrupt):
+        pass
 
 
 def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[], SutLink], harness_pid: int, compression: str) -> int:

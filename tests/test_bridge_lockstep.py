@@ -165,3 +165,34 @@ def test_obstacles_are_injected_moved_and_removed_through_the_control_channel(tm
     assert clearance_at(2.5) == pytest.approx(3.5 - 0.5 - 0.3, abs=0.1)
     assert clearance_at(3.5) == pytest.approx(6.5 - 0.5 - 0.3, abs=0.1)
     assert clearance_at(4.5) is None
+
+
+@pytest.mark.slow
+def test_after_its_flight_the_bridge_keeps_the_link_open_until_the_sut_hangs_up(tmp_path):
+    """--linger-s (as the harness runs it): the log is finished and the SUT still connected, so
+    that the harness can stop a SUT that spins on a closed simulator link (PX4) before that."""
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world(time_limit_s=2.0)))
+    log_path = tmp_path / "run.mcap"
+    with PortLease(first_slot=100) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(log_path),
+             "--hold-after-s", "0", "--connect-timeout-s", "20", "--linger-s", "60"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        )
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", "hover"], stdout=subprocess.PIPE, cwd=ROOT)
+        try:
+            deadline = time.monotonic() + 60
+            while not (log_path.exists() and log_path.stat().st_size >= len(logs.MCAP_MAGIC) and logs.truncation(log_path) is None):
+                assert time.monotonic() < deadline and bridge.poll() is None, "the flight's log was never finished"
+                time.sleep(0.1)
+            time.sleep(1.0)
+            assert bridge.poll() is None and sut.poll() is None, "the bridge closed the SUT's link after its flight"
+            sut.terminate()
+            out, _err = bridge.communicate(timeout=5)
+        finally:
+            sut.kill()
+            sut.wait()
+            bridge.kill()
+    assert bridge.returncode == 0
+    assert json.loads(out.decode().strip().splitlines()[-1])["end_reason"] == "time_limit"

@@ -47,6 +47,9 @@ CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
 # With a core each, the simulator and the SUT poll this long for each other's next message
 # before sleeping: far longer than a lockstep turn, short enough to idle during setup.
 LOCKSTEP_SPIN_S = 0.002
+# After its flight the simulator keeps the SUT's link open until the SUT has gone, at most this
+# long: longer than stopping the SUT can take (ManagedProcess.stop's two grace periods).
+LINGER_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -346,7 +349,9 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
                    "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
-                   "--mcap-compression", "none"]
+                   "--mcap-compression", "none",
+                   # stop() stops the SUT before the simulator, with the simulator link still open.
+                   "--linger-s", str(LINGER_S)]
     # Named after the leased simulator port, so unique on this machine while the lease lasts; in
     # the abstract namespace, so nothing is left behind however the processes end.
     sim_socket = f"@stella-sim-{ports.sim}" if not inline and over_unix_socket(options, system) else None
