@@ -125,7 +125,7 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
                 assert session.param.get_param_float("CP_DIST") == pytest.approx(2.5)
                 assert session.param.get_param_int("CP_GO_NO_DATA") == 1
                 items = mission_items(world)
-                session.upload_and_start(items)
+                session.upload_and_start(items, 0.0)
                 downloaded = session.mission.download_mission()
                 assert [i.command for i in downloaded] == [i.command for i in items]
                 control.send({"op": "run"})

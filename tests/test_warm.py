@@ -76,7 +76,7 @@ def test_a_flight_that_went_wrong_is_followed_by_a_fresh_process(tmp_path, profi
     first = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="first")
     real_upload = MavsdkSession.upload_and_start
 
-    def refused(self, items):
+    def refused(self, items, arm_retry_s):
         raise RuntimeError("COMMAND_DENIED")
 
     monkeypatch.setattr(MavsdkSession, "upload_and_start", refused)

@@ -50,6 +50,10 @@ LOCKSTEP_SPIN_S = 0.002
 # After its flight the simulator keeps the SUT's link open until the SUT has gone, at most this
 # long: longer than stopping the SUT can take (ManagedProcess.stop's two grace periods).
 LINGER_S = 5.0
+# How long a SUT whose simulated time runs on while it is set up (hold "paced": PX4) may deny
+# arming before the denial counts: PX4's arming checks flicker just after its start-up. Held
+# frozen, a SUT cannot change its mind, so its first answer counts.
+ARM_RETRY_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -238,7 +242,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings)
+            arm_retry_s = ARM_RETRY_S if system.hold_mode == "paced" else 0.0
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_s)
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
@@ -450,7 +455,7 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
-def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float]):
+def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], arm_retry_s: float):
     """Returns (failure or None, bridge summary, MAVSDK observations)."""
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
@@ -492,9 +497,9 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut.params})
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             if world.drive == "pilot":
-                session.arm_and_take_off(world.mission.takeoff_altitude_m)
+                session.arm_and_take_off(world.mission.takeoff_altitude_m, arm_retry_s)
             else:
-                session.upload_and_start(mission_items(world))
+                session.upload_and_start(mission_items(world), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
             return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result

@@ -11,6 +11,7 @@ from typing import Any, Mapping, Sequence
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
+from mavsdk.plugins.action.action import ActionError, ActionResult
 from mavsdk.plugins.failure import Failure, FailureType, FailureUnit
 from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
 from mavsdk.plugins.param import Param
@@ -29,6 +30,8 @@ NAV_LAND = 21
 NAV_TAKEOFF = 22
 DO_CHANGE_SPEED = 178
 ACCEPTANCE_RADIUS_M = 2.0
+# A SUT that denies arming is asked again this often, within the caller's window.
+ARM_RETRY_INTERVAL_S = 0.1
 
 
 _MAVSDK_LEVELS = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.DEBUG, LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
@@ -159,18 +162,37 @@ class MavsdkSession:
                     if attempt == len(attempts) - 1:
                         raise InfrastructureError(f"the SUT refused parameter {name} = {value}: {error}") from None
 
-    def upload_and_start(self, items: Sequence[MissionItem]) -> None:
+    def upload_and_start(self, items: Sequence[MissionItem], arm_retry_s: float) -> None:
         self.mission.upload_mission(list(items))
-        self.action.arm()
+        self.arm(arm_retry_s)
         self.mission.start_mission()
 
-    def arm_and_take_off(self, altitude_m: float) -> None:
+    def arm_and_take_off(self, altitude_m: float, arm_retry_s: float) -> None:
         """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock.
         The altitude goes in MIS_TAKEOFF_ALT, which both SUTs read for a takeoff without one
         (MAVSDK's set_takeoff_altitude did not reach PX4 v1.16 here)."""
         self.set_params({"MIS_TAKEOFF_ALT": float(altitude_m)})
-        self.action.arm()
+        self.arm(arm_retry_s)
         self.action.takeoff()
+
+    def arm(self, retry_for_s: float) -> None:
+        """Arm, asking again while the SUT denies it, for up to retry_for_s. PX4's position
+        estimate or heading can turn invalid for a second or two just after MAVSDK first reported
+        it healthy and armable, so that it denies arming then (its own MAVSDK tests ask again
+        for 30 s; here up to half of PX4 main's flights did, 2026-11)."""
+        deadline = time.monotonic() + retry_for_s
+        denials = 0
+        while True:
+            try:
+                self.action.arm()
+                break
+            except ActionError as error:
+                if error.result != ActionResult.COMMAND_DENIED or time.monotonic() >= deadline:
+                    raise
+            denials += 1
+            time.sleep(ARM_RETRY_INTERVAL_S)
+        if denials:
+            log.info("armed after %d denials", denials)
 
     def enable_failure_injection(self) -> None:
         """SYS_FAILURE_EN = 1, then MAVSDK's failure plugin: it reads the parameter once, when made."""
