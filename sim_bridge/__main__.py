@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -58,6 +59,16 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0.0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
+    return value
+
+
 def _range_messages(text: str) -> tuple[str, ...]:
     names = tuple(name for name in text.split(",") if name)
     unknown = sorted(set(names) - set(RANGE_MESSAGES))
@@ -82,7 +93,9 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
     parser.add_argument("--hold-mode", choices=["frozen", "paced"], default="frozen",
-                        help="frozen: simulated time stops during the hold; paced: it runs on at real-time pace (for SUTs such as PX4 that follow the lockstep clock)")
+                        help="frozen: simulated time stops during the hold; paced: it runs on at --hold-pace (for SUTs such as PX4 that follow the lockstep clock)")
+    parser.add_argument("--hold-pace", type=_positive, default=1.0,
+                        help="a paced hold's speed in simulated seconds per wall-clock second (default 1: real time)")
     parser.add_argument("--range-messages", default=",".join(RANGE_MESSAGES), type=_range_messages,
                         help="comma-separated: OBSTACLE_DISTANCE (72 sectors, read by the bundled autopilot), DISTANCE_SENSOR (six wedges, read by PX4)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
@@ -106,7 +119,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)
-    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, stall_timeout_s=args.stall_timeout_s,
+    config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, hold_pace=args.hold_pace,
+                          stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:

@@ -8,6 +8,8 @@ how to treat it without knowing which SUT it is:
 * `hold_mode`: "frozen" if it answers MAVLink while the simulation is held with simulated
   time stopped (the bundled autopilot), "paced" if its threads follow the lockstep clock and
   so need simulated time to pass, at real-time pace, while the harness sets up (PX4).
+* `hold_pace` (optional, 1.0): how many times faster than real time a paced hold may run. PX4
+  stretches its timeouts by the speed factor it is started with, so its hold runs that fast.
 * `range_messages`: how it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled
   autopilot) and/or DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
 * `spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it
@@ -92,6 +94,11 @@ def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
 def runs_inline(system: "SystemUnderTest") -> bool:
     """Whether the SUT can run inside the bridge's process (it gives `inline_arguments`)."""
     return callable(getattr(system, "inline_arguments", None))
+
+
+def hold_pace(system: "SystemUnderTest") -> float:
+    """Simulated seconds per wall-clock second in the SUT's paced hold (real time unless it says)."""
+    return float(getattr(system, "hold_pace", 1.0))
 
 
 def connects_to_unix_socket(system: "SystemUnderTest") -> bool:

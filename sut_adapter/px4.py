@@ -30,8 +30,10 @@ MAX_INSTANCE = 9
 # running many times faster than the wall clock, MAVSDK's 1 Hz heartbeats arrive seconds of
 # simulated time apart, which PX4 would take for a lost data link.
 DEFAULT_PARAMS: dict[str, int | float] = {"CP_DIST": 1.0, "NAV_DLL_ACT": 0}
-# PX4 stretches its link-loss and preflight-disarm timeouts by this factor (ROMFS rcS).
-SPEED_FACTOR = "20"
+# PX4 stretches its link-loss and preflight-disarm timeouts by this factor (ROMFS rcS), so its
+# paced hold can run this many times faster than real time: it reaches its first heartbeat (1 s
+# of its time after its MAVLink starts) and health in a twentieth of the wall time.
+SPEED_FACTOR = 20
 
 
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
@@ -51,6 +53,7 @@ def resolve_binary(given: str | None) -> tuple[Path, Path]:
 class Px4Sitl:
     name = "px4"
     hold_mode = "paced"
+    hold_pace = float(SPEED_FACTOR)
     range_messages = ("DISTANCE_SENSOR",)
 
     def __init__(self, config: Mapping[str, str]):
@@ -62,7 +65,7 @@ class Px4Sitl:
     def command(self, *, instance: int, workdir: Path) -> tuple[list[str], dict[str, str]]:
         if not 0 <= instance <= MAX_INSTANCE:
             raise SutError(self.name, f"instance {instance} is out of range: PX4 gives instances above {MAX_INSTANCE} one shared API port; run at most {MAX_INSTANCE + 1} PX4 evaluations at once")
-        env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": SPEED_FACTOR}
+        env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": str(SPEED_FACTOR)}
         return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
 
     def check_params(self, params: Mapping[str, float]) -> None:

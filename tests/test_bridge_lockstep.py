@@ -196,3 +196,38 @@ def test_after_its_flight_the_bridge_keeps_the_link_open_until_the_sut_hangs_up(
             bridge.kill()
     assert bridge.returncode == 0
     assert json.loads(out.decode().strip().splitlines()[-1])["end_reason"] == "time_limit"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pace", [1.0, 8.0])
+def test_a_paced_hold_runs_simulated_time_at_its_pace(tmp_path, pace):
+    """--hold-mode paced --hold-pace P: while the harness sets up, simulated time runs on at
+    about P times real time, no faster (a slow machine may fall short of it)."""
+    from harness.flight.bridge_control import BridgeControl
+
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world(time_limit_s=60.0)))
+    with PortLease(first_slot=120) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+             "--mcap", str(tmp_path / "paced.mcap"), "--hold-after-s", "0.5", "--hold-mode", "paced", "--hold-pace", str(pace)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        )
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", "hover"], cwd=ROOT)
+        try:
+            control = BridgeControl(ports.control)
+            holding = control.wait_for("holding", 20.0)
+            held_since = time.monotonic()
+            time.sleep(1.0)
+            control.send({"op": "stop"})
+            held_s = time.monotonic() - held_since
+            finished = control.wait_for("finished", 30.0)
+            control.close()
+            bridge.communicate(timeout=30)
+        finally:
+            sut.kill()
+            sut.wait()
+            bridge.kill()
+    simulated_in_hold_s = finished["sim_time_s"] - holding["t"]
+    assert simulated_in_hold_s <= pace * held_s * 1.05 + 0.1
+    assert simulated_in_hold_s >= pace * 0.5

@@ -48,7 +48,7 @@ def test_a_template_is_split_like_a_shell_and_filled_word_by_word(tmp_path):
     workdir = tmp_path / "with space"
     assert sut.argv(sim_port=4561, api_port=14541, instance=1, workdir=workdir) == [
         "ap", "--sim", "tcp:127.0.0.1:4561", "--gcs", "udp:127.0.0.1:14541", "--id", "1", "--dir", str(workdir)]
-    assert sut.hold_mode == "paced"
+    assert sut.hold_mode == "paced" and sut_adapter.hold_pace(sut) == 1.0  # an unknown SUT is held at real time
 
 
 @pytest.mark.parametrize(("config", "message"), [
@@ -95,6 +95,8 @@ def test_px4_command_line_airframe_and_instance_ports(tmp_path, monkeypatch):
     assert argv == [str(build / "bin" / "px4"), "-i", "3", "-d", "-w", str(tmp_path / "w"), str(build / "etc")]
     assert (env["PX4_SYS_AUTOSTART"], env["PX4_SIM_MODEL"]) == ("10016", "none_iris")
     assert px4.hold_mode == "paced"
+    # Its hold runs as fast as its timeouts were stretched for.
+    assert sut_adapter.hold_pace(px4) == float(env["PX4_SIM_SPEED_FACTOR"]) > 1.0
     with pytest.raises(sut_adapter.SutError, match="instance 10 is out of range"):
         px4.command(instance=10, workdir=tmp_path)
     with pytest.raises(sut_adapter.SutError, match="uses simulator port 4563 and API port 14543"):

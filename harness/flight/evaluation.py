@@ -352,6 +352,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
                    "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
+                   "--hold-pace", str(sut_adapter.hold_pace(system)),
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
                    "--mcap-compression", "none",
