@@ -86,9 +86,10 @@ class BridgeConfig:
     # their clock, like the bundled autopilot); "paced": it runs on at real-time pace with the
     # vehicle free to move (for SUTs whose every thread follows the lockstep clock, like PX4).
     hold_mode: str = "frozen"
-    # A paced hold's speed, and the simulation's while it waits for a failure injection's answer:
-    # simulated seconds per wall-clock second. PX4 stretches its own timeouts by a speed factor
-    # (PX4_SIM_SPEED_FACTOR) so that it can run this much faster than real time.
+    # A paced hold's speed in simulated seconds per wall-clock second. PX4 stretches its own
+    # timeouts by a speed factor (PX4_SIM_SPEED_FACTOR) so that it can run this much faster than
+    # real time. The wait for a failure injection's answer stays at real time: the faster the
+    # simulation runs meanwhile, the later in simulated time the failure takes effect.
     hold_pace: float = 1.0
     # What carries the range sensor's reading to the SUT: only what it reads costs a step's time.
     range_messages: tuple[str, ...] = RANGE_MESSAGES
@@ -574,9 +575,9 @@ class Bridge:
             world.check_end()
             unobserved_step = world.steps
             summary.world_s += perf() - t2
-            if not lockstep:
+            if not lockstep or self._awaiting_injection is not None:
                 time.sleep(max(0.0, world.dt - (perf() - t_sent)))
-            elif holding or self._awaiting_injection is not None:
+            elif holding:
                 time.sleep(max(0.0, world.dt / config.hold_pace - (perf() - t_sent)))
         if unobserved_step is not None:
             self._observe(unobserved_step)

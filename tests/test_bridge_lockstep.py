@@ -231,3 +231,43 @@ def test_a_paced_hold_runs_simulated_time_at_its_pace(tmp_path, pace):
     simulated_in_hold_s = finished["sim_time_s"] - holding["t"]
     assert simulated_in_hold_s <= pace * held_s * 1.05 + 0.1
     assert simulated_in_hold_s >= pace * 0.5
+
+
+@pytest.mark.slow
+def test_a_paced_bridge_waits_for_a_failure_injection_at_real_time_whatever_its_hold_pace(tmp_path):
+    """While the harness tells a paced SUT of a failure, simulated time runs at most as fast as
+    the wall clock: the faster it ran, the later in simulated time the failure would act."""
+    from harness.flight.bridge_control import BridgeControl
+
+    spec = world(time_limit_s=60.0)
+    spec["failures"] = [{"unit": "barometer", "type": "off", "onset_s": 1.0, "duration_s": 60.0, "delivery": "sut"}]
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(spec))
+    log_path = tmp_path / "injected.mcap"
+    with PortLease(first_slot=120) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+             "--mcap", str(log_path), "--hold-after-s", "0.5", "--hold-mode", "paced", "--hold-pace", "10"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+        )
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", "hover"], cwd=ROOT)
+        try:
+            control = BridgeControl(ports.control)
+            assert control.wait_for("holding", 20.0) is not None
+            control.send({"op": "run"})
+            asked = control.wait_for("inject_failure", 20.0)
+            asked_at = time.monotonic()
+            time.sleep(0.5)
+            control.send({"op": "failure_injected", "result": "SUCCESS"})
+            waited_s = time.monotonic() - asked_at
+            control.send({"op": "stop"})
+            assert control.wait_for("finished", 30.0) is not None
+            control.close()
+            bridge.communicate(timeout=30)
+        finally:
+            sut.kill()
+            sut.wait()
+            bridge.kill()
+    told = next(m for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "failure")
+    assert told["detail"]["result"] == "SUCCESS"
+    assert told["t"] - asked["t"] <= waited_s * 1.1 + 0.2
