@@ -59,13 +59,27 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def _positive(text: str) -> float:
+def _number(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value > 0.0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a positive number")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"{text} is negative")
     return value
 
 
@@ -100,7 +114,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                         help="comma-separated: OBSTACLE_DISTANCE (72 sectors, read by the bundled autopilot), DISTANCE_SENSOR (six wedges, read by PX4)")
     parser.add_argument("--connect-timeout-s", type=float, default=60.0)
     parser.add_argument("--stall-timeout-s", type=float, default=10.0)
-    parser.add_argument("--linger-s", type=float, default=0.0,
+    parser.add_argument("--linger-s", type=_non_negative, default=0.0,
                         help="after the flight, keep the SUT's simulator link open until the SUT hangs up, at most this long "
                              "(the harness stops the SUT first: PX4 spins on a closed simulator link)")
     parser.add_argument("--spin-us", type=float, default=0.0,
@@ -140,6 +154,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             return 2
     control = ControlChannel(control_listener)
     try:
+        # A SUT inside this process goes when we do: there is no link to keep open for it.
         summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut), args.mcap_compression,
                       0.0 if inline_sut is not None else args.linger_s)
     finally:
@@ -160,7 +175,7 @@ def load_world(path: str) -> WorldSpec:
 
 
 def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: ControlChannel, connect_sut: Callable[[], SutLink],
-        compression: str = "zstd", linger_s: float = 0.0) -> dict:
+        compression: str, linger_s: float = 0.0) -> dict:
     """One flight from start to its finished MCAP file; its summary, which the harness gets as the
     "finished" event once the file is complete."""
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
@@ -187,7 +202,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
         control.send({"event": "finished", **summary})
-        if sut is not None:
+        if sut is not None and summary["end_reason"] != "interrupted":
             _wait_for_hang_up(sut, linger_s)
     finally:
         if sut is not None:
@@ -197,13 +212,13 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
 
 def _wait_for_hang_up(sut: SutLink, linger_s: float) -> None:
     """Keep the simulator link open after the flight until the SUT hangs up, at most linger_s
-    (or until we are stopped). The harness stops the SUT before us, and a SUT should go while
+    (or until we are stopped; not at all when we were). The harness stops the SUT before us, and a SUT should go while
     its simulator is still there: PX4 busy-waits on a closed simulator link, its real-time
     threads starving its own shutdown for most of a second."""
     deadline = time.monotonic() + linger_s
     try:
         while (remaining := deadline - time.monotonic()) > 0:
-            if sut.readable(remaining):
+            if sut.readable(min(remaining, 1.0)):
                 sut.idle()  # what the SUT still says goes unread; its hang-up raises
     except (OSError, KeyboardInterrupt):
         pass

@@ -10,8 +10,8 @@ Control channel (newline-delimited JSON over TCP, one client, the harness):
   bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
       "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
       simulation have passed: the harness can now connect, upload and arm while simulated time
-      stands still (hold mode "frozen") or runs on at real-time pace (hold mode "paced", for
-      SUTs whose threads follow the lockstep clock); {"event": "finished", ...summary} at the
+      stands still (hold mode "frozen") or runs on at `hold_pace` times real time (hold mode
+      "paced", for SUTs whose threads follow the lockstep clock); {"event": "finished", ...summary} at the
       end. Messages sent before the harness connects wait for it.
   harness -> bridge: {"op": "run"} ends the hold; {"op": "stop"} ends the run;
       {"op": "add_obstacle", "obstacle": {...world-spec obstacle...}, "at_s": T};
@@ -83,8 +83,8 @@ class BridgeConfig:
     rate_hz: float = 250.0
     hold_after_s: float = 3.0
     # "frozen": simulated time stops during the hold (for SUTs that answer MAVLink regardless of
-    # their clock, like the bundled autopilot); "paced": it runs on at real-time pace with the
-    # vehicle free to move (for SUTs whose every thread follows the lockstep clock, like PX4).
+    # their clock, like the bundled autopilot); "paced": it runs on at hold_pace with the vehicle
+    # free to move (for SUTs whose every thread follows the lockstep clock, like PX4).
     hold_mode: str = "frozen"
     # A paced hold's speed in simulated seconds per wall-clock second. PX4 stretches its own
     # timeouts by a speed factor (PX4_SIM_SPEED_FACTOR) so that it can run this much faster than

@@ -7,7 +7,7 @@ how to treat it without knowing which SUT it is:
 
 * `hold_mode`: "frozen" if it answers MAVLink while the simulation is held with simulated
   time stopped (the bundled autopilot), "paced" if its threads follow the lockstep clock and
-  so need simulated time to pass, at real-time pace, while the harness sets up (PX4).
+  so need simulated time to pass while the harness sets up (PX4).
 * `hold_pace` (optional, 1.0): how many times faster than real time a paced hold may run. PX4
   stretches its timeouts by the speed factor it is started with, so its hold runs that fast.
 * `range_messages`: how it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled
@@ -27,6 +27,7 @@ how to treat it without knowing which SUT it is:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
@@ -98,7 +99,10 @@ def runs_inline(system: "SystemUnderTest") -> bool:
 
 def hold_pace(system: "SystemUnderTest") -> float:
     """Simulated seconds per wall-clock second in the SUT's paced hold (real time unless it says)."""
-    return float(getattr(system, "hold_pace", 1.0))
+    pace = getattr(system, "hold_pace", 1.0)
+    if not (isinstance(pace, (int, float)) and math.isfinite(pace) and pace > 0):
+        raise SutError(system.name, f"its hold_pace {pace!r} is not a positive number of simulated seconds per wall-clock second")
+    return float(pace)
 
 
 def connects_to_unix_socket(system: "SystemUnderTest") -> bool:

@@ -169,3 +169,11 @@ def plan_flight(log_path: Path) -> dict:
                           "at_it_s": len(at_it) * (states[1]["t"] - states[0]["t"])})
     speeds = [math.hypot(*s["v_ned_m_s"][:2]) for s in states]
     return {"waypoints": waypoints, "max_speed_m_s": max(speeds), "states": states}
+
+
+def chunk_compressions(stream) -> set[str]:
+    """The compressions of an MCAP file's chunks (read from a binary stream)."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    return {record.compression for record in StreamReader(stream, emit_chunks=True).records if isinstance(record, Chunk)}

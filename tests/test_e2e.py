@@ -10,10 +10,8 @@ from pathlib import Path
 import jsonschema
 import pytest
 from mcap.reader import make_reader
-from mcap.records import Chunk
-from mcap.stream_reader import StreamReader
 
-from conftest import ROOT
+from conftest import ROOT, chunk_compressions
 from harness.flight import logs
 from harness.flight.bridge_control import BridgeControl
 from harness.flight.evaluation import RunOptions, evaluate
@@ -58,7 +56,7 @@ def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_
     assert set(counts) == set(TOPICS.items())
     # The simulator records uncompressed for the harness to rewrite; the evaluation's log is compressed.
     with open(result.log_path, "rb") as stream:
-        assert {record.compression for record in StreamReader(stream, emit_chunks=True).records if isinstance(record, Chunk)} == {"zstd"}
+        assert chunk_compressions(stream) == {"zstd"}
     meta = logs.metadata(result.log_path)
     assert {"world", "concrete_scenario", "sut", "result", "bridge_summary"} <= set(meta)
     assert json.loads(meta["result"]["json"])["fitness"] == result.fitness

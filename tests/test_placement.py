@@ -86,6 +86,9 @@ def test_two_cores_put_the_simulator_and_the_sut_apart_and_both_poll(tmp_path, p
     bridge_cores, sut_cores, bridge_argv, sut_argv = _placement(tmp_path, profile, cores=2)
     assert len(bridge_cores) == len(sut_cores) == 1 and bridge_cores != sut_cores
     assert float(bridge_argv[bridge_argv.index("--spin-us") + 1]) > 0 and float(sut_argv[sut_argv.index("--spin-us") + 1]) > 0
+    # The harness rewrites the simulator's recording compressed, and stops the SUT before it.
+    assert bridge_argv[bridge_argv.index("--mcap-compression") + 1] == "none"
+    assert float(bridge_argv[bridge_argv.index("--linger-s") + 1]) > 0
 
 
 @pytest.mark.slow

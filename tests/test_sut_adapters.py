@@ -195,3 +195,13 @@ def test_sut_check_names_the_stage_a_silent_sut_fails_at(capsys):
     stages = json.loads(capsys.readouterr().out)["stages"]
     assert [stage["ok"] for stage in stages] == [True, False, None, None, None, None, None]
     assert "the SUT never connected to the simulator on TCP" in stages[1]["detail"]
+
+
+@pytest.mark.parametrize("pace", [0, -1.0, float("nan"), float("inf"), "20"])
+def test_a_sut_adapter_with_a_bad_hold_pace_is_a_sut_error(pace):
+    class Adapter:
+        name = "custom"
+        hold_pace = pace
+
+    with pytest.raises(sut_adapter.SutError, match="custom: its hold_pace"):
+        sut_adapter.hold_pace(Adapter())
