@@ -32,6 +32,9 @@ DO_CHANGE_SPEED = 178
 ACCEPTANCE_RADIUS_M = 2.0
 # A SUT that denies arming is asked again this often, within the caller's window.
 ARM_RETRY_INTERVAL_S = 0.1
+# MAVSDK's health is polled this often: health usually comes within one poll of the hold, and
+# each poll is a call into MAVSDK's memory, so a coarse poll only adds to every set-up.
+HEALTH_POLL_S = 0.005
 
 
 _MAVSDK_LEVELS = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.DEBUG, LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
@@ -142,7 +145,7 @@ class MavsdkSession:
         while time.monotonic() - start < timeout_s:
             if self.telemetry.health_all_ok():
                 return time.monotonic() - start
-            time.sleep(0.05)
+            time.sleep(HEALTH_POLL_S)
         health = self.telemetry.health()
         raise InfrastructureError(f"the SUT did not become healthy within {timeout_s:.0f} s: {vars(health)}")
 
