@@ -300,19 +300,25 @@ class Autopilot:
         perf = time.perf_counter
         next_check = 0.0
         sim_lost_at: float | None = None
+        sim_silent = False
         # Blocking reads on the simulator link (it drives the clock), polled for spin_s first when
         # the simulator has a core of its own; the API link is served between steps at most
-        # every TELEMETRY_CHECK_S of wall time, and on every timeout.
+        # every TELEMETRY_CHECK_S of wall time, and whenever the simulator is silent. Once it has
+        # been silent that long (a frozen hold), the wait also ends when the API link has
+        # something, so that the harness's set-up is answered at once; in lockstep that second
+        # socket would cost every step a select().
         codec.set_receive_timeout(sim, TELEMETRY_CHECK_S)
         try:
             while True:
                 data = None
                 if sim_lost_at is None:
                     try:
-                        data = codec.receive(sim, spin_s)
+                        data = codec.receive(sim, spin_s, also=api.sock if sim_silent else None, wait_s=TELEMETRY_CHECK_S)
                     except BlockingIOError:
-                        pass
+                        sim_silent = True
+                        next_check = 0.0
                     else:
+                        sim_silent = False
                         if data:
                             self._on_sim_data(sim, splitter, data)
                         else:

@@ -9,6 +9,7 @@ objects. tests/test_simlink_codec.py checks every byte against pymavlink.
 
 from __future__ import annotations
 
+import select
 import socket
 import struct
 import time
@@ -219,12 +220,15 @@ def set_receive_timeout(sock, timeout_s: float) -> None:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", seconds, int((timeout_s - seconds) * 1e6)))
 
 
-def receive(sock: socket.socket, spin_s: float = 0.0) -> bytes:
+def receive(sock: socket.socket, spin_s: float = 0.0, also: socket.socket | None = None, wait_s: float = 0.0) -> bytes:
     """recv() on a blocking socket, first polling for up to spin_s of wall time.
 
     Waking a sleeping process on another core costs about 40 us here, more than either side's
     work in a lockstep step; a peer with a core of its own answers a polling reader in a few us.
     With both peers on one core, polling only delays the peer: leave spin_s at 0 there.
+
+    also: a second socket whose input ends the wait too (then, or after wait_s, BlockingIOError),
+    so that its peer is answered at once while sock stays silent.
     """
     if spin_s > 0.0:
         deadline = time.perf_counter() + spin_s
@@ -234,6 +238,8 @@ def receive(sock: socket.socket, spin_s: float = 0.0) -> bytes:
             except BlockingIOError:
                 if time.perf_counter() > deadline:
                     break
+    if also is not None and sock not in select.select([sock, also], [], [], wait_s)[0]:
+        raise BlockingIOError("nothing on the socket yet")
     return sock.recv(65536)
 
 

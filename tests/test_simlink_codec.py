@@ -138,3 +138,25 @@ def test_every_answer_between_any_junk_is_recovered_however_the_stream_is_cut(ju
     positions = sorted({min(c, len(stream)) for c in cuts} | {0, len(stream)})
     frames = [f for a, b in zip(positions, positions[1:]) for f in splitter.feed(stream[a:b])]
     assert [frame for _msgid, _payload, frame in frames] == answers
+
+
+def test_a_receive_that_also_watches_a_second_socket_ends_when_that_one_has_input():
+    """The bundled autopilot waits on its simulator link and its API link at once: MAVSDK's
+    requests during a frozen hold are answered when they come, not at the next periodic check."""
+    import socket
+    import time
+
+    sim, simulator = socket.socketpair()
+    api, ground_station = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    with sim, simulator, api, ground_station:
+        api.bind(("127.0.0.1", 0))
+        codec.set_receive_timeout(sim, 5.0)
+        ground_station.sendto(b"heartbeat", api.getsockname())
+        started = time.monotonic()
+        with pytest.raises(BlockingIOError):
+            codec.receive(sim, 0.0, also=api, wait_s=5.0)
+        assert time.monotonic() - started < 1.0  # woken by the datagram, not by the 5 s wait
+        simulator.sendall(b"sensors")
+        assert codec.receive(sim, 0.0, also=api, wait_s=5.0) == b"sensors"  # the simulator first, whatever else waits
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent, pytest.raises(BlockingIOError):
+            codec.receive(sim, 0.0, also=silent, wait_s=0.05)  # nothing anywhere: the wait ends
