@@ -313,7 +313,10 @@ class Autopilot:
                 data = None
                 if sim_lost_at is None:
                     try:
-                        data = codec.receive(sim, spin_s, also=api.sock if sim_silent else None, wait_s=TELEMETRY_CHECK_S)
+                        if sim_silent:  # no spinning either: the API's next request comes in a fraction of it
+                            data = codec.receive(sim, also=api.sock, wait_s=TELEMETRY_CHECK_S)
+                        else:
+                            data = codec.receive(sim, spin_s)
                     except BlockingIOError:
                         sim_silent = True
                         next_check = 0.0

@@ -220,7 +220,7 @@ def set_receive_timeout(sock, timeout_s: float) -> None:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", seconds, int((timeout_s - seconds) * 1e6)))
 
 
-def receive(sock: socket.socket, spin_s: float = 0.0, also: socket.socket | None = None, wait_s: float = 0.0) -> bytes:
+def receive(sock: socket.socket, spin_s: float = 0.0, *, also: socket.socket | None = None, wait_s: float = 0.0) -> bytes:
     """recv() on a blocking socket, first polling for up to spin_s of wall time.
 
     Waking a sleeping process on another core costs about 40 us here, more than either side's
@@ -228,7 +228,8 @@ def receive(sock: socket.socket, spin_s: float = 0.0, also: socket.socket | None
     With both peers on one core, polling only delays the peer: leave spin_s at 0 there.
 
     also: a second socket whose input ends the wait too (then, or after wait_s, BlockingIOError),
-    so that its peer is answered at once while sock stays silent.
+    so that its peer is answered at once while sock stays silent. Without it, wait_s does not
+    apply: the socket's own receive timeout does (set_receive_timeout), if any.
     """
     if spin_s > 0.0:
         deadline = time.perf_counter() + spin_s

@@ -154,9 +154,9 @@ def test_a_receive_that_also_watches_a_second_socket_ends_when_that_one_has_inpu
         ground_station.sendto(b"heartbeat", api.getsockname())
         started = time.monotonic()
         with pytest.raises(BlockingIOError):
-            codec.receive(sim, 0.0, also=api, wait_s=5.0)
+            codec.receive(sim, also=api, wait_s=5.0)
         assert time.monotonic() - started < 1.0  # woken by the datagram, not by the 5 s wait
         simulator.sendall(b"sensors")
-        assert codec.receive(sim, 0.0, also=api, wait_s=5.0) == b"sensors"  # the simulator first, whatever else waits
+        assert codec.receive(sim, also=api, wait_s=5.0) == b"sensors"  # the simulator first, whatever else waits
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent, pytest.raises(BlockingIOError):
-            codec.receive(sim, 0.0, also=silent, wait_s=0.05)  # nothing anywhere: the wait ends
+            codec.receive(sim, also=silent, wait_s=0.05)  # nothing anywhere: the wait ends

@@ -791,7 +791,7 @@ def parser() -> argparse.ArgumentParser:
                         "as cores), unix where it gets two, for the bundled autopilot; tcp for other SUTs")
     p.add_argument("--cold-start", action="store_true",
                    help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
-                        "evaluation (a fresh world and autopilot in the same process: the same flights, about a quarter second less each)")
+                        "evaluation (a fresh world and autopilot in the same process: the same flights, about a fifth of a second less each)")
     p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
     p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
     p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")
