@@ -313,7 +313,7 @@ class Autopilot:
                 data = None
                 if sim_lost_at is None:
                     try:
-                        if sim_silent:  # no spinning either: the API's next request comes in a fraction of it
+                        if sim_silent:  # no spin: on a silent simulator it would only delay the API's answer
                             data = codec.receive(sim, also=api.sock, wait_s=TELEMETRY_CHECK_S)
                         else:
                             data = codec.receive(sim, spin_s)
