@@ -144,6 +144,11 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
         print(f"{args.world}: {error}", file=sys.stderr)
         return 2
+    try:
+        Path(args.mcap).open("wb").close()  # before any SUT connects: fly() writes it from the start
+    except OSError as error:
+        print(f"--mcap {args.mcap}: cannot write the recording there: {error}", file=sys.stderr)
+        return 2
     sim_listener = None
     if inline_sut is None:
         try:

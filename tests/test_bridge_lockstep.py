@@ -258,3 +258,13 @@ def test_a_paced_bridge_waits_for_a_failure_injection_at_real_time_whatever_its_
     told = next(m for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "failure")
     assert told["detail"]["result"] == "SUCCESS"
     assert told["t"] - asked["t"] <= waited_s * 1.1 + 0.2
+
+
+def test_a_recording_that_cannot_be_written_is_refused_before_any_flight(tmp_path):
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world()))
+    missing = tmp_path / "no such folder" / "run:1.mcap"
+    done = subprocess.run([sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--mcap", str(missing), "--sim-port", "0"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert done.returncode == 2
+    assert f"--mcap {missing}: cannot write the recording there" in done.stderr and "Traceback" not in done.stderr
