@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 setup: $(VENV)/.installed
 
 # setup.py compiles these: an edit to one rebuilds it (an import refuses a stale build: simlink.check_compiled).
-COMPILED := $(wildcard autopilot/*.py autopilot/*.pxd simlink/*.py simlink/*.pxd)
+COMPILED := $(wildcard autopilot/*.py autopilot/*.pxd simlink/*.py simlink/*.pxd sim_bridge/*.pxd) $(patsubst %.pxd,%.py,$(wildcard sim_bridge/*.pxd))
 
 $(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)
 	$(PYTHON) -m venv $(VENV)

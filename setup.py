@@ -1,14 +1,15 @@
-"""Compiles the per-step hot path on the SUT's side with Cython: the bundled autopilot and the
-simulator link's codec (which the bridge uses too).
+"""Compiles the per-step hot path with Cython: the bundled autopilot, the simulator link's codec
+(which both sides use), and the simulator's step (its loop, world, physics, sensors, obstacles).
 
 The modules stay plain Python, the source of truth. A `.pxd` file beside a module gives the
 compiler static types (C doubles for the controllers' arithmetic; extension types for the
-estimator, the obstacle map, the parameters, the frame splitter, the autopilot, the commander
-and the dataclasses) without changing what the Python source computes for the values it gets
-(MAVLink's field types). Compiled, the autopilot's computation per lockstep step takes about a
-third of the Python time, with the same float arithmetic, so the same fitness to the last bit
-(tests/test_compiled.py). Without a C compiler or Python's headers the build skips them and the
-same modules run as Python.
+estimator, the obstacle map, the parameters, the frame splitter, the autopilot, the commander,
+the bridge, the world, the vehicle and its state, the sensors, the obstacles and the
+dataclasses) without changing what the Python source computes for the values it gets (MAVLink's
+field types). Compiled, the autopilot's computation per lockstep step takes about a third of the
+Python time and the simulator's part of a step about four fifths, with the same float
+arithmetic, so the same flight to the last bit (tests/test_compiled.py). Without a C compiler or
+Python's headers the build skips them and the same modules run as Python.
 """
 
 import os
@@ -25,6 +26,11 @@ COMPILED = [
     "autopilot/manual.py",
     "autopilot/params.py",
     "simlink/codec.py",
+    "sim_bridge/bridge.py",
+    "sim_bridge/obstacles.py",
+    "sim_bridge/physics.py",
+    "sim_bridge/sensors.py",
+    "sim_bridge/world.py",
 ]
 
 # Static types come from the .pxd file beside a module; its annotations are documentation only.

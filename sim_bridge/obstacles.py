@@ -65,6 +65,13 @@ class Obstacle:
     repeat: str = "back_and_forth"
     position: np.ndarray = field(init=False)
     collision: fcl.CollisionObject = field(init=False)
+    # Derived in __post_init__; declared as fields because the compiled module (obstacles.pxd)
+    # makes this an extension type, whose attributes are all fields.
+    _leg_m: float = field(init=False, repr=False, compare=False)
+    _cumulative_m: list[float] = field(init=False, repr=False, compare=False)
+    _path_points: list[tuple[float, float, float]] = field(init=False, repr=False, compare=False)
+    _a_tuple: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+    _delta: tuple[float, float, float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.repeat not in REPEATS:
@@ -73,6 +80,8 @@ class Obstacle:
             self.a, self.b = self.path[0].copy(), self.path[-1].copy()
             self._cumulative_m = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(self.path, axis=0), axis=1)))).tolist()
             self._path_points = [tuple(p) for p in self.path.tolist()]
+        else:
+            self._cumulative_m, self._path_points = [], []
         self.position = self.a.copy()
         self.collision = fcl.CollisionObject(self._geometry(), fcl.Transform(yaw_rotation(self.yaw_rad), self.position))
         if self.path is not None:
@@ -251,7 +260,8 @@ class ObstacleField:
         r[1, 0], r[1, 1], r[1, 2] = cp * sy, sr * sp * sy + cr * cy, -(cr * sp * sy - sr * cy)
         r[2, 0], r[2, 1], r[2, 2] = sp, -sr * cp, cr * cp
         t[0], t[1], t[2] = north_m, east_m, up_m
-        self._body.setTransform(fcl.Transform(r, t))
+        # The arrays themselves: compiled, r and t are typed views of them, which fcl does not take.
+        self._body.setTransform(fcl.Transform(self._rotation, self._translation))
 
     def clearances(self) -> list[float]:
         distance, body, request, result = fcl.distance, self._body, self._request, self._result

@@ -179,7 +179,8 @@ class World:
         s = self.vehicle.state
         if self.wind_field.varies:
             self._advance_wind()
-        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), *self.wind_now)
+        wind_n, wind_e, wind_d = self.wind_now
+        self.vehicle.step(motors, terrain_height_m(self.terrain, s.north_m, s.east_m), wind_n, wind_e, wind_d)
         self.steps += 1
         time_s = self.time_s
         run_time = self.run_time(time_s)

@@ -63,3 +63,44 @@ def test_the_compiled_autopilot_answers_a_recorded_flight_exactly_as_its_sources
         assert all(module.endswith(".so" if name == "compiled" else ".py") for module in modules)
     assert replays["compiled"]["flew_mission"] and replays["compiled"]["steps"] > 5000
     assert replays["compiled"]["answers_sha256"] == replays["sources"]["answers_sha256"]
+
+
+FLY = """
+import json, sys
+import numpy as np
+from pathlib import Path
+from harness.flight.evaluation import evaluate
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
+from harness.scenario.space import SearchSpace
+profile = load_profile("default")
+space = SearchSpace(load_logical(Path(sys.argv[1]), profile), profile)
+result = evaluate(space, space.sample_feasible(np.random.default_rng(7), 1)[0], seed=7, out_dir=Path(sys.argv[2]))
+print(json.dumps({"log": str(result.log_path), "status": result.status}))
+"""
+SIMULATED = ["/mavlink/sim", "/uav/state", "/clearance", "/scene", "/sensor/obstacle_distance", "/events", "/wind"]
+
+
+@pytest.mark.slow
+def test_the_compiled_simulator_flies_a_flight_exactly_as_its_sources(tmp_path):
+    """Every simulated record of a flight with moving obstacles along paths, gusts and a failure
+    told to the SUT: the compiled simulator's against its sources' (and, so that the comparison
+    can fail, against sources with a sensor's noise changed)."""
+    from harness.flight import logs
+
+    scenario = ROOT / "scenarios" / "examples" / "intruder_gusts_failure.json"
+    sources, changed = tmp_path / "sources", tmp_path / "changed"
+    for copy in (sources, changed):
+        shutil.copytree(ROOT / "sim_bridge", copy / "sim_bridge", ignore=shutil.ignore_patterns("*.so", "*.c", "__pycache__"))
+    sensors = changed / "sim_bridge" / "sensors.py"
+    sensors.write_text(sensors.read_text().replace("GPS_NOISE_M = 0.08", "GPS_NOISE_M = 0.09"))
+    records = {}
+    for name, path in (("compiled", ""), ("sources", str(sources)), ("changed", str(changed))):
+        done = subprocess.run([sys.executable, "-c", FLY, str(scenario), str(tmp_path / f"{name}-flight")], capture_output=True, text=True,
+                              env={**os.environ, "PYTHONPATH": path}, cwd=tmp_path, check=True)
+        flight = json.loads(done.stdout.strip().splitlines()[-1])
+        assert flight["status"] in ("ok", "violation")
+        records[name] = list(logs.messages(flight["log"], SIMULATED))
+    assert len(records["compiled"]) > 1000
+    assert records["compiled"] == records["sources"]
+    assert records["changed"] != records["sources"]

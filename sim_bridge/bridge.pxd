@@ -1,0 +1,33 @@
+# Static types for the compiled module (setup.py): bridge.py stays the plain Python source.
+import cython
+from sim_bridge.physics cimport VehicleState
+from sim_bridge.world cimport World
+
+cdef class Bridge:
+    cdef public object config, recorder, summary, _control, _wedges, _hold_deadline, failures, _awaiting_injection
+    cdef public World world
+    cdef public dict _every
+    cdef public int _seq
+    cdef public bytearray _link_out, _link_in
+    cdef public tuple _clearance_batch
+    cdef public bint _hold_announced
+
+    cpdef int _next_seq(self)
+
+    @cython.locals(s=VehicleState)
+    cpdef _record_pose(self, long long time_ns)
+
+    @cython.locals(time_s=cython.double, time_ns=cython.longlong, batch=tuple)
+    cpdef _observe(self, long long step)
+
+    @cython.locals(world=World, s=VehicleState, frames=list)
+    cpdef bytes _sensor_frames(self, long long step, long long time_us)
+
+    cpdef _gps_fix(self)
+
+    @cython.locals(world=World, answered=cython.bint)
+    cpdef bint _receive_answer(self, sut, splitter, bint lockstep, double waiting_since)
+
+    @cython.locals(world=World, step=cython.longlong, time_us=cython.longlong, time_s=cython.double, lockstep=cython.bint,
+                   ts=cython.double, t_send=cython.double, t_sent=cython.double, t0=cython.double, t1=cython.double, t2=cython.double)
+    cpdef run(self, sut, control)
