@@ -2,7 +2,8 @@
 import cython
 
 from autopilot.collision cimport ObstacleMap
-from autopilot.control cimport PositionControl, RateControl
+from autopilot.commander cimport Commander, VehicleEstimate
+from autopilot.control cimport PositionControl, RateControl, Setpoint, attitude_from_thrust, attitude_rate_setpoint, euler_from_quat, mix
 from autopilot.estimator cimport Estimator
 from autopilot.params cimport Params
 from simlink.codec cimport FrameSplitter
@@ -10,7 +11,8 @@ from simlink.codec cimport FrameSplitter
 cdef class Autopilot:
     cdef public Params params
     cdef public Estimator estimator
-    cdef public object commander, position_mode, api, failures
+    cdef public Commander commander
+    cdef public object position_mode, api, failures
     cdef public PositionControl position_control
     cdef public RateControl rate_control
     cdef public ObstacleMap obstacles
@@ -20,7 +22,18 @@ cdef class Autopilot:
     cdef public int _seq
     cdef public set _wanted_sim_messages
 
-    @cython.locals(est=Estimator, dt=cython.double, manual=cython.bint, vn=cython.double, ve=cython.double, yaw_sp=cython.double, collective=cython.double)
+    cpdef (double, double, double) euler(self)
+
+    cpdef double yaw_rad(self)
+
+    cpdef VehicleEstimate vehicle_estimate(self)
+
+    cpdef double _baro_drift_m(self, double temperature_c)
+
+    @cython.locals(est=Estimator, commander=Commander, sp=Setpoint, estimate=VehicleEstimate, dt=cython.double, manual=cython.bint, vn=cython.double,
+                   ve=cython.double, yaw_sp=cython.double, collective=cython.double, q_sp=(cython.double, cython.double, cython.double, cython.double),
+                   rates_sp=(cython.double, cython.double, cython.double), torque=(cython.double, cython.double, cython.double), vel_sp=(cython.double, cython.double, cython.double),
+                   thrust=(cython.double, cython.double, cython.double))
     cpdef tuple step(self, time_us, values)
 
     @cython.locals(msgid=cython.int, fields=tuple, motors=tuple)

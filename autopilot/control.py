@@ -252,4 +252,4 @@ def mix(collective: float, torque: Vec3, idle: float = 0.0) -> tuple[float, floa
             raw = [m - (high - 1.0) for m in raw]
         elif low < idle:
             raw = [m + (idle - low) for m in raw]
-    return tuple(max(0.0, min(1.0, m)) for m in raw)  # type: ignore[return-value]
+    return max(0.0, min(1.0, raw[0])), max(0.0, min(1.0, raw[1])), max(0.0, min(1.0, raw[2])), max(0.0, min(1.0, raw[3]))
