@@ -261,7 +261,9 @@ class ObstacleField:
         r[2, 0], r[2, 1], r[2, 2] = sp, -sr * cp, cr * cp
         t[0], t[1], t[2] = north_m, east_m, up_m
         # The arrays themselves: compiled, r and t are typed views of them, which fcl does not take.
-        self._body.setTransform(fcl.Transform(self._rotation, self._translation))
+        # Set in place rather than through a new fcl.Transform: a third of this call's time.
+        self._body.setRotation(self._rotation)
+        self._body.setTranslation(self._translation)
 
     def clearances(self) -> list[float]:
         distance, body, request, result = fcl.distance, self._body, self._request, self._result
