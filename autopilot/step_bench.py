@@ -1,8 +1,8 @@
 """The autopilot's own cost per lockstep step (parse, estimate, control, encode), without sockets.
 
 A recorded simulator-to-SUT byte stream is replayed into an in-process autopilot flying the
-recorded mission. Its answers are kept only as a digest, equal wherever the autopilot computes
-the same commands (compiled or not).
+recorded mission. Its answers, and its state after each step, are kept only as digests, equal
+wherever the autopilot computes the same values (compiled or not).
 """
 
 from __future__ import annotations
@@ -42,11 +42,16 @@ def replay(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
     durations = []
     armed = False
     sock = _DigestSocket()
+    # The answers are float32: the estimator's and controllers' doubles are compared in full too.
+    state = hashlib.sha256()
     for msgid, _payload, frame in frames:
         started = time.perf_counter()
         autopilot._on_sim_data(sock, splitter, frame)
         if msgid == codec.HIL_SENSOR_ID:
             durations.append(time.perf_counter() - started)
+            est = autopilot.estimator
+            state.update(repr((est.q, est.rates, est.acc_ned, est.pos, est.vel, autopilot.collective, autopilot.lift,
+                               autopilot.rate_control._int, autopilot.rate_control._last)).encode())
         if not armed and autopilot.now_s >= 3.0 and autopilot.ready_to_arm()[0]:
             autopilot.commander.set_mission(items)
             autopilot.commander.arm(autopilot.now_s, True, "")
@@ -55,4 +60,5 @@ def replay(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
             armed = True
     durations.sort()
     return {"steps": len(durations), "median_step_us": 1e6 * durations[len(durations) // 2], "answers_sha256": sock.digest.hexdigest(),
+            "state_sha256": state.hexdigest(),
             "p90_step_us": 1e6 * durations[int(0.9 * len(durations))], "flew_mission": armed}
