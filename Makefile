@@ -11,6 +11,8 @@ COMPILED := $(wildcard autopilot/*.py autopilot/*.pxd simlink/*.py simlink/*.pxd
 
 $(VENV)/.installed: pyproject.toml constraints.txt setup.py $(COMPILED)
 	$(PYTHON) -m venv $(VENV)
+	@# Cython regenerates a .c file only when its .py or .pxd is newer: not for setup.py's directives.
+	rm -f autopilot/*.c simlink/*.c sim_bridge/*.c
 	$(BIN)/pip install --quiet -c constraints.txt -e '.[test]'
 	touch $@
 
