@@ -7,7 +7,7 @@ estimator, the obstacle map, the parameters, the frame splitter, the autopilot, 
 the bridge, the world, the vehicle and its state, the sensors, the obstacles and the
 dataclasses) without changing what the Python source computes for the values it gets (MAVLink's
 field types). Compiled, the autopilot's computation per lockstep step takes about a third of the
-Python time and the simulator's part of a step about four fifths, with the same float
+Python time and the simulator's part of a step about three quarters, with the same float
 arithmetic, so the same flight to the last bit (tests/test_compiled.py). Without a C compiler or
 Python's headers the build skips them and the same modules run as Python.
 """
