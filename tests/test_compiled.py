@@ -58,10 +58,8 @@ def test_the_compiled_autopilot_answers_a_recorded_flight_exactly_as_its_sources
         shutil.copytree(ROOT / package, sources / package, ignore=shutil.ignore_patterns("*.so", "*.c", "__pycache__"))
     replays = {}
     for name, path in (("compiled", ""), ("sources", str(sources))):
-        done = subprocess.run([sys.executable, "-c", REPLAY, result.log_path], capture_output=True, text=True, env={"PYTHONPATH": path}, cwd=tmp_path, check=True)
-        replays[name] = json.loads(done.stdout)
-        modules = subprocess.run([sys.executable, "-c", "import autopilot.control, simlink.codec; print(autopilot.control.__file__, simlink.codec.__file__)"],
-                                 capture_output=True, text=True, env={"PYTHONPATH": path}, cwd=tmp_path, check=True).stdout.split()
+        replays[name] = json.loads(_python(REPLAY, result.log_path, pythonpath=path, cwd=tmp_path))
+        modules = _python("import autopilot.control, simlink.codec; print(autopilot.control.__file__, simlink.codec.__file__)", pythonpath=path, cwd=tmp_path).split()
         assert all(module.endswith(".so" if name == "compiled" else ".py") for module in modules)
     assert replays["compiled"]["flew_mission"] and replays["compiled"]["steps"] > 5000
     assert replays["compiled"]["answers_sha256"] == replays["sources"]["answers_sha256"]
