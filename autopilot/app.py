@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import socket
@@ -35,7 +36,7 @@ from autopilot.control import (
 from autopilot.estimator import Estimator, GpsFix
 from autopilot.manual import PositionMode, sticks_from_rc
 from autopilot.params import Params
-from simlink import codec
+from simlink import codec, shared_memory
 from simlink.failures import (
     Failure,
     FailureType,
@@ -291,10 +292,23 @@ class Autopilot:
 
     # -- the process loop -----------------------------------------------------------------------
 
-    def serve(self, sim_address: tuple[str, int] | str, api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0) -> int:
-        """sim_address: (host, port) over TCP, or a Unix-domain socket's path."""
+    def serve(self, sim_address: tuple[str, int] | str, api_address: tuple[str, int], connect_timeout_s: float, spin_s: float = 0.0,
+              over_shared_memory: bool = False) -> int:
+        """sim_address: (host, port) over TCP, or a Unix-domain socket's path; over_shared_memory:
+        the simulator hands over shared memory on that socket for the link's bytes
+        (simlink/shared_memory.py)."""
         sim = _connect(sim_address, connect_timeout_s)
-        codec.send_at_once(sim)
+        if over_shared_memory:
+            try:
+                sim = shared_memory.accept(sim, TELEMETRY_CHECK_S)
+            except OSError:
+                sim.close()
+                raise
+            receive = sim.receive
+        else:
+            codec.send_at_once(sim)
+            codec.set_receive_timeout(sim, TELEMETRY_CHECK_S)
+            receive = functools.partial(codec.receive, sim)
         self.api = api = ApiLink(self, api_address)
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         perf = time.perf_counter
@@ -307,16 +321,15 @@ class Autopilot:
         # been silent that long (a frozen hold), the wait also ends when the API link has
         # something, so that the harness's set-up is answered at once; in lockstep that second
         # socket would cost every step a select().
-        codec.set_receive_timeout(sim, TELEMETRY_CHECK_S)
         try:
             while True:
                 data = None
                 if sim_lost_at is None:
                     try:
                         if sim_silent:  # no spin: on a silent simulator it would only delay the API's answer
-                            data = codec.receive(sim, also=api.sock, wait_s=TELEMETRY_CHECK_S)
+                            data = receive(also=api.sock, wait_s=TELEMETRY_CHECK_S)
                         else:
-                            data = codec.receive(sim, spin_s)
+                            data = receive(spin_s)
                     except BlockingIOError:
                         sim_silent = True
                         next_check = 0.0

@@ -25,7 +25,7 @@ from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChann
 from sim_bridge.recording import COMPRESSIONS, Recorder
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
-from simlink import codec
+from simlink import codec, shared_memory
 
 
 def listen(port: int, host: str = "127.0.0.1") -> socket.socket:
@@ -52,6 +52,12 @@ def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], 
         return inline_sut()
     listener.settimeout(args.connect_timeout_s)
     sock, _ = listener.accept()
+    if args.sim_shared_memory:
+        try:
+            return shared_memory.offer(sock, args.stall_timeout_s)
+        except OSError:
+            sock.close()
+            raise
     return SocketLink(sock, args.stall_timeout_s)
 
 
@@ -97,6 +103,9 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--world", help="world spec JSON (stella sample --json prints one)")
     parser.add_argument("--sim-port", type=int, default=4560)
     parser.add_argument("--sim-socket", help="listen for the SUT on this Unix-domain socket (a path, or @NAME in the abstract namespace) instead of the simulator port")
+    parser.add_argument("--sim-shared-memory", action="store_true",
+                        help="with --sim-socket: hand the SUT shared memory on it and exchange the link's bytes there (simlink/shared_memory.py; "
+                             "the bundled autopilot's --sim shm:PATH)")
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -130,6 +139,10 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             codec.unix_socket_address(args.sim_socket)
         except ValueError as error:
             parser.error(f"--sim-socket: {error}")
+    if args.sim_shared_memory and (args.sim_socket is None or inline_sut is not None):
+        parser.error("--sim-shared-memory needs a --sim-socket to hand the shared memory over on (and a SUT in a process of its own)")
+    if args.sim_shared_memory and not shared_memory.AVAILABLE:
+        parser.error("--sim-shared-memory: the link through shared memory needs Linux on x86-64; leave it out to use the Unix-domain socket alone")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)

@@ -1,7 +1,9 @@
 """How the bridge's bytes reach the SUT and its answers come back.
 
 Over TCP as PX4's simulator_mavlink connects, or over a Unix-domain socket for a SUT that can
-connect to one (`SocketLink` either way; the kernel's round trip takes half TCP's), or, for a SUT
+connect to one (`SocketLink` either way; the kernel's round trip takes half TCP's), or through
+shared memory handed over on that socket (`simlink.shared_memory.SharedMemoryLink`: no system
+call per step while both sides poll on cores of their own), or, for a SUT
 that runs inside the bridge's process (the bundled autopilot, `python -m sut_adapter.inline`),
 through memory: the same MAVLink bytes, handed over by a call instead of a socket. Either way the bridge sees the
 protocol below; what it sends and what it reads back are the same bytes.
@@ -16,10 +18,11 @@ from typing import Protocol
 from simlink import codec
 
 # "tcp": the SUT in a process of its own (any SUT); "unix": the same over a Unix-domain socket
-# (a SUT that can connect to one: the bundled autopilot); "memory": inside the bridge's process
-# (a SUT that can run there); "auto": memory where an evaluation has one core, unix where it has
-# two, whichever the SUT can, else tcp.
-TRANSPORTS = ("auto", "tcp", "memory", "unix")
+# (a SUT that can connect to one: the bundled autopilot); "shm": its bytes through shared memory
+# handed over on that socket (the same SUTs; Linux on x86-64); "memory": inside the bridge's
+# process (a SUT that can run there); "auto": memory where an evaluation has one core, shm (else
+# unix) where it has two, whichever the SUT can, else tcp.
+TRANSPORTS = ("auto", "tcp", "memory", "unix", "shm")
 
 
 class SutLink(Protocol):

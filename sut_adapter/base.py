@@ -21,6 +21,9 @@ how to treat it without knowing which SUT it is:
 * `connects_to_unix_socket` (optional, True): the SUT's `start` also takes `sim_socket`, a
   Unix-domain socket to connect to instead of the simulator's TCP port (`--transport unix`; the
   bundled autopilot). Same bytes, half the kernel's round trip.
+* `connects_to_shared_memory` (optional, True): with `sim_socket`, `start` also takes
+  `sim_shared_memory`: the simulator hands shared memory over on that socket and the link's
+  bytes go through it (`--transport shm`, simlink/shared_memory.py; the bundled autopilot).
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -108,6 +111,11 @@ def hold_pace(system: "SystemUnderTest") -> float:
 def connects_to_unix_socket(system: "SystemUnderTest") -> bool:
     """Whether the SUT's start takes `sim_socket`, a Unix-domain socket to connect to."""
     return getattr(system, "connects_to_unix_socket", False) is True
+
+
+def connects_to_shared_memory(system: "SystemUnderTest") -> bool:
+    """Whether the SUT's start takes `sim_shared_memory` beside `sim_socket`."""
+    return connects_to_unix_socket(system) and getattr(system, "connects_to_shared_memory", False) is True
 
 
 class SystemUnderTest(Protocol):

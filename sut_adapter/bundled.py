@@ -16,6 +16,7 @@ class BundledAutopilot:
     hold_mode = "frozen"
     range_messages = ("OBSTACLE_DISTANCE",)
     connects_to_unix_socket = True
+    connects_to_shared_memory = True
 
     def __init__(self, config: Mapping[str, str] | None = None):
         config = dict(config or {})
@@ -34,8 +35,8 @@ class BundledAutopilot:
             raise SutError(self.name, f"{error} (`python -m autopilot.params` lists its parameters)") from None
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
-              spin_s: float = 0.0, sim_socket: str | None = None) -> SutHandle:
-        sim = f"unix:{sim_socket}" if sim_socket is not None else f"tcp:127.0.0.1:{sim_port}"
+              spin_s: float = 0.0, sim_socket: str | None = None, sim_shared_memory: bool = False) -> SutHandle:
+        sim = f"{'shm' if sim_shared_memory else 'unix'}:{sim_socket}" if sim_socket is not None else f"tcp:127.0.0.1:{sim_port}"
         argv = [sys.executable, "-m", "autopilot", "--sim", sim, *self.inline_arguments(api_port=api_port, workdir=workdir, params=params)]
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]

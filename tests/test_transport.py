@@ -1,6 +1,7 @@
-"""The bundled autopilot inside the simulator's process (--transport memory) and in its own
-process over a Unix-domain socket (--transport unix) flies the same flights as over TCP, to the
-last bit: the same bytes on the simulator link, the same log."""
+"""The bundled autopilot inside the simulator's process (--transport memory), and in its own
+process over a Unix-domain socket (--transport unix) or through shared memory (--transport shm),
+flies the same flights as over TCP, to the last bit: the same bytes on the simulator link, the
+same log."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate, in_memory, over_unix_socket
+from harness.flight.evaluation import RunOptions, evaluate, in_memory, placed_transport
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -21,7 +22,7 @@ from autopilot.inline import InProcessLink
 from autopilot.params import Params
 from sim_bridge.sut_link import TRANSPORTS, SutLink
 from sut_adapter import SutConfig
-from simlink import codec
+from simlink import codec, shared_memory
 import sut_adapter
 
 # Everything the simulator records: its link's bytes both ways, the vehicle, the clearance, the
@@ -51,7 +52,7 @@ def test_every_transport_flies_the_same_flight_to_the_last_bit(tmp_path, profile
     space = SearchSpace(load_logical(scenario, profile, drive), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     flights, records = both_ways(tmp_path, space, x, seed)
-    for transport in ("memory", "unix"):
+    for transport in ("memory", "unix", "shm"):
         assert (flights[transport].status, flights[transport].fitness) == (flights["tcp"].status, flights["tcp"].fitness)
         assert len(records["tcp"]) > 1000 and records[transport] == records["tcp"], transport
     for direction in ("to_sut", "from_sut"):
@@ -68,12 +69,12 @@ def sequence_numbers(records, direction: str) -> list[int]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="an evaluation gets two cores only where there are two")
-def test_auto_runs_the_bundled_autopilot_in_memory_on_one_core_and_over_a_unix_socket_on_two(tmp_path, profile):
+def test_auto_runs_the_bundled_autopilot_in_memory_on_one_core_and_through_shared_memory_on_two(tmp_path, profile):
     space = SearchSpace(load_logical(ROOT / "scenarios" / "table3" / "scenario_31.json", profile), profile)
     x = space.sample_feasible(np.random.default_rng(4), 1)[0]
     flights = {cores: evaluate(space, x, seed=4, out_dir=tmp_path / str(cores), options=RunOptions(cores=cores)) for cores in (1, 2)}
     assert {cores: logs.json_metadata(result.log_path, "placement") for cores, result in flights.items()} == {
-        1: {"cores": 1, "transport": "memory"}, 2: {"cores": 2, "transport": "unix"}}
+        1: {"cores": 1, "transport": "memory"}, 2: {"cores": 2, "transport": "shm"}}
     assert flights[1].fitness == flights[2].fitness and flights[2].status == "ok"
 
 
@@ -81,15 +82,26 @@ def test_auto_counts_the_cores_the_machine_has(monkeypatch):
     """Two cores asked for on a one-core machine: the pair would share it, so in memory."""
     bundled, command = sut_adapter.system_for(SutConfig()), sut_adapter.system_for(SutConfig(name="command", command="my-autopilot --sim {sim_port} --api {api_port}"))
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0})
-    assert in_memory(RunOptions(cores=2), bundled) and not over_unix_socket(RunOptions(cores=2), bundled)
-    assert not in_memory(RunOptions(cores=2), command)
+    assert placed_transport(RunOptions(cores=2), bundled) == "memory" and in_memory(RunOptions(cores=2), bundled)
+    assert placed_transport(RunOptions(cores=2), command) == "tcp"
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1})
-    assert not in_memory(RunOptions(cores=2), bundled) and over_unix_socket(RunOptions(cores=2), bundled)
-    assert in_memory(RunOptions(cores=1), bundled) and not over_unix_socket(RunOptions(cores=2), command)
-    with pytest.raises(sut_adapter.SutError, match="unix carries the bundled autopilot only; command connects to the simulator over TCP"):
-        over_unix_socket(RunOptions(transport="unix"), command)
-    with pytest.raises(ValueError, match="transport 'Unix' is not one of auto, tcp, memory, unix"):
+    assert placed_transport(RunOptions(cores=2), bundled) == "shm" and not in_memory(RunOptions(cores=2), bundled)
+    assert placed_transport(RunOptions(cores=1), bundled) == "memory" and placed_transport(RunOptions(cores=2), command) == "tcp"
+    assert placed_transport(RunOptions(cores=2, transport="unix"), bundled) == "unix"
+    for transport in ("unix", "shm"):
+        with pytest.raises(sut_adapter.SutError, match=f"{transport} carries the bundled autopilot only; command connects to the simulator over TCP"):
+            placed_transport(RunOptions(transport=transport), command)
+    with pytest.raises(ValueError, match="transport 'Unix' is not one of auto, tcp, memory, unix, shm"):
         RunOptions(transport="Unix")
+
+
+def test_auto_takes_a_unix_socket_where_shared_memory_is_not_available(monkeypatch):
+    bundled = sut_adapter.system_for(SutConfig())
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1})
+    monkeypatch.setattr(shared_memory, "AVAILABLE", False)
+    assert placed_transport(RunOptions(cores=2), bundled) == "unix"
+    with pytest.raises(sut_adapter.SutError, match="shm needs Linux on x86-64, which this machine is not: use --transport unix"):
+        placed_transport(RunOptions(transport="shm"), bundled)
 
 
 def test_unix_is_refused_for_a_sut_that_connects_over_tcp_only(capsys):

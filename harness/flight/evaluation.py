@@ -36,6 +36,7 @@ from harness.scenario.world import world_spec
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
 from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 from sim_bridge.sut_link import TRANSPORTS
+from simlink import shared_memory
 import sut_adapter
 from sut_adapter import SutConfig, SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
@@ -74,11 +75,13 @@ class RunOptions:
     cores: int = 1
     # How the simulator's bytes reach the SUT: "tcp" (any SUT, its own process); "unix": the
     # same over a Unix-domain socket, for a SUT that can connect to one (the bundled autopilot;
-    # half TCP's round trip); or "memory": a SUT that can (the bundled autopilot) runs inside the
-    # bridge's process, the same bytes handed over by a call. The flight is the same to the last
-    # bit whichever carries it. On one core memory is the fastest, about 1.6x faster than both
-    # processes sharing it; on two the polling pair over a Unix-domain socket is. "auto": memory
-    # where an evaluation has one core, unix where it has two, whichever the SUT can, else tcp.
+    # half TCP's round trip); "shm": the same bytes through shared memory handed over on that
+    # socket (the same SUTs, Linux on x86-64; no system call per step); or "memory": a SUT that
+    # can (the bundled autopilot) runs inside the bridge's process, the same bytes handed over by
+    # a call. The flight is the same to the last bit whichever carries it. On one core memory is
+    # the fastest, about 1.6x faster than both processes sharing it; on two the polling pair
+    # through shared memory is. "auto": memory where an evaluation has one core, shm (else unix)
+    # where it has two, whichever the SUT can, else tcp.
     transport: str = "auto"
     # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
     # fly this process's next evaluation with the same options in it: a fresh world and a fresh
@@ -284,7 +287,7 @@ class Stack:
     tap: ApiTap
     sut: SutHandle
     session: MavsdkSession
-    # Where it runs: {"cores": N, "transport": "memory" | "unix" | "tcp"}, as the log records it.
+    # Where it runs: {"cores": N, "transport": "memory" | "unix" | "shm" | "tcp"}, as the log records it.
     placement: dict[str, Any]
     # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
     load: dict[str, str] | None = None
@@ -303,6 +306,10 @@ def transport_problem(transport: str, system: SystemUnderTest) -> str | None:
         return f"memory carries the bundled autopilot only; {system.name} runs in a process of its own: use --transport tcp"
     if transport == "unix" and not sut_adapter.connects_to_unix_socket(system):
         return f"unix carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
+    if transport == "shm" and not sut_adapter.connects_to_shared_memory(system):
+        return f"shm carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
+    if transport == "shm" and not shared_memory.AVAILABLE:
+        return "shm needs Linux on x86-64, which this machine is not: use --transport unix"
     return None
 
 
@@ -312,17 +319,26 @@ def _check_transport(options: RunOptions, system: SystemUnderTest) -> None:
         raise sut_adapter.SutError(system.name, problem)
 
 
+def placed_transport(options: RunOptions, system: SystemUnderTest) -> str:
+    """What carries the simulator link (RunOptions.transport): auto puts a SUT that can run
+    inside the bridge's process there when the evaluation has one core; with two, it takes
+    shared memory, else a Unix-domain socket, where the SUT can; TCP otherwise."""
+    _check_transport(options, system)
+    if options.transport != "auto":
+        return options.transport
+    cores = cores_for(options)
+    if cores == 1 and sut_adapter.runs_inline(system):
+        return "memory"
+    if cores >= 2 and sut_adapter.connects_to_shared_memory(system) and shared_memory.AVAILABLE:
+        return "shm"
+    if cores >= 2 and sut_adapter.connects_to_unix_socket(system):
+        return "unix"
+    return "tcp"
+
+
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
-    """Whether the SUT runs inside the bridge's process (RunOptions.transport)."""
-    _check_transport(options, system)
-    return options.transport == "memory" or (options.transport == "auto" and sut_adapter.runs_inline(system) and cores_for(options) == 1)
-
-
-def over_unix_socket(options: RunOptions, system: SystemUnderTest) -> bool:
-    """Whether a SUT in a process of its own connects over a Unix-domain socket rather than TCP
-    (RunOptions.transport)."""
-    _check_transport(options, system)
-    return options.transport == "unix" or (options.transport == "auto" and sut_adapter.connects_to_unix_socket(system) and cores_for(options) >= 2)
+    """Whether the SUT runs inside the bridge's process."""
+    return placed_transport(options, system) == "memory"
 
 
 @contextmanager
@@ -346,7 +362,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
     run_arguments (a world and its log, or --serve)."""
     ports = contexts.enter_context(PortLease())
-    inline = in_memory(options, system)
+    transport = placed_transport(options, system)
+    inline = transport == "memory"
     # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
     cores = 1 if inline else cores_for(options)
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
@@ -360,9 +377,11 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
                    "--linger-s", str(LINGER_S)]
     # Named after the leased simulator port, so unique on this machine while the lease lasts; in
     # the abstract namespace, so nothing is left behind however the processes end.
-    sim_socket = f"@stella-sim-{ports.sim}" if not inline and over_unix_socket(options, system) else None
+    sim_socket = f"@stella-sim-{ports.sim}" if transport in ("unix", "shm") else None
     if sim_socket is not None:
         bridge_argv += ["--sim-socket", sim_socket]
+    if transport == "shm":
+        bridge_argv.append("--sim-shared-memory")
     if inline:
         bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
                        *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
@@ -374,6 +393,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
         sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
     else:
         extra = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        if transport == "shm":
+            extra["sim_shared_memory"] = True
         sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
 
     def stop() -> None:
@@ -387,7 +408,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     contexts.callback(stop)
     if options.pin_cpu:
         _pin(bridge.pid, sut.pids, ports.slot, cores)
-    placement = {"cores": cores, "transport": "memory" if inline else "unix" if sim_socket is not None else "tcp"}
+    placement = {"cores": cores, "transport": transport}
     return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
 
 

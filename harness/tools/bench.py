@@ -23,13 +23,14 @@ from pathlib import Path
 from typing import Any
 
 from harness.flight import warm
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import RunOptions, evaluate, transport_problem
 import sut_adapter
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
+from sim_bridge.sut_link import TRANSPORTS
 
 import numpy as np
 
@@ -37,9 +38,10 @@ DEFAULT_SCENARIO = "table3/scenario_31.json"
 DEFAULT_SEED = 4
 # How an evaluation runs: (cores per evaluation, transport between the simulator and the SUT,
 # whether the worker keeps the simulator with the SUT inside between evaluations: RunOptions.warm).
-PLACEMENTS = ((2, "tcp", False), (2, "unix", False), (1, "tcp", False), (1, "memory", False), (1, "memory", True))
+PLACEMENTS = ((2, "tcp", False), (2, "unix", False), (2, "shm", False), (1, "tcp", False), (1, "memory", False), (1, "memory", True))
 PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT, polling",
                    (2, "unix", False): "the same over a Unix-domain socket instead of TCP",
+                   (2, "shm", False): "the same through shared memory, polling without system calls",
                    (1, "tcp", False): "both on one core, sleeping while the other works",
                    (1, "memory", False): "the SUT inside the simulator's process, on one core",
                    (1, "memory", True): "the same, kept warm between evaluations (a worker's steady state)"}
@@ -60,9 +62,9 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     physics_alone = None
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
-        # that connects over TCP only, no Unix-domain socket one.
+        # that connects over TCP only, no Unix-domain socket or shared memory one.
         system = sut_adapter.system_for(sut.sut)
-        can = {"tcp": True, "memory": sut_adapter.runs_inline(system), "unix": sut_adapter.connects_to_unix_socket(system)}
+        can = {transport: transport_problem(transport, system) is None for transport in TRANSPORTS[1:]}
         for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and can[t]]:
             rows = []
             options = replace(sut, rate_hz=rate_hz, pin_cpu=pin_cpu, cores=cores, transport=transport, warm=keep_warm)

@@ -730,8 +730,9 @@ def parser() -> argparse.ArgumentParser:
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
                    help="memory: the bundled autopilot steps inside the simulator's process, on one core (the same flight, bit for bit); "
-                        "unix: in its own process over a Unix-domain socket; tcp: in its own process over TCP (any SUT); "
-                        "auto (default): memory with --cores 1, unix with --cores 2 for the bundled autopilot, tcp for other SUTs")
+                        "unix: in its own process over a Unix-domain socket; shm: the same socket, the bytes through shared memory (Linux on x86-64); "
+                        "tcp: in its own process over TCP (any SUT); "
+                        "auto (default): memory with --cores 1, shm with --cores 2 for the bundled autopilot, tcp for other SUTs")
     p.add_argument("--fail-on-violation", action="store_true", help="exit 1 when the run (with --repeat: any repeat) violates the safety distance")
     p.add_argument("--repeat", type=positive_int, default=1,
                    help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
@@ -759,7 +760,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate-hz", type=positive_float, default=250.0)
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only placements with this many cores per evaluation (default: all)")
-    p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory and unix: the bundled autopilot only)")
+    p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory, unix and shm: the bundled autopilot only)")
     add_sut(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
@@ -787,8 +788,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
                    help="memory: the bundled autopilot steps inside the simulator's process (the same flights); unix: in its own process over a "
-                        "Unix-domain socket; tcp: in its own process over TCP; auto (default): memory where an evaluation gets one core (as many workers "
-                        "as cores), unix where it gets two, for the bundled autopilot; tcp for other SUTs")
+                        "Unix-domain socket; shm: the same socket, the bytes through shared memory (Linux on x86-64); tcp: in its own process over TCP; "
+                        "auto (default): memory where an evaluation gets one core (as many workers as cores), shm where it gets two, for the bundled "
+                        "autopilot; tcp for other SUTs")
     p.add_argument("--cold-start", action="store_true",
                    help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
                         "evaluation (a fresh world and autopilot in the same process: the same flights, about a fifth of a second less each)")

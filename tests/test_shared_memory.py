@@ -1,0 +1,145 @@
+"""The simulator link through shared memory (simlink/shared_memory.py): a byte stream in order
+both ways, through the rings' wrap-around and past their capacity, a sleeping reader woken, and
+the peer's end and silence reported as a socket reports them. The flights over it are
+tests/test_transport.py's."""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import threading
+import time
+
+import pytest
+
+from simlink import shared_memory
+
+pytestmark = pytest.mark.skipif(not shared_memory.AVAILABLE, reason="shared memory links need Linux on x86-64")
+
+
+@pytest.fixture
+def pair():
+    """(simulator side, SUT side), handed over as the bridge and the autopilot do."""
+    simulator_sock, sut_sock = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    simulator = shared_memory.offer(simulator_sock, timeout_s=0.2)
+    sut = shared_memory.accept(sut_sock, timeout_s=0.2)
+    yield simulator, sut
+    for link in (simulator, sut):
+        if link.sock.fileno() != -1:
+            link.close()
+
+
+def test_bytes_arrive_in_order_both_ways_across_the_wrap_around(pair):
+    simulator, sut = pair
+    sent, received = bytearray(), bytearray()
+    for index in range(3 * shared_memory.CAPACITY // 997 + 5):  # past the end of the ring several times
+        chunk = bytes((index + k) % 251 for k in range(997))
+        simulator.sendall(chunk)
+        sent += chunk
+        received += sut.receive()
+        sut.sendall(chunk[:7])
+        assert simulator.receive() == chunk[:7]
+    assert received == sent
+
+
+def test_a_write_larger_than_the_ring_waits_for_the_reader(pair):
+    simulator, sut = pair
+    message = os.urandom(3 * shared_memory.CAPACITY + 123)
+    received = bytearray()
+
+    def read():
+        while len(received) < len(message):
+            received.extend(sut.receive(spin_s=0.001))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    simulator.sendall(message)
+    reader.join(10.0)
+    assert bytes(received) == message
+
+
+def test_a_silent_peer_is_a_blocking_error_after_the_timeout_and_other_input_ends_the_wait_at_once(pair):
+    simulator, sut = pair
+    started = time.monotonic()
+    with pytest.raises(BlockingIOError):
+        simulator.receive(spin_s=0.001)
+    assert 0.2 <= time.monotonic() - started < 1.0
+    other_a, other_b = socket.socketpair()
+    with other_a, other_b:
+        other_b.send(b"x")
+        started = time.monotonic()
+        with pytest.raises(BlockingIOError):
+            sut.receive(also=other_a, wait_s=5.0)
+        assert time.monotonic() - started < 1.0
+    assert not simulator.readable(0.01) and simulator.idle() == b""
+
+
+def test_a_sleeping_reader_is_woken_through_the_socket_and_an_awake_one_is_not(pair):
+    simulator, sut = pair
+    sut.sendall(b"while awake")
+    assert not select.select([simulator.sock], [], [], 0.05)[0]
+    assert simulator.idle() == b"while awake"
+    waitable = simulator.waitable()  # the bridge is about to wait on its socket
+    sut.sendall(b"while asleep")
+    assert select.select([waitable], [], [], 1.0)[0]
+    assert simulator.idle() == b"while asleep"
+    sut.sendall(b"awake again")
+    assert not select.select([simulator.sock], [], [], 0.05)[0]
+
+
+def test_a_reader_in_another_process_sleeping_past_its_spin_gets_every_byte(pair):
+    simulator, sut = pair
+    child = os.fork()
+    if child == 0:
+        try:
+            sut.timeout_s = 5.0
+            total = bytearray()
+            while len(total) < 50 * 100:
+                total += sut.receive()
+            sut.sendall(bytes([sum(total) % 256]))
+        finally:
+            os._exit(0)
+    payload = bytearray()
+    for index in range(50):
+        chunk = bytes([index]) * 100
+        payload += chunk
+        simulator.sendall(chunk)
+        time.sleep(0.003)  # longer than the reader's recheck: it sleeps between chunks
+    simulator.timeout_s = 5.0
+    assert simulator.receive() == bytes([sum(payload) % 256])
+    os.waitpid(child, 0)
+
+
+def test_the_peer_going_away_is_reported_after_what_it_wrote(pair):
+    simulator, sut = pair
+    sut.sendall(b"last words")
+    sut.close()
+    assert simulator.readable(1.0)
+    assert simulator.receive() == b"last words"
+    assert simulator.receive() == b""
+    with pytest.raises(ConnectionResetError):
+        simulator.idle()
+
+
+def test_writing_into_a_full_ring_whose_reader_has_gone_fails():
+    simulator_sock, sut_sock = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    simulator = shared_memory.offer(simulator_sock, timeout_s=0.2)
+    sut_sock.close()  # the SUT died before taking the mapping
+    try:
+        with pytest.raises(BrokenPipeError):
+            simulator.sendall(bytes(2 * shared_memory.CAPACITY))
+    finally:
+        simulator.close()
+
+
+def test_a_simulator_that_offers_no_shared_memory_is_named(monkeypatch):
+    monkeypatch.setattr(shared_memory, "OFFER_TIMEOUT_S", 0.2)
+    plain, sut_sock = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    with plain:
+        with pytest.raises(ConnectionError, match="offered no shared memory within 0.2 s: is it running with --sim-shared-memory"):
+            shared_memory.accept(sut_sock, timeout_s=1.0)
+        plain.send(b"\xfd" * 20)  # a plain simulator's first MAVLink bytes
+        with pytest.raises(ConnectionError, match="did not offer this link's shared memory"):
+            shared_memory.accept(sut_sock, timeout_s=1.0)
+    sut_sock.close()
