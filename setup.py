@@ -1,5 +1,6 @@
 """Compiles the per-step hot path with Cython: the bundled autopilot, the simulator link's codec
-(which both sides use), and the simulator's step (its loop, world, physics, sensors, obstacles).
+and shared-memory rings (which both sides use), and the simulator's step (its loop, world,
+physics, sensors, obstacles).
 
 The modules stay plain Python, the source of truth. A `.pxd` file beside a module gives the
 compiler static types (C doubles for the controllers' arithmetic; extension types for the
@@ -26,6 +27,7 @@ COMPILED = [
     "autopilot/manual.py",
     "autopilot/params.py",
     "simlink/codec.py",
+    "simlink/shared_memory.py",
     "sim_bridge/bridge.py",
     "sim_bridge/obstacles.py",
     "sim_bridge/physics.py",
