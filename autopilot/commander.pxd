@@ -1,5 +1,6 @@
 # Static types for the compiled module (setup.py): commander.py stays the plain Python source.
 # Its dataclasses become extension types that are still dataclasses (fields, repr, eq, replace).
+cimport simlink.pymath as math
 import cython
 
 from autopilot.control cimport Setpoint

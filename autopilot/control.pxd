@@ -1,6 +1,7 @@
 # Static types for the compiled module (setup.py): control.py stays the plain Python source.
 # Vectors and quaternions are C tuples, (double, double, double[, double]): between compiled
 # modules they pass without a Python float per component; Python callers see plain tuples.
+cimport simlink.pymath as math
 import cython
 
 @cython.locals(aw=cython.double, ax=cython.double, ay=cython.double, az=cython.double, bw=cython.double, bx=cython.double, by=cython.double, bz=cython.double)

@@ -7,6 +7,7 @@ more per step), with time passed in. Frames: NED for the world, FRD for the body
 from __future__ import annotations
 
 import math
+from math import hypot
 from dataclasses import dataclass
 
 GRAVITY = 9.80665
@@ -83,7 +84,7 @@ def wrap_pi(angle: float) -> float:
 
 
 def limit_norm2(x: float, y: float, limit: float) -> tuple[float, float]:
-    norm = math.hypot(x, y)
+    norm = hypot(x, y)
     if norm > limit > 0.0:
         return x * limit / norm, y * limit / norm
     return x, y

@@ -1,4 +1,5 @@
 # Static types for the compiled module (setup.py): estimator.py stays the plain Python source.
+cimport simlink.pymath as math
 import cython
 
 from autopilot.control cimport quat_from_euler, quat_normalize, quat_rotate, quat_rotate_inverse

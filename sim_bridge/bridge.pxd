@@ -1,4 +1,5 @@
 # Static types for the compiled module (setup.py): bridge.py stays the plain Python source.
+cimport simlink.pymath as math
 import cython
 from sim_bridge.physics cimport VehicleState
 from sim_bridge.world cimport World

@@ -1,4 +1,5 @@
 # Static types for the compiled module (setup.py): obstacles.py stays the plain Python source.
+cimport simlink.pymath as math
 import cython
 
 cdef class Obstacle:
