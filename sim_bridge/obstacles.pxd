@@ -12,10 +12,17 @@ cdef class Obstacle:
     cdef public list _cumulative_m, _path_points
     cdef public tuple _a_tuple, _delta
 
-    @cython.locals(leg=cython.double, travelled=cython.double, fraction=cython.double, an=cython.double, ae=cython.double, au=cython.double,
-                   dn=cython.double, de=cython.double, du=cython.double)
     cpdef position_at(self, double time_s)
 
+    @cython.locals(leg=cython.double, travelled=cython.double, fraction=cython.double, an=cython.double, ae=cython.double, au=cython.double,
+                   dn=cython.double, de=cython.double, du=cython.double)
+    cpdef (double, double, double) _coordinates_at(self, double time_s)
+
+    @cython.locals(segment=cython.Py_ssize_t, length=cython.double, fraction=cython.double, pn=cython.double, pe=cython.double, pu=cython.double,
+                   qn=cython.double, qe=cython.double, qu=cython.double)
+    cpdef (double, double, double) _along_path(self, double travelled_m)
+
+    @cython.locals(north=cython.double, east=cython.double, up=cython.double, position="double[::1]")
     cpdef move_to(self, double time_s)
 
 cdef class ObstacleField:

@@ -139,8 +139,10 @@ class Obstacle:
         return self.size.get("height_m", self.size.get("diameter_m", 0.0)) / 2.0
 
     def position_at(self, time_s: float) -> np.ndarray:
-        if not self.moving:
-            return self.a
+        return np.array(self._coordinates_at(time_s)) if self.moving else self.a
+
+    def _coordinates_at(self, time_s: float) -> tuple[float, float, float]:
+        """A moving obstacle's centre (north, east, up) at time_s."""
         leg = self._leg_m
         if self.path is not None:
             travelled = self.speed_m_s * time_s
@@ -153,19 +155,22 @@ class Obstacle:
         travelled = (self.speed_m_s * time_s) % (2.0 * leg)
         fraction = (travelled if travelled <= leg else 2.0 * leg - travelled) / leg
         (an, ae, au), (dn, de, du) = self._a_tuple, self._delta
-        return np.array((an + dn * fraction, ae + de * fraction, au + du * fraction))
+        return an + dn * fraction, ae + de * fraction, au + du * fraction
 
-    def _along_path(self, travelled_m: float) -> np.ndarray:
+    def _along_path(self, travelled_m: float) -> tuple[float, float, float]:
         cumulative = self._cumulative_m
         segment = min(max(bisect.bisect_right(cumulative, travelled_m) - 1, 0), len(cumulative) - 2)
         length = cumulative[segment + 1] - cumulative[segment]
         fraction = 0.0 if length <= 0.0 else (travelled_m - cumulative[segment]) / length
         (pn, pe, pu), (qn, qe, qu) = self._path_points[segment], self._path_points[segment + 1]
-        return np.array((pn + (qn - pn) * fraction, pe + (qe - pe) * fraction, pu + (qu - pu) * fraction))
+        return pn + (qn - pn) * fraction, pe + (qe - pe) * fraction, pu + (qu - pu) * fraction
 
     def move_to(self, time_s: float) -> None:
         if self.moving:
-            self.position = self.position_at(time_s)
+            # In place, as ObstacleField.place_body sets the body's pose: no new array every step.
+            north, east, up = self._coordinates_at(time_s)
+            position = self.position
+            position[0], position[1], position[2] = north, east, up
             self.collision.setTranslation(self.position)
 
     def cross_section(self, up_m: float) -> tuple[str, tuple[float, ...]] | None:
