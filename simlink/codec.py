@@ -32,15 +32,18 @@ HIL_ACTUATOR_CONTROLS_CRC_EXTRA = 47
 _HIL_SENSOR = struct.Struct("<Q13fIB")
 _HIL_ACTUATOR_CONTROLS = struct.Struct("<QQ16fB")
 _HEADER = struct.Struct("<BBBBBBBHB")  # msgid as uint16 + uint8
+_CHECKSUM = struct.Struct("<H")
 _mcrf4xx = crc16.mcrf4xx
+# A message's CRC extra as the byte the checksum ends with, made once rather than per frame.
+_EXTRA_BYTES = [bytes((extra,)) for extra in range(256)]
 
 
 def _frame(msgid: int, crc_extra: int, payload: bytes, seq: int, sysid: int, compid: int) -> bytes:
     # MAVLink 2 drops trailing zero bytes of the payload, keeping at least one.
     body = payload.rstrip(b"\x00") or b"\x00"
     header = _HEADER.pack(STX_V2, len(body), 0, 0, seq & 0xFF, sysid, compid, msgid & 0xFFFF, msgid >> 16)
-    crc = _mcrf4xx(header[1:] + body + bytes((crc_extra,)), 0xFFFF)
-    return header + body + struct.pack("<H", crc)
+    crc = _mcrf4xx(header[1:] + body + _EXTRA_BYTES[crc_extra], 0xFFFF)
+    return b"".join((header, body, _CHECKSUM.pack(crc)))
 
 
 def encode_hil_sensor(
@@ -61,7 +64,9 @@ def encode_hil_sensor(
 def decode_hil_sensor(payload: bytes) -> tuple:
     """(time_usec, 13 floats..., fields_updated, id) from a frame's payload, which MAVLink 2 may have
     truncated (trailing zeros) or a newer dialect extended (bytes beyond ours are ignored)."""
-    return _HIL_SENSOR.unpack(payload[: _HIL_SENSOR.size].ljust(_HIL_SENSOR.size, b"\x00"))
+    if len(payload) >= _HIL_SENSOR.size:
+        return _HIL_SENSOR.unpack_from(payload)
+    return _HIL_SENSOR.unpack(payload.ljust(_HIL_SENSOR.size, b"\x00"))
 
 
 def encode_hil_actuator_controls(
@@ -73,7 +78,8 @@ def encode_hil_actuator_controls(
 
 def decode_hil_actuator_controls(payload: bytes) -> tuple[int, int, tuple[float, ...], int]:
     """(time_usec, flags, controls[16], mode); truncated or extended payloads as decode_hil_sensor."""
-    fields = _HIL_ACTUATOR_CONTROLS.unpack(payload[: _HIL_ACTUATOR_CONTROLS.size].ljust(_HIL_ACTUATOR_CONTROLS.size, b"\x00"))
+    size = _HIL_ACTUATOR_CONTROLS.size
+    fields = _HIL_ACTUATOR_CONTROLS.unpack_from(payload) if len(payload) >= size else _HIL_ACTUATOR_CONTROLS.unpack(payload.ljust(size, b"\x00"))
     return fields[0], fields[1], fields[2:18], fields[18]
 
 
@@ -147,7 +153,7 @@ class FrameSplitter:
         if crc_extra is None:
             return -1
         crc_end = start + HEADER_LEN + length
-        crc = _mcrf4xx(bytes(buffer[start + 1 : crc_end]) + bytes((crc_extra,)), 0xFFFF)
+        crc = _mcrf4xx(buffer[start + 1 : crc_end] + _EXTRA_BYTES[crc_extra], 0xFFFF)
         return total if crc == buffer[crc_end] | (buffer[crc_end + 1] << 8) else -1
 
     def feed(self, data: bytes) -> list[tuple[int, bytes, bytes]]:
