@@ -24,6 +24,7 @@ COMPILED = [
     "autopilot/commander.py",
     "autopilot/control.py",
     "autopilot/estimator.py",
+    "autopilot/inline.py",
     "autopilot/manual.py",
     "autopilot/params.py",
     "simlink/codec.py",

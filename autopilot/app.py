@@ -56,6 +56,8 @@ LOCKSTEP_FLAG = 1
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 SIM_LOSS_EXIT_S = 10.0
 TELEMETRY_CHECK_S = 0.005
+# HIL_ACTUATOR_CONTROLS carries 16 controls; a quadrotor uses the first four.
+_UNUSED_CONTROLS = (0.0,) * 12
 FRAMES_WITH_POSITION = {
     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -360,7 +362,7 @@ class Autopilot:
             if msgid == codec.HIL_SENSOR_ID:
                 fields = codec.decode_hil_sensor(payload)
                 motors = self.step(fields[0], fields[1:14])
-                controls = (*motors, *(0.0,) * 12)
+                controls = (*motors, *_UNUSED_CONTROLS)
                 mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.commander.armed else 0
                 sim.sendall(
                     codec.encode_hil_actuator_controls(seq=self._seq, sysid=1, compid=1, time_usec=fields[0], controls=controls, mode=mode, flags=LOCKSTEP_FLAG)
