@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
+import orjson
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
@@ -187,9 +188,11 @@ class Recording:
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """(topic, log time ns, decoded JSON) of these topics, in log-time order (as `messages`)."""
         wanted = {cid for cid, topic in self._topics.items() if topic in topics}
+        # orjson: the same values as json.loads at a third of its time. The simulator writes with
+        # orjson, so a fresh recording holds no NaN or Infinity tokens, which orjson would refuse.
         for message in self.messages_in_order:
             if message.channel_id in wanted:
-                yield self._topics[message.channel_id], message.log_time, json.loads(message.data)
+                yield self._topics[message.channel_id], message.log_time, orjson.loads(message.data)
 
 
 def merge(recording: Recording, out: Path, *, api_records: Sequence[tuple[int, str, bytes]], extra_metadata: Mapping[str, Any]) -> None:
