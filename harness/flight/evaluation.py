@@ -79,7 +79,7 @@ class RunOptions:
     # socket (the same SUTs, Linux on x86-64; no system call per step); or "memory": a SUT that
     # can (the bundled autopilot) runs inside the bridge's process, the same bytes handed over by
     # a call. The flight is the same to the last bit whichever carries it. On one core memory is
-    # the fastest, about 1.6x faster than both processes sharing it; on two the polling pair
+    # the fastest, about 1.8x faster than both processes sharing it; on two the polling pair
     # through shared memory is. "auto": memory where an evaluation has one core, shm (else unix)
     # where it has two, whichever the SUT can, else tcp.
     transport: str = "auto"
