@@ -302,7 +302,7 @@ class Autopilot:
         sim = _connect(sim_address, connect_timeout_s)
         if over_shared_memory:
             try:
-                sim = shared_memory.accept(sim, TELEMETRY_CHECK_S)
+                sim = shared_memory.accept(sim, TELEMETRY_CHECK_S, connect_timeout_s)
             except OSError:
                 sim.close()
                 raise

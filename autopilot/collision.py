@@ -15,7 +15,6 @@ for 0.5 s horizontal motion stops. Unlike PX4's, it is applied in every automati
 from __future__ import annotations
 
 import math
-from math import hypot
 
 BINS = 72
 BIN_RAD = 2.0 * math.pi / BINS
@@ -122,7 +121,7 @@ def constrain_velocity(
     if not obstacles.fresh(now_s):
         return 0.0, 0.0
     vn, ve = setpoint_ne
-    speed = hypot(vn, ve)
+    speed = math.hypot(vn, ve)
     fault = params.fault
     if fault == "cp_off_above_cruise" and speed > OFF_ABOVE_M_S:
         return setpoint_ne

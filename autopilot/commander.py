@@ -7,7 +7,6 @@ reached, landed, mode changes) are queued for the MAVLink side to report.
 from __future__ import annotations
 
 import math
-from math import hypot
 from dataclasses import dataclass, field
 
 from autopilot.control import Setpoint
@@ -190,7 +189,7 @@ class Commander:
     def _fly_to(self, estimate: VehicleEstimate, north: float, east: float, altitude_m: float) -> tuple[Setpoint, float]:
         """Velocity towards a point along the straight line, braking to arrive; yaw along the track."""
         dn, de = north - estimate.north_m, east - estimate.east_m
-        distance = hypot(dn, de)
+        distance = math.hypot(dn, de)
         speed = min(self._cruise(), math.sqrt(2.0 * self.params["MPC_ACC_HOR"] * 0.5 * distance), self.params["MPC_XY_P"] * distance + 0.3)
         if distance > 2.0 and self.params.fault != "yaw_fixed_heading":
             self._yaw_sp = math.atan2(de, dn)

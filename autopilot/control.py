@@ -7,7 +7,6 @@ more per step), with time passed in. Frames: NED for the world, FRD for the body
 from __future__ import annotations
 
 import math
-from math import hypot
 from dataclasses import dataclass
 
 GRAVITY = 9.80665
@@ -84,7 +83,7 @@ def wrap_pi(angle: float) -> float:
 
 
 def limit_norm2(x: float, y: float, limit: float) -> tuple[float, float]:
-    norm = hypot(x, y)
+    norm = math.hypot(x, y)
     if norm > limit > 0.0:
         return x * limit / norm, y * limit / norm
     return x, y

@@ -17,7 +17,6 @@ Pure logic over floats with time passed in.
 from __future__ import annotations
 
 import math
-from math import hypot
 from dataclasses import dataclass
 
 GRAVITY = 9.80665
@@ -132,7 +131,7 @@ class PositionMode:
         acc_scale = 2.0 * p["MPC_ACC_HOR"]  # drag halves the average acceleration
         forward = expo_deadzone(sticks.pitch, p["MPC_XY_MAN_EXPO"], dz)
         right = expo_deadzone(sticks.roll, p["MPC_XY_MAN_EXPO"], dz)
-        length = hypot(forward, right)
+        length = math.hypot(forward, right)
         if length > 1.0:
             forward, right = forward / length, right / length
         cos_y, sin_y = math.cos(yaw), math.sin(yaw)
@@ -143,7 +142,7 @@ class PositionMode:
         boost_target = max(2.0, math.sqrt(vel_manual)) if stick_released else 1.0
         self._brake_boost += alpha * (boost_target - self._brake_boost)
         coefficient = acc_scale / vel_manual * self._brake_boost
-        speed = hypot(self.v_north, self.v_east)
+        speed = math.hypot(self.v_north, self.v_east)
         brake_scale = min(1.0, max(0.0, self._brake_boost - 1.0))
         boosted = math.sqrt(speed) if speed < 1.0 else speed
         mixed = (brake_scale * boosted + (1.0 - brake_scale) * speed) / speed if speed > 0.0 else 0.0
@@ -154,13 +153,13 @@ class PositionMode:
             self.v_north = self.v_east = 0.0
         a_n, a_e = a_n - drag_n, a_e - drag_e
         d_n, d_e = a_n - self._a_prev[0], a_e - self._a_prev[1]
-        d_norm = hypot(d_n, d_e)
+        d_norm = math.hypot(d_n, d_e)
         if d_norm > 0.0:
             jerk = p["MPC_JERK_MAX"]
             a_n = _slew(self._a_prev[0], a_n, abs(d_n) / d_norm * jerk, dt)
             a_e = _slew(self._a_prev[1], a_e, abs(d_e) / d_norm * jerk, dt)
         tilt_acc = math.tan(math.radians(p["MPC_TILTMAX_AIR"])) * GRAVITY
-        norm = hypot(a_n, a_e)
+        norm = math.hypot(a_n, a_e)
         if norm > tilt_acc:
             a_n, a_e = a_n * tilt_acc / norm, a_e * tilt_acc / norm
         self.v_north += a_n * dt

@@ -209,6 +209,8 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
                 sut = connect_sut()
             except socket.timeout:
                 bridge.summary.end_reason = "sut_never_connected"
+            except OSError:  # it connected and went at once (the shared memory's hand-over failed)
+                bridge.summary.end_reason = "sut_disconnected"
             except KeyboardInterrupt:
                 bridge.summary.end_reason = "interrupted"
             if sut is not None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import bisect
 import math
-from math import hypot
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -194,8 +193,8 @@ CULL_MARGIN_M = 1e-6
 def _nearest_possible_m(origin_n: float, origin_e: float, cut: tuple[str, tuple[float, ...]]) -> float:
     """A lower bound of every ray's distance to a cross-section: to its centre, less its bounding radius."""
     kind, values = cut
-    bounding_m = values[2] if kind == "circle" else hypot(values[2], values[3])
-    return hypot(values[0] - origin_n, values[1] - origin_e) - bounding_m
+    bounding_m = values[2] if kind == "circle" else math.hypot(values[2], values[3])
+    return math.hypot(values[0] - origin_n, values[1] - origin_e) - bounding_m
 
 
 def ray_distances(origin_n: float, origin_e: float, angles_rad: np.ndarray, cut: tuple[str, tuple[float, ...]]) -> np.ndarray:

@@ -7,7 +7,6 @@ Noise is drawn in blocks from one seeded generator: the same seed gives the same
 from __future__ import annotations
 
 import math
-from math import hypot
 
 import numpy as np
 
@@ -128,7 +127,7 @@ class SensorModel:
         n = self._next_gps_noise()
         lat, lon = to_geodetic(s.north_m + n[0], s.east_m + n[1])
         vn, ve, vd = s.v_north_m_s + n[3], s.v_east_m_s + n[4], s.v_down_m_s + n[5]
-        ground_speed = hypot(vn, ve)
+        ground_speed = math.hypot(vn, ve)
         course = math.degrees(math.atan2(ve, vn)) % 360.0
         return {
             "fix_type": 3,

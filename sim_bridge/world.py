@@ -11,7 +11,6 @@ same flight to the last bit.
 from __future__ import annotations
 
 import math
-from math import hypot
 from dataclasses import replace
 from typing import Any, Callable, Mapping
 
@@ -196,7 +195,7 @@ class World:
         s = self.vehicle.state
         run_time = None if self.run_start_s is None else self.run_time(self.time_s)
         steady_n, steady_e, _ = self.wind_field.steady
-        airspeed = hypot(s.v_north_m_s - steady_n, s.v_east_m_s - steady_e)
+        airspeed = math.hypot(s.v_north_m_s - steady_n, s.v_east_m_s - steady_e)
         self.wind_now = self.wind_field.advance(run_time, airspeed)
         gust = self.wind_field.gust
         if gust is not None and not self._gust_announced and run_time is not None and run_time >= gust.onset_s:

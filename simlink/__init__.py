@@ -7,6 +7,8 @@ and a MAVLink 2 frame splitter; compiled where a C compiler is found (setup.py).
 
 from pathlib import Path
 
+_PYMATH = Path(__file__).parent / "pymath.pxd"
+
 
 def check_compiled(package_init: str) -> None:
     """Refuse to import a package whose compiled modules (see setup.py) are older than their
@@ -15,7 +17,8 @@ def check_compiled(package_init: str) -> None:
     folder = Path(package_init).parent
     for compiled in folder.glob("*.so"):
         stem = compiled.name.split(".", 1)[0]
-        for source in (folder / f"{stem}.py", folder / f"{stem}.pxd"):
+        # The compiled modules' .pxd files cimport pymath.pxd (C's math functions) too.
+        for source in (folder / f"{stem}.py", folder / f"{stem}.pxd", _PYMATH):
             if source.exists() and source.stat().st_mtime > compiled.stat().st_mtime:
                 raise ImportError(f"{compiled} is older than {source}: rebuild it with `make setup` "
                                   f"(or `pip install -e .`), or delete the .so files to run the Python sources")

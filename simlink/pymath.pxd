@@ -5,10 +5,9 @@
 # every value it returns the result is the same double (tests/test_compiled.py). Where Python
 # raises instead (math.sqrt(-1.0), math.cos(math.inf)), C returns a NaN.
 #
-# What is missing here is missing on purpose, so that a module using it fails to compile rather
-# than change its results: math.hypot (Python's own correctly rounded algorithm, not C's hypot:
-# such modules import it by name), math.floor and math.ceil (ints in Python, doubles in C).
-from libc.math cimport asin, atan2, copysign, cos, isfinite, isinf, pi, sin, sqrt, tan
+# A name not declared here (math.hypot, math.floor, ...) stays what it was, a call to Python's
+# math module: hypot is Python's own algorithm, not C's, and floor returns an int in Python.
+from libc.math cimport NAN, asin, atan2 as _c_atan2, copysign, cos, isfinite, isinf, isnan, pi, sin, sqrt, tan
 
 cdef extern from "<math.h>":
     const double inf "INFINITY"
@@ -19,3 +18,10 @@ cdef inline double radians(double x) noexcept:
 
 cdef inline double degrees(double x) noexcept:
     return x * (180.0 / pi)
+
+# Python's atan2 answers a NaN argument with its own (positive) NaN; C's passes the argument's
+# NaN on, sign included, which would change the bytes of a float32 on the link.
+cdef inline double atan2(double y, double x) noexcept:
+    if isnan(y) or isnan(x):
+        return NAN
+    return _c_atan2(y, x)

@@ -42,10 +42,8 @@ _HEADER = 3 * _WORD_SPACING
 _RING_BYTES = _HEADER + CAPACITY
 SIZE = 2 * _RING_BYTES
 # What the simulator sends with the mapping's file descriptor, so that a SUT told to use shared
-# memory finds out at once when the simulator offers none.
+# memory finds out when the simulator offers none.
 OFFER = b"stella-shm-1"
-# The simulator makes its offer as soon as it accepts the connection.
-OFFER_TIMEOUT_S = 5.0
 RECHECK_S = 0.002
 _FULL_WAIT_S = 50e-6
 
@@ -95,9 +93,9 @@ class _Ring:
 
 
 class SharedMemoryLink:
-    """One side of the link. Its receive() keeps codec.receive's contract and its send()/sendall()
-    a socket's, so that the bridge (as a SutLink) and the autopilot (as its simulator socket) use
-    it as they use a socket."""
+    """One side of the link. Its receive() keeps codec.receive's contract and sendall() a
+    socket's (send() is sendall(), as the bridge's SutLink protocol has it), so that the bridge
+    (as a SutLink) and the autopilot (as its simulator socket) use it as they use a socket."""
 
     def __init__(self, sock: socket.socket, mapping: mmap.mmap, simulator_side: bool, timeout_s: float):
         self.sock = sock
@@ -107,6 +105,8 @@ class SharedMemoryLink:
         simulator_to_sut, sut_to_simulator = _Ring(self._memory, 0), _Ring(self._memory, _RING_BYTES)
         self._out, self._in = (simulator_to_sut, sut_to_simulator) if simulator_side else (sut_to_simulator, simulator_to_sut)
         self._peer_gone = False
+        self._closed = False
+        self._ready: tuple[socket.socket, socket.socket] | None = None
         sock.setblocking(True)
         sock.settimeout(None)
 
@@ -187,9 +187,20 @@ class SharedMemoryLink:
 
     def waitable(self) -> socket.socket:
         """The socket to wait on while simulated time stands still: from now until the next
-        idle() or receive() the peer wakes it when it writes."""
+        idle() or receive() the peer wakes it when it writes; one already readable when the
+        peer wrote (or went) since the last look."""
         self._sleep_begins()
+        if self._in.has_data() or self._peer_gone:
+            self._sleep_ends()
+            return self._readable_now()
         return self.sock
+
+    def _readable_now(self) -> socket.socket:
+        """A socket that stays readable (one of a private pair, with a byte nobody reads)."""
+        if self._ready is None:
+            self._ready = socket.socketpair()
+            self._ready[1].send(b"\x01")
+        return self._ready[0]
 
     def _sleep(self, timeout_s: float, also: socket.socket | None) -> str:
         """Sleep until the ring has data ("data"), the peer has gone ("gone"), `also` has input
@@ -206,17 +217,19 @@ class SharedMemoryLink:
                 self._sleep_ends()
                 return "gone"
             remaining = deadline - time.monotonic()
-            if remaining <= 0.0:
-                self._sleep_ends()
-                return "timeout"
-            readable = select.select(sockets, [], [], min(remaining, RECHECK_S))[0]
+            # At least one look at the sockets, so that even a zero timeout sees the peer's end.
+            readable = select.select(sockets, [], [], min(max(remaining, 0.0), RECHECK_S))[0]
             self._sleep_ends()
             if self.sock in readable:
                 self._drain_wake_bytes()
             if ring.has_data():
                 return "data"
+            if self._peer_gone:
+                return "gone"
             if also is not None and also in readable:
                 return "also"
+            if remaining <= 0.0:
+                return "timeout"
 
     def _sleep_begins(self) -> None:
         words = self._in.words
@@ -241,11 +254,18 @@ class SharedMemoryLink:
         return False
 
     def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        # The socket first: the peer learns at once that we have gone, whatever happens below.
+        self.sock.close()
+        if self._ready is not None:
+            for end in self._ready:
+                end.close()
         self._out.release()
         self._in.release()
         self._memory.release()
         self._mapping.close()
-        self.sock.close()
 
 
 def offer(sock: socket.socket, timeout_s: float) -> SharedMemoryLink:
@@ -260,15 +280,16 @@ def offer(sock: socket.socket, timeout_s: float) -> SharedMemoryLink:
     return SharedMemoryLink(sock, mapping, simulator_side=True, timeout_s=timeout_s)
 
 
-def accept(sock: socket.socket, timeout_s: float) -> SharedMemoryLink:
-    """The SUT's side, just connected: take the simulator's mapping; the link's receive() waits
-    timeout_s. ConnectionError when the simulator offers none (it was not started with
-    --sim-shared-memory)."""
-    sock.settimeout(OFFER_TIMEOUT_S)
+def accept(sock: socket.socket, timeout_s: float, offer_timeout_s: float) -> SharedMemoryLink:
+    """The SUT's side, just connected: take the simulator's mapping, waiting up to
+    offer_timeout_s for it (the simulator builds its world before it accepts); the link's
+    receive() waits timeout_s. ConnectionError when the simulator offers none (it was not
+    started with --sim-shared-memory)."""
+    sock.settimeout(offer_timeout_s)
     try:
         message, fds, _flags, _address = socket.recv_fds(sock, len(OFFER), 1)
     except socket.timeout:
-        raise ConnectionError(f"the simulator offered no shared memory within {OFFER_TIMEOUT_S:g} s: is it running with --sim-shared-memory?") from None
+        raise ConnectionError(f"the simulator offered no shared memory within {offer_timeout_s:g} s: is it running with --sim-shared-memory?") from None
     try:
         if message != OFFER or len(fds) != 1 or os.fstat(fds[0]).st_size != SIZE:
             raise ConnectionError(f"the simulator did not offer this link's shared memory (got {message!r}): is it running with --sim-shared-memory?")
