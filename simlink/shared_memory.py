@@ -171,8 +171,6 @@ class SharedMemoryLink:
 
     def readable(self, timeout_s: float) -> bool:
         """Whether receive() has something now (bytes, or the peer's end), waiting up to timeout_s."""
-        if self._in.has_data() or self._peer_gone:
-            return True
         return self._sleep(timeout_s, None) != "timeout"
 
     def idle(self) -> bytes:

@@ -326,14 +326,8 @@ def placed_transport(options: RunOptions, system: SystemUnderTest) -> str:
     _check_transport(options, system)
     if options.transport != "auto":
         return options.transport
-    cores = cores_for(options)
-    if cores == 1 and sut_adapter.runs_inline(system):
-        return "memory"
-    if cores >= 2 and sut_adapter.connects_to_shared_memory(system) and shared_memory.AVAILABLE:
-        return "shm"
-    if cores >= 2 and sut_adapter.connects_to_unix_socket(system):
-        return "unix"
-    return "tcp"
+    preferred = ("memory",) if cores_for(options) == 1 else ("shm", "unix")
+    return next((transport for transport in preferred if transport_problem(transport, system) is None), "tcp")
 
 
 def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
