@@ -403,8 +403,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         _check_transport(args.transport, sut)
     placements = tuple(p for p in PLACEMENTS if args.cores in (None, p[0]) and args.transport in (None, p[1]))
     if not placements:
+        measured = sorted({cores for cores, transport, _warm in PLACEMENTS if transport == args.transport})
         raise InputError([Problem("--transport", "", f"no placement has --cores {args.cores} with --transport {args.transport} "
-                                                     "(in memory an evaluation has one core): leave one of them out")])
+                                                     f"(it is measured with --cores {' or '.join(map(str, measured))}): leave one of them out")])
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
                        sut=RunOptions(sut=sut), placements=placements,
                        drive=args.drive, mission_plan=_mission_plan(args))
