@@ -36,6 +36,11 @@ COMPILED = [
     "sim_bridge/world.py",
 ]
 
+# `stella mutants build` compiles a mutated module again, in the mutant's folder, with exactly
+# these settings: it names the modules here.
+if os.environ.get("STELLA_COMPILE_ONLY"):
+    COMPILED = os.environ["STELLA_COMPILE_ONLY"].split(",")
+
 # Static types come from the .pxd file beside a module; its annotations are documentation only.
 # cpow: a C double's `**` is C's pow(), as Python's float power is (by default Cython takes a
 # fractional power of doubles through complex arithmetic, which rounds differently).

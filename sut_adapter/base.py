@@ -51,11 +51,12 @@ class SutConfig:
     px4_bin: str | None = None  # px4: the binary or its build folder
     command: str | None = None  # command: the command line template
     hold: str | None = None  # command: one of HOLD_MODES
+    autopilot_dir: str | None = None  # bundled: a folder whose `autopilot` package flies instead (a mutant, an edit)
 
     def adapter_options(self) -> dict[str, str]:
         """What the named adapter is configured with (its factory's mapping)."""
         return {key: value for key, value in (("px4_bin", self.px4_bin), ("command", self.command), ("hold", self.hold),
-                                              ("fault", self.fault)) if value is not None}
+                                              ("fault", self.fault), ("autopilot_dir", self.autopilot_dir)) if value is not None}
 
     def identity(self) -> dict[str, object]:
         """What makes two flights' SUTs the same, wherever they run (no machine's paths)."""

@@ -1,8 +1,15 @@
-"""The bundled autopilot (`python -m autopilot`) as a SUT."""
+"""The bundled autopilot (`python -m autopilot`) as a SUT.
+
+With `autopilot_dir` (a folder holding an `autopilot` package: a mutant built by `stella mutants
+build`, or the user's own edit) that package flies instead of the installed one. It runs in a
+process of its own then, with the folder first on its PYTHONPATH, never inside the simulator's
+process, whose `autopilot` is the installed one.
+"""
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any, Mapping
@@ -21,10 +28,18 @@ class BundledAutopilot:
     def __init__(self, config: Mapping[str, str] | None = None):
         config = dict(config or {})
         self.fault = config.pop("fault", None)
+        self.autopilot_dir = config.pop("autopilot_dir", None)
         if config:
-            raise SutError(self.name, f"takes no configuration but a seeded fault, got {sorted(config)}")
+            raise SutError(self.name, f"takes no configuration but a seeded fault and an autopilot folder, got {sorted(config)}")
         if self.fault is not None and self.fault not in seeded_faults():
             raise SutError(self.name, f"no seeded fault {self.fault!r}; `stella faults list` names them")
+        if self.autopilot_dir is not None:
+            folder = Path(self.autopilot_dir).expanduser().resolve()
+            if not (folder / "autopilot" / "__main__.py").is_file():
+                raise SutError(self.name, f"{folder} holds no autopilot package (autopilot/__main__.py): give the folder `stella mutants build` wrote for a mutant")
+            self.autopilot_dir = str(folder)
+            # An instance attribute hides the method: runs_inline() then says no.
+            self.inline_arguments = None
 
     def check_params(self, params: Mapping[str, float]) -> None:
         from autopilot.params import ParamError, Params
@@ -37,10 +52,23 @@ class BundledAutopilot:
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0, sim_socket: str | None = None, sim_shared_memory: bool = False) -> SutHandle:
         sim = f"{'shm' if sim_shared_memory else 'unix'}:{sim_socket}" if sim_socket is not None else f"tcp:127.0.0.1:{sim_port}"
-        argv = [sys.executable, "-m", "autopilot", "--sim", sim, *self.inline_arguments(api_port=api_port, workdir=workdir, params=params)]
+        argv = [sys.executable, "-m", "autopilot", "--sim", sim, *self._arguments(api_port=api_port, workdir=workdir, params=params)]
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]
-        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir))
+        env = None
+        if self.autopilot_dir is not None:
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [self.autopilot_dir, os.environ.get("PYTHONPATH")]))}
+        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir, env=env))
+
+    def _arguments(self, *, api_port: int, workdir: Path, params: Mapping[str, float]) -> list[str]:
+        argv = ["--api", f"udp:127.0.0.1:{api_port}"]
+        if params:
+            params_file = workdir / "autopilot_params.json"
+            params_file.write_text(json.dumps(dict(params)))
+            argv += ["--params", str(params_file)]
+        if self.fault is not None:
+            argv += ["--fault", self.fault]
+        return argv
 
     def inline_arguments(self, *, api_port: int, workdir: Path, params: Mapping[str, float]) -> list[str]:
         """`python -m autopilot`'s arguments but the simulator's, for running it inside the bridge's

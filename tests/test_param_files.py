@@ -42,7 +42,7 @@ def test_competition_csv_with_or_without_a_header(tmp_path):
 def test_sut_param_wins_over_the_file(tmp_path):
     path = tmp_path / "params.csv"
     path.write_text("CP_DIST,3\nMPC_XY_CRUISE,4\n")
-    args = argparse.Namespace(sut="bundled", px4_bin=None, sut_command=None, sut_hold=None, sut_param=["CP_DIST=1.5"], sut_params_file=str(path), sut_fault=None)
+    args = argparse.Namespace(sut="bundled", px4_bin=None, sut_command=None, sut_hold=None, sut_param=["CP_DIST=1.5"], sut_params_file=str(path), sut_fault=None, autopilot_dir=None)
     assert _sut_spec(args).params == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
 
 

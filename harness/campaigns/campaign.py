@@ -27,7 +27,7 @@ from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
-from harness.search.termination import AnyOf, EvaluationBudget, FirstViolation, Termination, WallTimeBudget
+from harness.search.termination import AnyOf, EvaluationBudget, FirstReveal, FirstViolation, Termination, WallTimeBudget
 from sut_adapter import SutConfig
 
 log = logging.getLogger(__name__)
@@ -52,6 +52,11 @@ class CampaignConfig:
     batch: int = DEFAULT_BATCH
     confirm: int = 0
     mission_plan: str | None = None  # a .plan flown instead of each scenario's route
+    # Differential: every candidate flown against this SUT too (harness/campaigns/pairs.py), and
+    # the search minimising the subject's f ("subject") or f_subject - f_reference ("difference").
+    reference: SutConfig | None = None
+    objective: str = "subject"
+    stop_at_reveal: bool = False  # end each run at its first confirmed revealing candidate
 
     def identity(self) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store)."""
@@ -64,6 +69,12 @@ class CampaignConfig:
             overrides["mission_plan"] = str(Path(self.mission_plan).resolve())
         if self.sut.fault:
             overrides["sut_fault"] = self.sut.fault
+        if self.reference is not None:
+            from harness.campaigns.pairs import build_identity
+
+            overrides.update(reference=build_identity(self.reference), objective=self.objective, subject=build_identity(self.sut))
+        if self.stop_at_reveal:
+            overrides["stop_at_reveal"] = True
         return {
             "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
             "algorithms": list(self.algorithms),
@@ -133,18 +144,27 @@ def termination_for(config: CampaignConfig) -> Termination:
     parts: list[Termination] = [EvaluationBudget(config.evaluations)]
     if config.stop_at_violation:
         parts.append(FirstViolation())
+    if config.stop_at_reveal:
+        parts.append(FirstReveal())
     if config.wall_time_s:
         parts.append(WallTimeBudget(config.wall_time_s))
     return AnyOf(tuple(parts))
 
 
 def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
-                 on_result: Callable[[EvaluationResult], None] = lambda r: None) -> CampaignSummary:
+                 on_result: Callable[[EvaluationResult], None] = lambda r: None, reference_cache=None) -> CampaignSummary:
     """options: how each flight runs; its SUT is always the campaign's (config.sut), and it runs
-    warm only where the executor's processes live on."""
+    warm only where the executor's processes live on. A differential campaign keeps its reference
+    flights in its store unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity())
+    pairs = None
+    if config.reference is not None:
+        from harness.campaigns.pairs import PairedFlights, ReferenceCache
+
+        pairs = PairedFlights(executor, config.reference, objective=config.objective, confirm=config.confirm,
+                              cache=reference_cache or ReferenceCache(store.path))
     profile = load_profile(config.profile)
     summary = CampaignSummary()
     for scenario_file in config.scenarios:
@@ -156,13 +176,13 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
-                                          confirm=config.confirm)
+                                          confirm=config.confirm, pairs=pairs)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best
                 summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,
                                      "evaluations": problem.spent, "flown": problem.flown, "replayed": problem.replayed, "violations": problem.violations,
-                                     "best_fitness": best[1] if best else None})
+                                     "best_fitness": best[1] if best else None, **({"revealing": problem.revealing} if pairs else {})})
                 print(f"{space.logical.name} {algorithm.upper()} run {run_index}: best fitness {best[1] if best else float('nan'):.3f}, "
                       f"{problem.violations} violations in {problem.spent} evaluations", file=sys.stderr)
     return summary

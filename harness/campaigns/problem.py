@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -48,6 +48,7 @@ class CampaignProblem:
     optimizer: str = ""
     step_limit: int | None = None
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
+    pairs: Any = None  # a PairedFlights: each candidate flown against the reference too, confirmed there
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
@@ -57,11 +58,12 @@ class CampaignProblem:
         self.violations = 0
         self.flown = 0
         self.replayed = 0
+        self.revealing = 0
         self._started = time.monotonic()
 
     @property
     def progress(self) -> Progress:
-        return Progress(self.spent, time.monotonic() - self._started, self.violations)
+        return Progress(self.spent, time.monotonic() - self._started, self.violations, self.revealing)
 
     @property
     def history(self) -> list[tuple[np.ndarray, float]]:
@@ -78,11 +80,13 @@ class CampaignProblem:
         if self.step_limit is not None and self.spent >= self.step_limit:
             raise StopSearch(campaign_done=False)
 
-    def _record(self, ordinal: int, key: str, x: np.ndarray, fitness: float, status: Status) -> None:
+    def _record(self, ordinal: int, key: str, x: np.ndarray, fitness: float, status: Status, reveals: str | None) -> None:
         self._memory[key] = fitness
         self._history[ordinal] = (x, fitness)
         if status == Status.VIOLATION:
             self.violations += 1
+        if reveals:
+            self.revealing += 1
 
     def evaluate(self, vectors: list[np.ndarray]) -> list[float]:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
@@ -107,7 +111,7 @@ class CampaignProblem:
             stored = self._stored.get(key)
             if stored is not None:
                 self.replayed += 1
-                self._record(ordinal, key, x, stored.fitness, stored.status)
+                self._record(ordinal, key, x, stored.fitness, stored.status, stored.reveals)
                 results[index] = stored.fitness
                 continue
             refused = infeasible(self.space, x, seed=self.seed, sut=self.options.sut.name)
@@ -119,10 +123,12 @@ class CampaignProblem:
             jobs.append((index, Job.of(ordinal, self.space, x, seed=self.seed, out_dir=self.out_dir, name=name, options=self.options), x, key, ordinal))
         by_ordinal = {job.key: (index, x, key) for index, job, x, key, _ in jobs}
         to_confirm: list[tuple[Job, EvaluationResult]] = []
-        for job, result in self.executor.run([job for _, job, _, _, _ in jobs]):
+        # A pair is confirmed on both sides where it reveals a difference (PairedFlights), not here.
+        flights = self.pairs or self.executor
+        for job, result in flights.run([job for _, job, _, _, _ in jobs]):
             index, x, key = by_ordinal[job.key]
             results[index] = result.fitness
-            if result.status == Status.VIOLATION and self.confirm:
+            if result.status == Status.VIOLATION and self.confirm and self.pairs is None:
                 to_confirm.append((job, result))
             else:
                 self._finish(job.key, x, key, result, job.concrete)
@@ -160,5 +166,5 @@ class CampaignProblem:
     def _finish(self, ordinal: int, x: np.ndarray, key: str, result: EvaluationResult, concrete) -> None:
         self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self.step, optimizer=self.optimizer, vector=x, result=result, concrete=concrete)
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
-        self._record(ordinal, key, x, result.fitness, result.status)
+        self._record(ordinal, key, x, result.fitness, result.status, result.differential["reveals"] if result.differential else None)
         self.on_result(result)

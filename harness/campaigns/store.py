@@ -59,6 +59,8 @@ CREATE TABLE IF NOT EXISTS evaluations (
     created REAL NOT NULL,
     attempts TEXT,
     confirmations TEXT,
+    reveals TEXT,
+    differential TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -84,6 +86,7 @@ class StoredEvaluation:
     fitness: float
     status: str
     log_path: str | None
+    reveals: str | None = None
 
 
 class Store:
@@ -133,6 +136,9 @@ class Store:
             self.db.execute("ALTER TABLE evaluations ADD COLUMN attempts TEXT")
         if "confirmations" not in columns:  # ... or before violations were re-flown (--confirm)
             self.db.execute("ALTER TABLE evaluations ADD COLUMN confirmations TEXT")
+        if "differential" not in columns:  # ... or before flights were paired with a reference
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN reveals TEXT")
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN differential TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -181,20 +187,23 @@ class Store:
     # -- evaluations ---------------------------------------------------------------------------
 
     def evaluations(self, run_id: int) -> dict[str, StoredEvaluation]:
-        rows = self.db.execute("SELECT ordinal, vector, vector_key, fitness, status, log_path FROM evaluations WHERE run_id = ?", (run_id,))
-        return {key: StoredEvaluation(ordinal, np.array(json.loads(vector)), fitness, status, log) for ordinal, vector, key, fitness, status, log in rows}
+        rows = self.db.execute("SELECT ordinal, vector, vector_key, fitness, status, log_path, reveals FROM evaluations WHERE run_id = ?", (run_id,))
+        return {key: StoredEvaluation(ordinal, np.array(json.loads(vector)), fitness, status, log, reveals)
+                for ordinal, vector, key, fitness, status, log, reveals in rows}
 
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult, concrete: Mapping[str, Any] | None) -> None:
         with self.db:
             self.db.execute(
-                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
+                " reveals, differential) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
                     result.min_clearance_m, result.sim_time_s, result.wall_time_s, result.log_path, result.seed, time.time(),
                     json.dumps(result.attempts) if result.attempts else None,
                     json.dumps(result.confirmations) if result.confirmations else None,
+                    result.differential["reveals"] if result.differential else None,
+                    json.dumps(result.differential) if result.differential else None,
                 ),
             )
 
@@ -208,11 +217,13 @@ class Store:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
             " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id),"
-            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats'))"
+            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')),"
+            " SUM(e.reveals IS NOT NULL), SUM(e.reveals = 'unsafe'), MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END)"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
         for row in self.db.execute(query):
-            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky"), row))
+            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky",
+                                "revealing", "revealing_unsafe", "first_revealing"), row))
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
@@ -232,6 +243,24 @@ class Store:
         )
         names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "confirmations", "scenario_file", "algorithm", "run_index")
         return [dict(zip(names, row)) for row in self.db.execute(query, (threshold, worst_per_run))]
+
+    def first_reveals(self) -> dict[str, Any]:
+        """A differential campaign's single run: the evaluations (1-based) to its first revealing
+        candidate and to its first unsafe one, that first one's level, and the evaluations spent."""
+        first = self.db.execute("SELECT ordinal, reveals FROM evaluations WHERE reveals IS NOT NULL ORDER BY ordinal LIMIT 1").fetchone()
+        unsafe = self.db.execute("SELECT MIN(ordinal) FROM evaluations WHERE reveals = 'unsafe'").fetchone()[0]
+        spent = self.db.execute("SELECT COUNT(*) FROM evaluations").fetchone()[0]
+        return {"evaluation": first[0] + 1 if first else None, "level": first[1] if first else None,
+                "first_unsafe": unsafe + 1 if unsafe is not None else None, "budget": spent}
+
+    def revealing_cases(self) -> list[dict[str, Any]]:
+        """Every revealing evaluation, unsafe ones first, then by fitness."""
+        query = ("SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed, e.reveals, e.differential,"
+                 " r.scenario_file, r.algorithm, r.run_index FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.reveals IS NOT NULL"
+                 " ORDER BY e.reveals != 'unsafe', e.fitness, r.id, e.ordinal")
+        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "reveals", "differential",
+                 "scenario_file", "algorithm", "run_index")
+        return [{**dict(zip(names, row)), "differential": json.loads(row[9])} for row in self.db.execute(query)]
 
     def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
         """(ordinal, best fitness up to it) for a convergence curve."""

@@ -119,6 +119,9 @@ class EvaluationResult:
     mavsdk: dict[str, Any] = field(default_factory=dict)
     attempts: list[dict[str, str]] = field(default_factory=list)  # every try's status and why, when an executor retried
     confirmations: dict[str, Any] | None = None  # a violation flown again: how often it came back
+    # Flown against a reference SUT too (harness/flight/differential.py): both sides' flights,
+    # whether they reveal a difference, and the objective that made `fitness`.
+    differential: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

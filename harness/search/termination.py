@@ -12,6 +12,7 @@ class Progress:
     evaluations: int
     elapsed_s: float
     violations: int
+    revealing: int = 0  # differential campaigns: candidates that reveal a difference, confirmed
 
 
 class Termination(Protocol):
@@ -38,6 +39,12 @@ class WallTimeBudget:
 class FirstViolation:
     def done(self, progress: Progress) -> bool:
         return progress.violations > 0
+
+
+@dataclass(frozen=True)
+class FirstReveal:
+    def done(self, progress: Progress) -> bool:
+        return progress.revealing > 0
 
 
 @dataclass(frozen=True)

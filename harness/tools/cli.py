@@ -222,16 +222,45 @@ def _sut_spec(args: argparse.Namespace) -> SutConfig:
 
         params.update(load_params_file(Path(args.sut_params_file)))
     params.update(_sut_param_values(args.sut_param))
-    config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold)
+    config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold, args.autopilot_dir)
+    return _checked_sut(config, "--sut", "--sut-params-file" if args.sut_params_file else "--sut-param")
+
+
+def _checked_sut(config: SutConfig, option: str, params_option: str) -> SutConfig:
+    import sut_adapter
+
     try:
         system = sut_adapter.system_for(config)
     except sut_adapter.SutError as error:
-        raise InputError([Problem("--sut", "", str(error))]) from None
+        raise InputError([Problem(option, "", str(error))]) from None
     try:
-        system.check_params(params)
+        system.check_params(config.params)
     except sut_adapter.SutError as error:
-        raise InputError([Problem("--sut-params-file" if args.sut_params_file else "--sut-param", "", str(error))]) from None
+        raise InputError([Problem(params_option, "", str(error))]) from None
     return config
+
+
+def _reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | None:
+    """The reference SUT of a differential run: the subject's configuration with what the
+    --reference-* options change (another build, another SUT, other parameters); None without them."""
+    import sut_adapter
+
+    given = {name: getattr(args, f"reference_{name}") for name in ("sut", "px4_bin", "autopilot_dir", "sut_param", "sut_fault")}
+    if not any(value is not None for value in given.values()):
+        if args.objective != "subject":
+            raise InputError([Problem("--objective", "", "difference needs a reference SUT: add --reference-px4-bin, --reference-sut or --reference-sut-param")])
+        return None
+    name = given["sut"] or subject.name
+    same = name == subject.name
+    reference = sut_adapter.SutConfig(
+        name, {**(subject.params if same else {}), **_sut_param_values(given["sut_param"])},
+        given["sut_fault"], given["px4_bin"] or (subject.px4_bin if same else None),
+        subject.command if same else None, subject.hold if same else None,
+        given["autopilot_dir"] or (subject.autopilot_dir if same and given["sut_fault"] is None else None))
+    if reference == subject:
+        raise InputError([Problem("--reference-sut", "", "the reference is the subject itself: give another build (--reference-px4-bin, "
+                                                         "--reference-autopilot-dir), SUT or parameters")])
+    return _checked_sut(reference, "--reference-sut", "--reference-sut-param")
 
 
 def _check_transport(transport: str, sut: SutConfig) -> None:
@@ -259,7 +288,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
     _check_transport(args.transport, sut)
     options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport)
-    if args.repeat == 1:
+    reference = _reference_spec(args, sut)
+    if reference is not None:
+        if args.repeat != 1:
+            raise InputError([Problem("--repeat", "", "a differential run confirms with --confirm N (both sides), not --repeat")])
+        results = [_run_pair(args, space, x, options, reference)]
+    elif args.repeat == 1:
         result = evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options).as_dict()
         emit(args, result, _result_text(result))
         results = [result]
@@ -268,6 +302,30 @@ def cmd_run(args: argparse.Namespace) -> int:
     if any(r["status"] in COULD_NOT_FINISH for r in results):
         return 3
     return 1 if args.fail_on_violation and any(r["status"] == Status.VIOLATION for r in results) else 0
+
+
+def _run_pair(args: argparse.Namespace, space, x, options, reference: SutConfig) -> dict[str, Any]:
+    """One concrete scenario against the subject and the reference, side by side on two workers."""
+    from harness.campaigns.pairs import PairedFlights, outcome_lines
+    from harness.execution.executor import Job
+    from harness.execution.local import LocalExecutor
+    from harness.flight.evaluation import infeasible
+    from harness.flight.logs import slug
+
+    refused = infeasible(space, x, seed=args.seed, sut=options.sut.name)
+    if refused is not None:
+        result = refused.as_dict()
+        emit(args, result, _result_text(result))
+        return result
+    job = Job.of(0, space, x, seed=args.seed, out_dir=Path(args.out), name=slug(f"{space.logical.name}-seed{args.seed}"), options=options)
+    executor = LocalExecutor(min(2, len(os.sched_getaffinity(0))))
+    try:
+        [(_job, result)] = list(PairedFlights(executor, reference, objective=args.objective, confirm=args.confirm).run([job]))
+    finally:
+        executor.close()
+    document = result.as_dict()
+    emit(args, document, "\n".join([*outcome_lines(document["differential"]), f"objective ({args.objective}): {document['fitness']:.3f}"]))
+    return document
 
 
 def _repeat(args: argparse.Namespace, space, x, options) -> list[dict[str, Any]]:
@@ -433,7 +491,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     _check_transport(args.transport, sut)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
-                            args.mission_plan)
+                            args.mission_plan, _reference_spec(args, sut), args.objective, args.stop_at_reveal)
+    if args.stop_at_reveal and config.reference is None:
+        raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -461,7 +521,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         bar.close()
         executor.close()
     text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
-                     f"{r['flown']} flown, {r['replayed']} from the store" for r in summary.runs) or "every run was already finished"
+                     + (f"{r['revealing']} revealing, " if "revealing" in r else "")
+                     + f"{r['flown']} flown, {r['replayed']} from the store" for r in summary.runs) or "every run was already finished"
     emit(args, {"store": str(store_path), "runs": summary.runs}, text)
     return 0
 
@@ -713,11 +774,23 @@ def parser() -> argparse.ArgumentParser:
         p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
         p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable; wins over --sut-params-file")
         p.add_argument("--sut-fault", metavar="NAME", help="switch on one of the bundled autopilot's seeded faults (`stella faults list`)")
+        p.add_argument("--autopilot-dir", metavar="DIR", help="with --sut bundled: fly the `autopilot` package in DIR instead (a mutant's folder from "
+                                                              "`stella mutants build`, or a build of `stella sut build --source .`)")
         p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export or a NAME,VALUE CSV (the UAV Testing Competition's)")
         p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home becomes the origin; "
                                                           "takeoff, waypoint, land, return, change speed, delay)")
         p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
                                                        "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
+
+    def add_reference(p: argparse.ArgumentParser) -> None:
+        group = p.add_argument_group("differential", "fly every scenario against a reference SUT too, and say where the subject (the --sut) differs")
+        group.add_argument("--reference-sut", metavar="NAME", help="the reference SUT (default: the subject's, with the changes below)")
+        group.add_argument("--reference-px4-bin", metavar="PATH", help="the reference's px4 binary or build folder (e.g. main's, against your branch's --px4-bin)")
+        group.add_argument("--reference-autopilot-dir", metavar="DIR", help="the reference's bundled autopilot folder")
+        group.add_argument("--reference-sut-param", action="append", metavar="NAME=VALUE", help="a reference parameter (over the subject's); repeatable")
+        group.add_argument("--reference-sut-fault", metavar="NAME", help="a seeded fault of the reference's bundled autopilot")
+        group.add_argument("--objective", choices=["subject", "difference"], default="subject",
+                           help="what a campaign minimises: the subject's fitness (default), or f_subject - f_reference (where the subject is worse)")
 
     p = add("run", "fly one concrete scenario against the SUT and score it")
     p.add_argument("scenario", nargs="?", help="logical scenario JSON (a concrete one is sampled with --seed)")
@@ -738,6 +811,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=positive_int, default=1,
                    help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
                         "repeats violated (a real SUT's timing differs run to run)")
+    p.add_argument("--confirm", type=non_negative_int, default=0, help="with a reference: fly a revealing pair N more times on both sides and judge all flights")
+    add_reference(p)
 
     p = add("inspect", "summarize an evaluation log and recompute the fitness from it alone")
     p.add_argument("log", help="an evaluation's .mcap file")
@@ -801,6 +876,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--docker-image", help="with --executor docker: the worker image (default: stella-worker:latest)")
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
+    p.add_argument("--stop-at-reveal", action="store_true", help="with a reference: end each run at its first (confirmed) revealing candidate")
+    add_reference(p)
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
     p = add("compare", "the algorithm comparison table (median best fitness, relative performance, p-value, A12)")

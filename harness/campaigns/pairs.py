@@ -1,0 +1,151 @@
+"""Flying pairs: each job against the subject SUT and the reference SUT, through one executor,
+judged by harness/flight/differential.py.
+
+Both sides of a batch go to the executor together, so they fly in parallel where it has
+workers. A pair that reveals a difference is flown `confirm` more times on both sides and judged
+again on all flights: with SUTs that do not repeat bit for bit, only a difference that survives
+the measured spread counts. Reference flights are kept in a ReferenceCache by concrete scenario,
+seed and reference build, so a case flown against many subjects (mutants) costs its reference
+flights once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sqlite3
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Iterable, Iterator, Mapping
+
+from harness.execution.executor import Executor, Job
+from harness.flight.differential import Outcome, compare, record
+from harness.flight.evaluation import EvaluationResult
+from sut_adapter import SutConfig
+
+
+def build_identity(config: SutConfig) -> dict[str, object]:
+    """What tells two reference configurations apart, builds included: the SUT's identity plus a
+    digest of the PX4 binary's bytes (the same build from another folder is the same build) or the
+    bundled autopilot's source folder."""
+    identity: dict[str, object] = {**config.identity()}
+    if config.px4_bin:
+        from sut_adapter.px4 import resolve_binary
+
+        binary, _etc = resolve_binary(config.px4_bin)
+        identity["px4_sha256"] = _file_digest(binary)
+    for name in ("autopilot_dir", "command", "hold"):
+        if getattr(config, name):
+            identity[name] = str(getattr(config, name))
+    return identity
+
+
+_DIGESTS: dict[tuple[str, float, int], str] = {}
+
+
+def _file_digest(path: Path) -> str:
+    stat = path.stat()
+    key = (str(path), stat.st_mtime, stat.st_size)
+    if key not in _DIGESTS:
+        digest = hashlib.sha256()
+        with open(path, "rb") as file:
+            for block in iter(lambda: file.read(1 << 20), b""):
+                digest.update(block)
+        _DIGESTS[key] = digest.hexdigest()
+    return _DIGESTS[key]
+
+
+class ReferenceCache:
+    """Reference flights by (concrete scenario, seed, reference build): a table in an SQLite file
+    (a campaign's store, or one file shared by a mutation run's campaigns), each flight list
+    committed as it is flown."""
+
+    def __init__(self, path: Path):
+        self.db = sqlite3.connect(Path(path), timeout=30.0)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("CREATE TABLE IF NOT EXISTS reference_flights (key TEXT PRIMARY KEY, outcomes TEXT NOT NULL, created REAL NOT NULL)")
+        self.db.commit()
+
+    @staticmethod
+    def key(job: Job, reference: Mapping[str, object]) -> str:
+        text = json.dumps({"concrete": job.concrete, "seed": job.seed, "drive": job.world.drive, "reference": reference}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def get(self, key: str) -> list[Outcome]:
+        row = self.db.execute("SELECT outcomes FROM reference_flights WHERE key = ?", (key,)).fetchone()
+        return [Outcome.from_dict(o) for o in json.loads(row[0])] if row else []
+
+    def put(self, key: str, outcomes: list[Outcome]) -> None:
+        with self.db:
+            self.db.execute("INSERT OR REPLACE INTO reference_flights (key, outcomes, created) VALUES (?, ?, ?)",
+                            (key, json.dumps([o.as_dict() for o in outcomes]), time.time()))
+
+    def close(self) -> None:
+        self.db.close()
+
+
+class PairedFlights:
+    """Flies jobs as pairs; `run` yields each subject job with its result, whose `fitness` is the
+    objective's and whose `differential` holds both sides' flights and the verdict."""
+
+    def __init__(self, executor: Executor, reference: SutConfig, *, objective: str = "subject", confirm: int = 0, cache: ReferenceCache | None = None):
+        self.executor = executor
+        self.reference = reference
+        self.objective = objective
+        self.confirm = confirm
+        self.cache = cache
+        self._reference_identity = build_identity(reference)
+
+    def _reference_job(self, job: Job, flight: int) -> Job:
+        return replace(job, name=f"{job.name}-reference" + (f"-confirm{flight}" if flight else ""), options=replace(job.options, sut=self.reference))
+
+    def _fly(self, jobs: list[Job]) -> dict[str, EvaluationResult]:
+        """Each job flown once, by name (the executor's keys renumbered and given back)."""
+        numbered = [replace(job, key=number) for number, job in enumerate(jobs)]
+        return {job.name: result for job, result in self.executor.run(numbered)}
+
+    def run(self, jobs: Iterable[Job]) -> Iterator[tuple[Job, EvaluationResult]]:
+        jobs = list(jobs)
+        keys = {job.name: ReferenceCache.key(job, self._reference_identity) for job in jobs}
+        references = {job.name: self.cache.get(keys[job.name]) if self.cache else [] for job in jobs}
+        first = self._fly(jobs + [self._reference_job(job, 0) for job in jobs if not references[job.name]])
+        subjects = {job.name: [first[job.name]] for job in jobs}
+        for job in jobs:
+            if not references[job.name]:
+                references[job.name] = [Outcome.of(first[f"{job.name}-reference"])]
+                self._remember(keys[job.name], references[job.name])
+        revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None]
+        if self.confirm and revealing:
+            again = [replace(job, name=f"{job.name}-confirm{i}") for job in revealing for i in range(1, self.confirm + 1)]
+            again += [self._reference_job(job, i) for job in revealing for i in range(len(references[job.name]), self.confirm + 1)]
+            flown = self._fly(again)
+            for job in revealing:
+                subjects[job.name] += [flown[f"{job.name}-confirm{i}"] for i in range(1, self.confirm + 1)]
+                extra = [Outcome.of(flown[name]) for i in range(len(references[job.name]), self.confirm + 1)
+                         if (name := f"{job.name}-reference-confirm{i}") in flown]
+                if extra:
+                    references[job.name] = references[job.name] + extra
+                    self._remember(keys[job.name], references[job.name])
+        for job in jobs:
+            flights = subjects[job.name]
+            differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])
+            yield job, replace(flights[0], fitness=differential["fitness"], differential=differential)
+
+    def _remember(self, key: str, outcomes: list[Outcome]) -> None:
+        if self.cache is not None:
+            self.cache.put(key, outcomes)
+
+
+def outcome_lines(differential: Mapping[str, object]) -> list[str]:
+    """A pair in words, for the CLI."""
+    lines = []
+    for side in ("subject", "reference"):
+        for index, outcome in enumerate(differential[side]):  # type: ignore[index]
+            clearance = "-" if outcome["min_clearance_m"] is None else f"{outcome['min_clearance_m']:.3f} m"
+            lines.append(f"{side}{'' if index == 0 else f' (flight {index + 1})'}: {outcome['status']}, min clearance {clearance}, "
+                         f"{outcome['sim_time_s']:.1f} s" + (f" ({outcome['why']})" if outcome.get("why") else ""))
+    reveals = differential["reveals"]
+    lines.append(f"reveals: {reveals or 'nothing'}: {differential['why']}")
+    return lines
+

@@ -1,0 +1,315 @@
+"""Firmware variants built from source and cached: a variant is (source tree, commit, patches,
+build configuration); its build is kept under a key made of those, so asking again is instant,
+and it is just another SUT configuration (`px4_bin` of the variant, or the bundled autopilot's
+`autopilot_dir`).
+
+PX4: one git worktree per commit under the cache (`worktrees/COMMIT`), its submodules those the
+source tree has initialised, at the commit's pins; a variant's patches applied there, the build
+incremental (after the first, a patch of one file recompiles that object and links), then the
+patched files put back. The variant keeps `bin/` and `etc/` (what a flight needs), its build log,
+and a digest of each patched file's object code with the debug information stripped: two
+variants whose objects are byte for byte the same are the same program (trivial compiler
+equivalence, used to drop equivalent and duplicate mutants).
+
+The bundled autopilot: its package copied, the patches applied, and the patched modules that the
+project compiles (setup.py) compiled again the way `make setup` does; the digest is the Python
+bytecode's (line numbers left out), which is what a compiled module computes too.
+"""
+
+from __future__ import annotations
+
+import dis
+import hashlib
+import json
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from harness.errors import InputError, Problem, StellaError
+
+log = logging.getLogger(__name__)
+
+PX4_CONFIG = "px4_sitl_default"
+BUNDLED_CONFIG = "bundled"
+VARIANT_FILE = "variant.json"
+BUILD_LOG = "build.log"
+
+
+class BuildFailed(StellaError):
+    """A variant's sources do not compile (a mutant that does not is *stillborn*); the log is kept."""
+
+    exit_code = 2
+
+    def __init__(self, what: str, log_path: Path, tail: str):
+        self.log_path = log_path
+        super().__init__(f"{what} failed to build; log: {log_path}\n{tail}")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A built variant as the cache keeps it (VARIANT_FILE in its folder)."""
+
+    key: str
+    kind: str  # "px4" or "bundled"
+    source: str
+    commit: str | None
+    patches: tuple[str, ...]  # the patches' digests, in the order applied
+    folder: str
+    build_s: float
+    objects: dict[str, str] = field(default_factory=dict)  # patched file -> digest of its compiled code
+    cached: bool = False  # found in the cache rather than built by this request
+
+    def sut_options(self) -> dict[str, str]:
+        """The SUT configuration that flies this build."""
+        return {"px4_bin": self.folder} if self.kind == "px4" else {"autopilot_dir": self.folder}
+
+    @property
+    def program_digest(self) -> str:
+        """One digest of every patched file's compiled code: equal digests, equal programs."""
+        return hashlib.sha256(json.dumps(self.objects, sort_keys=True).encode()).hexdigest()
+
+
+def tree_kind(source: Path) -> str:
+    """"px4" for a PX4-Autopilot tree, "bundled" for a checkout of this project (its autopilot)."""
+    if (source / "boards" / "px4" / "sitl").is_dir() and (source / "platforms" / "posix").is_dir():
+        return "px4"
+    if (source / "autopilot" / "__main__.py").is_file() and (source / "autopilot" / "collision.py").is_file():
+        return "bundled"
+    raise InputError([Problem(str(source), "", "neither a PX4-Autopilot source tree (boards/px4/sitl, platforms/posix) nor a checkout of this "
+                                               "project (autopilot/): give --source the root of one")])
+
+
+def _git(source: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", str(source), *args], capture_output=True, text=True, check=check)
+
+
+def resolve_commit(source: Path, commit: str | None) -> str:
+    """The full hash of `commit` in the source tree (HEAD when None)."""
+    if not (source / ".git").exists():
+        raise InputError([Problem(str(source), "", "not a git work tree: builds of a commit need the tree's history (give a clone)")])
+    found = _git(source, "rev-parse", "--verify", "--quiet", f"{commit or 'HEAD'}^{{commit}}", check=False)
+    if found.returncode != 0:
+        raise InputError([Problem("--commit", "", f"{commit!r} is not a commit of {source}: give a hash, branch or tag that `git log` shows there")])
+    return found.stdout.strip()
+
+
+def patch_digest(patch: Path) -> str:
+    if not patch.is_file():
+        raise InputError([Problem(str(patch), "", "no such patch file: give a unified diff made with `git diff` in the source tree")])
+    return hashlib.sha256(patch.read_bytes()).hexdigest()
+
+
+def variant_key(kind: str, commit: str | None, patches: Sequence[str], config: str) -> str:
+    return hashlib.sha256(json.dumps([kind, commit, list(patches), config]).encode()).hexdigest()[:20]
+
+
+def _patched_files(patch: Path) -> list[str]:
+    files = []
+    for line in patch.read_text(errors="replace").splitlines():
+        if line.startswith("+++ ") and not line.startswith("+++ /dev/null"):
+            name = line[4:].split("\t")[0]
+            files.append(name[2:] if name.startswith("b/") else name)
+    return files
+
+
+def _apply(folder: Path, patches: Sequence[Path]) -> list[str]:
+    """Apply the patches in order; the files they touch. A patch that does not apply is the user's."""
+    touched: list[str] = []
+    for patch in patches:
+        check = subprocess.run(["git", "apply", "--check", str(patch.resolve())], cwd=folder, capture_output=True, text=True)
+        if check.returncode != 0:
+            raise InputError([Problem(str(patch), "", f"does not apply to {folder}: {check.stderr.strip()[:400]}")])
+        subprocess.run(["git", "apply", str(patch.resolve())], cwd=folder, capture_output=True, text=True, check=True)
+        touched += [f for f in _patched_files(patch) if f not in touched]
+    return touched
+
+
+def _cached(folder: Path) -> Variant | None:
+    record = folder / VARIANT_FILE
+    if not record.is_file():
+        return None
+    document = json.loads(record.read_text())
+    return Variant(**{**document, "patches": tuple(document["patches"]), "cached": True})
+
+
+def _save(variant: Variant) -> Variant:
+    folder = Path(variant.folder)
+    temporary = folder / f".{VARIANT_FILE}.tmp"
+    temporary.write_text(json.dumps({k: v for k, v in asdict(variant).items() if k != "cached"}, indent=1))
+    os.replace(temporary, folder / VARIANT_FILE)
+    return variant
+
+
+def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequence[Path] = (), jobs: int | None = None,
+          watch: Sequence[str] = ()) -> Variant:
+    """The variant of the source tree at commit with the patches applied, from the cache or built;
+    its `objects` digest the compiled code of the patched files and of those in `watch`."""
+    source = Path(source).expanduser().resolve()
+    if not source.is_dir():
+        raise InputError([Problem(str(source), "", "no such folder: give --source the root of a PX4-Autopilot tree or of this project")])
+    kind = tree_kind(source)
+    digests = tuple(patch_digest(Path(p)) for p in patches)
+    resolved = resolve_commit(source, commit) if kind == "px4" or commit else None
+    key = variant_key(kind, resolved, digests, PX4_CONFIG if kind == "px4" else BUNDLED_CONFIG)
+    folder = Path(out).expanduser().resolve() / key
+    found = _cached(folder)
+    if found is not None:
+        return found
+    if folder.exists():  # a build that was interrupted: start it again
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    started = time.monotonic()
+    # A failed build keeps its folder for the log, but has no VARIANT_FILE: never taken for a build.
+    if kind == "px4":
+        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch)
+    else:
+        objects = _build_bundled(source, resolved, [Path(p) for p in patches], folder, watch)
+    return _save(Variant(key, kind, str(source), resolved, digests, str(folder), time.monotonic() - started, objects))
+
+
+# -- PX4 ---------------------------------------------------------------------------------------
+
+
+def _initialised_submodules(source: Path) -> list[str]:
+    status = _git(source, "submodule", "status", check=False)
+    return [line[1:].split()[1] for line in status.stdout.splitlines() if line and line[0] != "-"]
+
+
+def _worktree(source: Path, commit: str, cache: Path, log_file) -> Path:
+    """The cache's worktree of the commit, made once; its submodules those the source tree uses."""
+    tree = cache / "worktrees" / commit[:12]
+    if not (tree / ".git").exists():
+        tree.parent.mkdir(parents=True, exist_ok=True)
+        made = _git(source, "worktree", "add", "--detach", str(tree), commit, check=False)
+        log_file.write(made.stdout + made.stderr)
+        if made.returncode != 0:
+            raise InputError([Problem(str(source), "", f"cannot make a worktree of {commit[:12]}: {made.stderr.strip()[:400]}")])
+    modules = _initialised_submodules(source)
+    if modules:
+        updated = _git(tree, "submodule", "update", "--init", "--recursive", "--", *modules, check=False)
+        log_file.write(updated.stdout + updated.stderr)
+        if updated.returncode != 0:
+            raise InputError([Problem(str(tree), "", f"its submodules ({', '.join(modules)}) cannot be checked out at {commit[:12]}'s pins: "
+                                                     f"{updated.stderr.strip()[-400:]}; make them reachable (git's url.<mirror>.insteadOf) and build again")])
+    return tree
+
+
+def _object_digest(build_dir: Path, source_file: str) -> str | None:
+    """The stripped object code of one source file of the build (None: it compiles into none)."""
+    candidates = sorted(build_dir.glob(f"**/{Path(source_file).name}.o"))
+    candidates = [c for c in candidates if Path(source_file).parent.name in c.as_posix()] or candidates
+    if not candidates:
+        return None
+    with tempfile.NamedTemporaryFile(suffix=".o") as stripped:
+        subprocess.run(["objcopy", "--strip-debug", str(candidates[0]), stripped.name], check=True, capture_output=True)
+        return hashlib.sha256(Path(stripped.name).read_bytes()).hexdigest()
+
+
+def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str]) -> dict[str, str]:
+    log_path = folder / BUILD_LOG
+    with open(log_path, "w") as log_file:
+        tree = _worktree(source, commit, cache, log_file)
+        touched = _apply(tree, patches)
+        try:
+            # The cache's worktree keeps the submodules at the pins checked out above; PX4's own
+            # submodule update would reach for the network.
+            env = {**os.environ, "GIT_SUBMODULES_ARE_EVIL": "1"}
+            argv = ["make", PX4_CONFIG, f"-j{jobs or len(os.sched_getaffinity(0))}"]
+            log_file.write(f"$ {' '.join(argv)}  (in {tree})\n")
+            log_file.flush()
+            built = subprocess.run(argv, cwd=tree, stdout=log_file, stderr=subprocess.STDOUT, env=env)
+            if built.returncode != 0:
+                raise BuildFailed(f"PX4 {commit[:12]} with {len(patches)} patch(es)", log_path, _tail(log_path))
+            build_dir = tree / "build" / PX4_CONFIG
+            objects = {name: digest for name in dict.fromkeys([*touched, *watch]) if (digest := _object_digest(build_dir, name))}
+            for part in ("bin", "etc"):
+                shutil.copytree(build_dir / part, folder / part, symlinks=True)
+        finally:
+            if touched:  # the next variant starts from the commit's own files
+                _git(tree, "checkout", "--", *touched, check=False)
+    return objects
+
+
+def _tail(path: Path, lines: int = 25) -> str:
+    return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+
+
+# -- the bundled autopilot ---------------------------------------------------------------------
+
+
+def bytecode_digest(source_text: str, filename: str = "<mutant>") -> str:
+    """The module's bytecode with line numbers left out: what it computes, not where it says so."""
+    digest = hashlib.sha256()
+
+    def walk(code) -> None:
+        for instruction in dis.get_instructions(code):
+            digest.update(f"{instruction.opname} {instruction.argrepr if not hasattr(instruction.argval, 'co_code') else ''}\n".encode())
+        for constant in code.co_consts:
+            if hasattr(constant, "co_code"):
+                digest.update(f"code {constant.co_name}\n".encode())
+                walk(constant)
+
+    walk(compile(source_text, filename, "exec"))
+    return digest.hexdigest()
+
+
+def project_root() -> Path:
+    return Path(__file__).resolve().parents[2]
+
+
+def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder: Path, watch: Sequence[str]) -> dict[str, str]:
+    log_path = folder / BUILD_LOG
+    package = folder / "autopilot"
+    # The package as the source tree has it, its compiled modules included (copy2 keeps their
+    # times, so the unpatched ones stay newer than their sources: simlink.check_compiled).
+    shutil.copytree(source / "autopilot", package, ignore=shutil.ignore_patterns("*.c", "__pycache__"))
+    if commit is not None:
+        for module in package.glob("*.py"):
+            shown = _git(source, "show", f"{commit}:autopilot/{module.name}", check=False)
+            if shown.returncode == 0:
+                module.write_text(shown.stdout)
+    touched = _apply(folder, patches)
+    objects = {}
+    with open(log_path, "w") as log_file:
+        for name in dict.fromkeys([*touched, *watch]):
+            path = folder / name
+            try:
+                objects[name] = bytecode_digest(path.read_text(), name)
+            except SyntaxError as error:
+                log_file.write(f"{name}: {error}\n")
+                raise BuildFailed(f"the bundled autopilot with {len(patches)} patch(es)", log_path, str(error)) from None
+        _compile_again(folder, [name for name in touched if name.endswith(".py")], log_file, log_path)
+    return objects
+
+
+def _compile_again(folder: Path, modules: Iterable[str], log_file, log_path: Path) -> None:
+    """The patched modules that the project compiles, compiled again by its setup.py in the
+    variant's folder; without setup.py (an installed, not checked-out, harness) the variant's
+    compiled modules are removed and it runs as the Python sources, which compute the same."""
+    compiled = [m for m in modules if any((folder / m).parent.glob(f"{Path(m).stem}.*.so"))]
+    if not compiled:
+        return
+    setup = project_root() / "setup.py"
+    if not setup.is_file():
+        for so in (folder / "autopilot").glob("*.so"):
+            so.unlink()
+        log_file.write(f"{setup} not found: the variant runs as Python sources\n")
+        return
+    for module in compiled:
+        for so in (folder / module).parent.glob(f"{Path(module).stem}.*.so"):
+            so.unlink()
+    env = {**os.environ, "STELLA_COMPILE_ONLY": ",".join(compiled)}
+    argv = [sys.executable, str(setup), "build_ext", "--inplace"]
+    log_file.write(f"$ STELLA_COMPILE_ONLY={env['STELLA_COMPILE_ONLY']} {' '.join(argv)}  (in {folder})\n")
+    log_file.flush()
+    done = subprocess.run(argv, cwd=folder, stdout=log_file, stderr=subprocess.STDOUT, env=env)
+    if done.returncode != 0 or not all(any((folder / m).parent.glob(f"{Path(m).stem}.*.so")) for m in compiled):
+        raise BuildFailed(f"compiling {', '.join(compiled)}", log_path, _tail(log_path))
+    shutil.rmtree(folder / "build", ignore_errors=True)

@@ -1,0 +1,293 @@
+"""Mutation analysis: would a campaign catch each mutant of a collision-prevention file?
+
+Each counted mutant (built, neither equivalent nor a duplicate: mutants.py) is the *subject* of
+differential flights against the unmutated build, the *reference*:
+
+1. **screen**: a fixed suite of concrete scenarios (regression cases or concrete scenario files:
+   the wall, the reference's closest approaches from one campaign per scenario) flown as pairs,
+   confirmed; a revealing pair kills the mutant (*killed by the suite*); a mutant whose first
+   flights crash or cannot arm where the reference flies is *killed at start*;
+2. **search**: each survivor of the suite attacked by each algorithm on each logical scenario, one
+   differential campaign (stored, resumable) of `evaluations` candidates; the first confirmed
+   revealing candidate kills it (*killed by ALGORITHM*), at level unsafe or behaviour.
+
+Reference flights are cached by concrete scenario in `reference_flights.db` (the same for every
+mutant). Every mutant's outcome is written to `run.json` as it is known, so a stopped analysis
+resumes where it was. `report` gives the mutation score per algorithm at both levels with
+Wilson intervals, evaluations to kill, and Fisher's exact test, Mann-Whitney U and A12 of each
+algorithm's search against the baseline's (RANDOM), as the seeded-fault benchmark does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from scipy.stats import fisher_exact
+
+from harness.campaigns.campaign import CampaignConfig, run_campaign
+from harness.campaigns.pairs import PairedFlights, ReferenceCache
+from harness.campaigns.regression import SUFFIX, load_regression
+from harness.campaigns.statistics import a12, p_value
+from harness.campaigns.store import Store
+from harness.errors import InputError, Problem
+from harness.execution.executor import Executor, Job
+from harness.firmware.mutants import BUILT, load_index
+from harness.flight.evaluation import RunOptions, infeasible
+from harness.flight.fitness import Status
+from harness.flight.logs import slug
+from harness.scenario.world import load_concrete
+from sut_adapter import SutConfig
+
+RUN = "run.json"
+CACHE = "reference_flights.db"
+LEVELS = ("unsafe", "any")
+
+
+@dataclass(frozen=True)
+class MutationPlan:
+    suite: tuple[str, ...]  # regression cases or concrete scenario files
+    scenarios: tuple[str, ...] = ()  # logical scenarios the survivors are searched in
+    algorithms: tuple[str, ...] = ("NSGAII", "RANDOM")
+    evaluations: int = 40
+    population: int = 10
+    confirm: int = 0
+    seed: int = 0
+    drive: str | None = None
+    objective: str = "difference"
+    sut_params: Mapping[str, float] = field(default_factory=dict)
+
+    def identity(self) -> dict[str, Any]:
+        return {"suite": [str(Path(s).resolve()) for s in self.suite], "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
+                "algorithms": list(self.algorithms), "evaluations": self.evaluations, "population": self.population, "confirm": self.confirm,
+                "seed": self.seed, "drive": self.drive, "objective": self.objective, "sut_params": dict(self.sut_params)}
+
+
+def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
+    return SutConfig("px4", dict(params), px4_bin=folder) if kind == "px4" else SutConfig("bundled", dict(params), autopilot_dir=folder)
+
+
+def _suite_cases(plan: MutationPlan) -> list[tuple[str, Any, Any, int]]:
+    """(name, space, vector, seed) of each suite case."""
+    cases = []
+    for path in map(Path, plan.suite):
+        if path.name.endswith(SUFFIX):
+            regression = load_regression(path, plan.drive)
+            space, x, seed = regression.space, regression.x, regression.seed
+        else:
+            space, x = load_concrete(path, plan.drive)
+            seed = 0
+        refused = infeasible(space, x, seed=seed, sut="suite")
+        if refused is not None:
+            raise InputError([Problem(str(path), "", f"the suite case is infeasible ({refused.why}): it can kill nothing; drop it")])
+        cases.append((slug(path.name.removesuffix(SUFFIX).removesuffix(".json")), space, x, seed))
+    if not cases:
+        raise InputError([Problem("--suite", "", "no suite cases: give regression cases or concrete scenarios to screen every mutant with")])
+    return cases
+
+
+def _load(path: Path, plan: MutationPlan) -> dict[str, Any]:
+    if not path.is_file():
+        return {"plan": plan.identity(), "mutants": {}}
+    document = json.loads(path.read_text())
+    if document["plan"] != plan.identity():
+        raise InputError([Problem(str(path), "/plan", "this folder's mutation run had other settings (suite, scenarios, algorithms, budget, confirm, "
+                                                      "seed, drive, objective); run it with the same ones, or give another --out")])
+    return document
+
+
+def _save(path: Path, document: dict[str, Any]) -> None:
+    temporary = path.with_suffix(".tmp")
+    temporary.write_text(json.dumps(document, indent=1) + "\n")
+    temporary.replace(path)
+
+
+def _started_badly(result) -> bool:
+    """A subject flight that never got to fly: it crashed, or setup (arming, takeoff) failed."""
+    return result.status == Status.SUT_CRASHED or (result.status in (Status.MISSION_FAILED, Status.TIMEOUT) and (result.why or "").startswith("setup"))
+
+
+def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequence[str] = (), progress: Callable[[str], None] = lambda _l: None) -> dict:
+    mutants_dir = Path(mutants_dir)
+    index = load_index(mutants_dir)
+    built_path = mutants_dir / BUILT
+    if not built_path.is_file():
+        raise InputError([Problem(str(built_path), "", "the mutants are not built: run `stella mutants build` first")])
+    built = json.loads(built_path.read_text())
+    cases = _suite_cases(plan)
+    reference = _sut(index["kind"], built["original"]["folder"], plan.sut_params)
+    run_path = mutants_dir / RUN
+    document = _load(run_path, plan)
+    cache = ReferenceCache(mutants_dir / CACHE)
+    options = RunOptions(sut=reference)
+    try:
+        for entry in sorted(built["mutants"].values(), key=lambda e: e["id"]):
+            if entry["state"] != "built" or entry["id"] in document["mutants"] or (only and entry["id"] not in only):
+                continue
+            subject = _sut(index["kind"], entry["folder"], plan.sut_params)
+            outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject))
+            if outcome["state"] == "survived_suite" and plan.scenarios:
+                outcome["search"] = _search(entry["id"], subject, reference, plan, executor, cache, mutants_dir)
+            document["mutants"][entry["id"]] = outcome
+            _save(run_path, document)
+            progress(f"{entry['id']}: {describe(outcome)}")
+    finally:
+        cache.close()
+    return document
+
+
+def _screen(mutant: str, subject: SutConfig, reference: SutConfig, cases, plan: MutationPlan, executor: Executor, cache: ReferenceCache,
+            folder: Path, options: RunOptions) -> dict[str, Any]:
+    pairs = PairedFlights(executor, reference, objective="subject", confirm=plan.confirm, cache=cache)
+    out_dir = folder / "logs" / mutant
+    flown = 0
+    for start in range(0, len(cases), max(1, executor.workers)):
+        batch = cases[start:start + max(1, executor.workers)]
+        jobs = [Job.of(start + i, space, x, seed=seed, out_dir=out_dir, name=f"{mutant}-{name}", options=options) for i, (name, space, x, seed) in enumerate(batch)]
+        results = sorted(pairs.run(jobs), key=lambda pair: pair[0].key)
+        flown += len(results)
+        for job, result in results:
+            reference_flights = result.differential["reference"]
+            if start == 0 and _started_badly(result) and reference_flights[0]["status"] in (Status.OK, Status.VIOLATION):
+                return {"state": "killed_at_start", "case": job.name, "why": result.why, "suite_flights": flown}
+            if result.differential["reveals"]:
+                return {"state": "killed_by_suite", "level": result.differential["reveals"], "case": job.name, "why": result.differential["why"],
+                        "suite_flights": flown}
+    return {"state": "survived_suite", "suite_flights": flown}
+
+
+def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, executor: Executor, cache: ReferenceCache,
+            folder: Path) -> dict[str, dict[str, Any]]:
+    found: dict[str, dict[str, Any]] = {}
+    for algorithm in plan.algorithms:
+        for scenario in plan.scenarios:
+            config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
+                                    confirm=plan.confirm, reference=reference, objective=plan.objective)
+            store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
+            with Store.for_campaign(store_path) as store:
+                run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache)
+                first = store.first_reveals()
+            found.setdefault(algorithm, {})[Path(scenario).stem] = first
+    return found
+
+
+def describe(outcome: Mapping[str, Any]) -> str:
+    if outcome["state"] != "survived_suite":
+        return f"{outcome['state']}" + (f" ({outcome['level']})" if outcome.get("level") else "") + f" by {outcome.get('case')}: {outcome.get('why')}"
+    kills = [f"{algorithm} on {scenario} ({first['level']} at evaluation {first['evaluation']})"
+             for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items() if first["evaluation"]]
+    return "survived the suite; " + ("killed by " + ", ".join(kills) if kills else "survived every search")
+
+
+# -- the report --------------------------------------------------------------------------------
+
+
+def wilson(killed: int, total: int, z: float = 1.96) -> tuple[float, float] | None:
+    """The Wilson score interval of a proportion (95 % by default)."""
+    if total == 0:
+        return None
+    p = killed / total
+    centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+    half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _first_kill(outcome: Mapping[str, Any], algorithm: str, level: str) -> int | None:
+    """Evaluations the algorithm's search took to kill the mutant (its first revealing candidate
+    at the level, over the scenarios searched one after another), None if it did not."""
+    spent = 0
+    for first in (outcome.get("search") or {}).get(algorithm, {}).values():
+        evaluation = first["evaluation"] if level == "any" else first["first_unsafe"]
+        if evaluation is not None:
+            return spent + evaluation
+        spent += first["budget"]
+    return None
+
+
+def report(mutants_dir: Path, baseline: str = "RANDOM") -> dict[str, Any]:
+    mutants_dir = Path(mutants_dir)
+    index = load_index(mutants_dir)
+    built = json.loads((mutants_dir / BUILT).read_text()) if (mutants_dir / BUILT).is_file() else {"mutants": {}}
+    run_path = mutants_dir / RUN
+    if not run_path.is_file():
+        raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
+    document = json.loads(run_path.read_text())
+    plan = document["plan"]
+    states = [e["state"] for e in built["mutants"].values()]
+    outcomes = document["mutants"]
+    algorithms = plan["algorithms"]
+    scores: dict[str, dict[str, Any]] = {}
+    budget = plan["evaluations"] * max(1, len(plan["scenarios"]))
+    for algorithm in algorithms:
+        entry: dict[str, Any] = {}
+        for level in LEVELS:
+            killed = 0
+            to_kill, censored = [], []
+            for outcome in outcomes.values():
+                by_suite = outcome["state"] in ("killed_at_start", "killed_by_suite") and (level == "any" or outcome.get("level") == "unsafe"
+                                                                                            or outcome["state"] == "killed_at_start")
+                searched = _first_kill(outcome, algorithm, level) if outcome["state"] == "survived_suite" else None
+                killed += by_suite or searched is not None
+                if outcome["state"] == "survived_suite":
+                    to_kill.append(searched if searched is not None else budget + 1)
+                    if searched is not None:
+                        censored.append(searched)
+            total = len(outcomes)
+            entry[level] = {"killed": killed, "mutants": total, "score": killed / total if total else None, "ci95": wilson(killed, total),
+                            "search_kills": len(censored), "survivors_searched": len(to_kill),
+                            "median_evaluations_to_kill": statistics.median(censored) if censored else None, "_ranks": to_kill}
+        scores[algorithm] = entry
+    base = scores.get(baseline.upper())
+    for algorithm, entry in scores.items():
+        for level in LEVELS:
+            mine = entry[level]
+            if base is None or algorithm == baseline.upper() or not mine["survivors_searched"]:
+                mine.update(fisher_p=None, mann_whitney_p=None, a12=None)
+                continue
+            theirs = base[level]
+            table = [[mine["search_kills"], mine["survivors_searched"] - mine["search_kills"]],
+                     [theirs["search_kills"], theirs["survivors_searched"] - theirs["search_kills"]]]
+            mine["fisher_p"] = float(fisher_exact(table)[1])
+            mine["mann_whitney_p"] = p_value(mine["_ranks"], theirs["_ranks"])
+            mine["a12"] = a12(mine["_ranks"], theirs["_ranks"])
+    for entry in scores.values():
+        for level in LEVELS:
+            entry[level].pop("_ranks")
+    mutants = {m["id"]: m for m in index["mutants"]}
+    survivors = [{"id": key, "line": mutants[key]["line"], "original": mutants[key]["original"], "mutated": mutants[key]["mutated"], "rule": mutants[key]["rule"]}
+                 for key, outcome in sorted(outcomes.items()) if outcome["state"] == "survived_suite" and not any(
+                     _first_kill(outcome, a, "any") is not None for a in algorithms)]
+    return {"file": index["file"], "kind": index["kind"], "generated": index["generated"], "sampled": len(index["mutants"]),
+            "built": {state: states.count(state) for state in ("built", "stillborn", "equivalent", "duplicate")},
+            "analysed": len(outcomes), "killed_at_start": sum(o["state"] == "killed_at_start" for o in outcomes.values()),
+            "killed_by_suite": {level: sum(o["state"] == "killed_by_suite" and (level == "any" or o.get("level") == "unsafe") for o in outcomes.values())
+                                for level in LEVELS},
+            "baseline": baseline.upper(), "scores": scores, "survivors": survivors, "plan": plan}
+
+
+def report_text(result: Mapping[str, Any]) -> str:
+    built = result["built"]
+    lines = [f"{result['file']} ({result['kind']}): {result['generated']} mutants generated, {result['sampled']} taken; built {built['built']}, "
+             f"stillborn {built['stillborn']}, equivalent {built['equivalent']}, duplicate {built['duplicate']}; analysed {result['analysed']}",
+             f"killed at start: {result['killed_at_start']}; killed by the suite: {result['killed_by_suite']['unsafe']} unsafe, "
+             f"{result['killed_by_suite']['any']} unsafe or behaviour", ""]
+    fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
+    lines.append(f"{'algorithm':<9} {'level':<7} {'killed':>9} {'score':>6} {'95% CI':>13} {'search kills':>13} {'median evals':>13} "
+                 f"{'Fisher p':>9} {'MWU p':>7} {'A12':>5}   (baseline {result['baseline']})")
+    for algorithm, entry in result["scores"].items():
+        for level in LEVELS:
+            e = entry[level]
+            ci = f"{e['ci95'][0]:.2f}-{e['ci95'][1]:.2f}" if e["ci95"] else "-"
+            lines.append(f"{algorithm:<9} {level:<7} {e['killed']:>4}/{e['mutants']:<4} {fmt(e['score'], '.2f'):>6} {ci:>13} "
+                         f"{e['search_kills']:>6}/{e['survivors_searched']:<6} {fmt(e['median_evaluations_to_kill'], '.1f'):>13} "
+                         f"{fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
+    lines.append("")
+    lines.append(f"surviving mutants ({len(result['survivors'])}):")
+    for survivor in result["survivors"]:
+        lines.append(f"  {survivor['id']} line {survivor['line']}: - {survivor['original'].strip()}")
+        lines.append(f"  {' ' * len(survivor['id'])} line {survivor['line']}: + {survivor['mutated'].strip()}")
+    return "\n".join(lines)

@@ -1,0 +1,137 @@
+"""Differential evaluation: one concrete scenario flown against two SUT configurations, the
+*subject* (a branch, a mutant, an older build) and the *reference* (the build it is held
+against), and what their outcomes say together.
+
+A pair *reveals* a difference at one of two levels:
+
+* `unsafe`: every subject flight violates the safety distance (f < 0) and no reference flight does;
+* `behaviour`: not unsafe, but the outcomes differ beyond the reference's spread: the two sides'
+  statuses never meet (the subject blocked where the reference completes its mission), or their
+  minimum clearances or their flight times lie apart by more than the reference's own spread
+  over its flights (and at least CLEARANCE_RESOLUTION_M / TIME_RESOLUTION_S).
+
+With one flight per side the spread is zero and the resolutions alone decide: right for SUTs
+that repeat bit for bit (the bundled autopilot). For PX4, whose pilot flights of one build spread
+by up to 40 cm on one wall, a revealing pair is flown again (`--confirm N`) on both sides and
+judged on all flights, so the spread used is the one measured.
+
+The pair's fitness (what a search minimises) is chosen by the objective: `subject`, the
+subject's own f; or `difference`, f_subject - f_reference, which is lowest where the subject
+comes closer than the reference. A reference that did not fly its mission to the end leaves
+nothing to be worse than: the pair then gets the penalty.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+from typing import Any, Mapping, Sequence
+
+from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
+
+# Below these, two deterministic flights are called the same: 5 cm is well under the bridge's
+# range-sensor resolution and a mission's acceptance radius; 1 s of simulated time is 250
+# lockstep steps, more than a waypoint's settling jitter.
+CLEARANCE_RESOLUTION_M = 0.05
+TIME_RESOLUTION_S = 1.0
+FLOWN_TO_THE_END = frozenset({Status.OK, Status.VIOLATION})
+OBJECTIVES = ("subject", "difference")
+
+
+class Reveal(StrEnum):
+    UNSAFE = "unsafe"
+    BEHAVIOUR = "behaviour"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one flight of one side gave, as far as a comparison needs it."""
+
+    status: Status
+    fitness: float
+    min_clearance_m: float | None
+    sim_time_s: float
+    why: str | None = None
+    log_path: str | None = None
+
+    @classmethod
+    def of(cls, result: Any) -> "Outcome":
+        return cls(Status(result.status), result.fitness, result.min_clearance_m, result.sim_time_s, result.why, result.log_path)
+
+    @classmethod
+    def from_dict(cls, document: Mapping[str, Any]) -> "Outcome":
+        return cls(**{**document, "status": Status(document["status"])})
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "status": str(self.status)}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    reveals: Reveal | None
+    why: str
+    comparable: bool  # both sides flew to a recorded end, so there is something to compare
+
+
+def _interval(values: Sequence[float]) -> tuple[float, float]:
+    return min(values), max(values)
+
+
+def _apart(subject: Sequence[float], reference: Sequence[float], resolution: float) -> float | None:
+    """How far the subject's values lie outside the reference's, beyond the reference's spread
+    and the resolution (None: they do not)."""
+    s_low, s_high = _interval(subject)
+    r_low, r_high = _interval(reference)
+    margin = max(resolution, r_high - r_low)
+    gap = max(r_low - s_high, s_low - r_high)
+    return gap if gap > margin else None
+
+
+def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict:
+    """The verdict on all flights of a pair (each side at least one)."""
+    if not subject or not reference:
+        raise ValueError("a pair needs at least one flight of each side")
+    for side, outcomes in (("subject", subject), ("reference", reference)):
+        unfinished = [o for o in outcomes if o.status in COULD_NOT_FINISH or o.min_clearance_m is None]
+        if unfinished:
+            return Verdict(None, f"the {side} could not finish a flight ({unfinished[0].status}: {unfinished[0].why})", False)
+    subject_violates = [o.status == Status.VIOLATION for o in subject]
+    reference_violates = [o.status == Status.VIOLATION for o in reference]
+    if all(subject_violates) and not any(reference_violates):
+        worst = min(o.min_clearance_m for o in subject)
+        kept = min(o.min_clearance_m for o in reference)
+        return Verdict(Reveal.UNSAFE, f"the subject violates (min clearance {worst:.2f} m) where the reference keeps {kept:.2f} m", True)
+    subject_statuses = {o.status for o in subject}
+    reference_statuses = {o.status for o in reference}
+    if not subject_statuses & reference_statuses:
+        return Verdict(Reveal.BEHAVIOUR, f"the subject ends {'/'.join(sorted(subject_statuses))} where the reference ends "
+                                         f"{'/'.join(sorted(reference_statuses))}", True)
+    gap = _apart([o.min_clearance_m for o in subject], [o.min_clearance_m for o in reference], CLEARANCE_RESOLUTION_M)
+    if gap is not None:
+        return Verdict(Reveal.BEHAVIOUR, f"min clearance {_interval([o.min_clearance_m for o in subject])[0]:.2f} m against the reference's "
+                                         f"{_interval([o.min_clearance_m for o in reference])[0]:.2f} m ({gap:.2f} m beyond its spread)", True)
+    if subject_statuses <= FLOWN_TO_THE_END and reference_statuses <= FLOWN_TO_THE_END:
+        gap = _apart([o.sim_time_s for o in subject], [o.sim_time_s for o in reference], TIME_RESOLUTION_S)
+        if gap is not None:
+            return Verdict(Reveal.BEHAVIOUR, f"flight time {subject[0].sim_time_s:.1f} s against the reference's {reference[0].sim_time_s:.1f} s "
+                                             f"({gap:.1f} s beyond its spread)", True)
+    return Verdict(None, "no difference beyond the reference's spread", True)
+
+
+def objective_value(objective: str, subject: Outcome, reference: Outcome) -> float:
+    """The pair's fitness (module docstring) from each side's first flight."""
+    if objective == "subject":
+        return subject.fitness
+    if objective != "difference":
+        raise ValueError(f"objective {objective!r} is not one of {', '.join(OBJECTIVES)}")
+    if reference.status not in FLOWN_TO_THE_END:
+        return PENALTY
+    return subject.fitness - reference.fitness
+
+
+def record(objective: str, subject: Sequence[Outcome], reference: Sequence[Outcome]) -> dict[str, Any]:
+    """The pair as stored with the subject's result (EvaluationResult.differential)."""
+    verdict = compare(subject, reference)
+    return {"objective": objective, "reveals": str(verdict.reveals) if verdict.reveals else None, "why": verdict.why,
+            "fitness": objective_value(objective, subject[0], reference[0]),
+            "subject": [o.as_dict() for o in subject], "reference": [o.as_dict() for o in reference]}
