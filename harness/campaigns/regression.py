@@ -31,6 +31,7 @@ SUFFIX = ".regression.json"
 EXPECTATIONS = {
     "safe": "must keep the safety distance and complete the mission",
     "violation": "the known violation must still reproduce",
+    "as_reference": "must do at least as well as the reference build did",
 }
 
 
@@ -45,6 +46,7 @@ class Regression:
     found: Mapping[str, Any]
     space: SearchSpace
     x: np.ndarray
+    reference: Mapping[str, Any] | None = None  # expect as_reference: what the reference did
 
     @property
     def safety_distance_m(self) -> float:
@@ -66,7 +68,8 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
     except InputError as error:
         raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
     return Regression(path, document["name"], document["expect"], document["seed"],
-                      SutConfig(document["sut"]["name"], dict(document["sut"].get("params", {})), document["sut"].get("fault")), concrete, document.get("found", {}), space, x)
+                      SutConfig(document["sut"]["name"], dict(document["sut"].get("params", {})), document["sut"].get("fault")), concrete, document.get("found", {}), space, x,
+                      document.get("reference"))
 
 
 def describe(result: EvaluationResult, safety_distance_m: float) -> str:
@@ -84,9 +87,11 @@ def describe(result: EvaluationResult, safety_distance_m: float) -> str:
     return text
 
 
-def verdict(expect: str, result: EvaluationResult, safety_distance_m: float) -> str | None:
+def verdict(expect: str, result: EvaluationResult, safety_distance_m: float, reference: Mapping[str, Any] | None = None) -> str | None:
     """None when the flight meets the expectation, else the failure message."""
     what = describe(result, safety_distance_m)
+    if expect == "as_reference":
+        return _as_reference(result, reference or {}, what)
     if expect == "safe":
         if result.status == Status.OK:
             return None
@@ -96,6 +101,45 @@ def verdict(expect: str, result: EvaluationResult, safety_distance_m: float) -> 
     if result.status == Status.VIOLATION:
         return None
     return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
+
+
+def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: str) -> str | None:
+    """The flight against what the reference build did: its safety distance and mission kept where
+    the reference kept them, its minimum clearance kept within the reference's tolerance; for a
+    behaviour difference also the same end, and clearance and flight time no farther from the
+    reference's than its spread."""
+    statuses = set(reference["statuses"])
+    if result.status == Status.VIOLATION and Status.VIOLATION not in statuses:
+        return f"safety distance violated where the reference build kept it: {what}"
+    if statuses == {Status.OK} and result.status != Status.OK:
+        return f"the mission was not flown to its end where the reference build flew it: {what}"
+    floor = reference["min_clearance_m"] - reference["tolerance_m"]
+    if result.min_clearance_m is None or result.min_clearance_m < floor:
+        return (f"came closer than the reference build: min clearance below its {reference['min_clearance_m']:.3f} m "
+                f"- {reference['tolerance_m']:.3f} m tolerance: {what}")
+    if reference.get("level") != "behaviour":
+        return None
+    if result.status not in statuses:
+        return f"ended {result.status} where the reference build ended {'/'.join(sorted(statuses))}: {what}"
+    ceiling = reference["max_clearance_m"] + reference["tolerance_m"]
+    if result.min_clearance_m > ceiling:
+        return f"kept farther away than the reference build: min clearance above its {reference['max_clearance_m']:.3f} m + {reference['tolerance_m']:.3f} m: {what}"
+    shortest, longest = reference["sim_time_s"]
+    if not shortest - reference["time_tolerance_s"] <= result.sim_time_s <= longest + reference["time_tolerance_s"]:
+        return f"flew {result.sim_time_s:.1f} s where the reference build flew {shortest:.1f}-{longest:.1f} s: {what}"
+    return None
+
+
+def revealing_case(case: Mapping[str, Any]) -> dict[str, Any]:
+    """The `reference` entry of a revealing case (expect as_reference) from its stored pair."""
+    from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S
+
+    flights = case["differential"]["reference"]
+    clearances = [f["min_clearance_m"] for f in flights]
+    times = [f["sim_time_s"] for f in flights]
+    return {"level": case["reveals"], "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
+            "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
+            "sim_time_s": [min(times), max(times)], "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
 
 
 def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
@@ -119,12 +163,36 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
     return sut, chosen
 
 
-def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe", per_mode: bool = False) -> list[Path]:
+def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+    """The campaign's SUT and (name, case) for each distinct revealing concrete scenario of a
+    differential campaign, unsafe ones first."""
+    with Store.existing(store_path) as store:
+        sut = store.campaign_sut()
+        cases = store.revealing_cases()
+    chosen, seen = [], set()
+    for case in cases:
+        if case["concrete"] is None or case["vector_key"] in seen:
+            continue
+        seen.add(case["vector_key"])
+        chosen.append((slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}-{case['reveals']}"), case))
+    return sut, chosen
+
+
+def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe", per_mode: bool = False,
+                       revealing: bool = False) -> list[Path]:
     """One case file per distinct concrete scenario with fitness below `threshold`, plus the
-    `worst` lowest-fitness ones of each run; identical scenarios found twice are written once."""
+    `worst` lowest-fitness ones of each run; identical scenarios found twice are written once.
+    `revealing`: instead, each revealing scenario of a differential campaign, expecting the SUT
+    to do as well as the reference did (fails on the subject's build, passes on the reference's)."""
     if expect not in EXPECTATIONS:
         raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
-    sut, chosen = chosen_cases(store_path, threshold, worst, per_mode)
+    if revealing:
+        sut, chosen = revealing_cases(store_path)
+        expect = "as_reference"
+    elif expect == "as_reference":
+        raise InputError([Problem("--expect", "", "as_reference needs the revealing cases of a differential campaign: add --revealing")])
+    else:
+        sut, chosen = chosen_cases(store_path, threshold, worst, per_mode)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:
@@ -138,12 +206,15 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
             "found": {
                 "fitness": case["fitness"], "status": case["status"], "min_clearance_m": case["min_clearance_m"], "store": str(store_path.resolve()),
                 "run": case["run_index"], "algorithm": case["algorithm"], "evaluation": case["ordinal"], "log": case["log_path"],
-                **({"confirmations": json.loads(case["confirmations"]), "flaky": is_flaky(case["confirmations"])} if case["confirmations"] else {}),
+                **({"confirmations": json.loads(case["confirmations"]), "flaky": is_flaky(case["confirmations"])} if case.get("confirmations") else {}),
             },
             "note": f"{EXPECTATIONS[expect]}; found by {case['algorithm']} with fitness {case['fitness']:.3f} ({case['status']})"
-                    + ("; FLAKY: it did not violate in every re-flight" if is_flaky(case["confirmations"]) else ""),
+                    + ("; FLAKY: it did not violate in every re-flight" if is_flaky(case.get("confirmations")) else "")
+                    + (f"; reveals {case['reveals']}: {case['differential']['why']}" if revealing else ""),
             "concrete_scenario": concrete,
         }
+        if revealing:
+            document["reference"] = revealing_case(case)
         path = out_dir / f"{name}{SUFFIX}"
         path.write_text(json.dumps(document, indent=2) + "\n")
         written.append(path)

@@ -38,7 +38,7 @@ RULES = {".cpp": ["universal", "c_like", "cpp"], ".cc": ["universal", "c_like", 
 OWN_RULES = {".cpp": [r"math::min\( ==> math::max(", r"math::max\( ==> math::min(", r"fminf\( ==> fmaxf(", r"fmaxf\( ==> fminf("]}
 SKIPPED_LINES = {
     "c": [r"PX4_(INFO|WARN|ERR|DEBUG)", r"\bevents::send", r"mavlink_log_", r"\bassert\s*\(", r"DEFINE_PARAMETERS", r"\(ParamFloat<",
-          r"\(ParamInt<", r"\(ParamBool<", r"^\s*#", r"^\s*//", r"perf_(alloc|free|begin|end|count)"],
+          r"\(ParamInt<", r"\(ParamBool<", r"^\s*#", r"^\s*//", r"perf_(alloc|free|begin|end|count)", r"^\s*[{}];?\s*$"],
     # The bundled autopilot's seeded faults (off unless a flight asks for one) are instrumentation, like logging.
     "python": [r"^\s*#", r"\blog\.(debug|info|warning|error|exception)\(", r"\blogging\.", r"^\s*assert\b", r"\bprint\(", r"^\s*(import|from)\s",
                r"\bfault\b"],
@@ -70,7 +70,7 @@ def _language(path: Path) -> str:
 
 
 def function_span(lines: Sequence[str], name: str, language: str) -> tuple[int, int]:
-    """First and last line (1-based) of the definition of function `name`."""
+    """First and last line (1-based) of the body of function `name`."""
     if language == "python":
         pattern = re.compile(rf"^(\s*)(async\s+)?def\s+{re.escape(name)}\s*\(")
         for index, line in enumerate(lines):
@@ -83,21 +83,22 @@ def function_span(lines: Sequence[str], name: str, language: str) -> tuple[int, 
                     if text.strip() and len(text) - len(text.lstrip()) <= indent:
                         break
                     end = later
-                return index + 1, end + 1
+                return index + 2, end + 1
     else:
         pattern = re.compile(rf"(::|^|\s){re.escape(name)}\s*\(")
         for index, line in enumerate(lines):
             if not pattern.search(line) or line.rstrip().endswith(";") or line.startswith((" ", "\t")):
                 continue
-            depth, opened = 0, False
+            depth, body = 0, None
             for later in range(index, len(lines)):
                 code = lines[later].split("//")[0]
                 depth += code.count("{") - code.count("}")
-                opened = opened or "{" in code
-                if later > index and code.rstrip().endswith(";") and not opened:
+                if body is None and "{" in code:
+                    body = later + 2  # the line after the one that opens it
+                if later > index and code.rstrip().endswith(";") and body is None:
                     break  # a declaration spread over lines
-                if opened and depth == 0:
-                    return index + 1, later + 1
+                if body is not None and depth == 0:
+                    return body, later
     raise InputError([Problem("--function", "", f"no definition of {name!r} found; give a function defined in the file")])
 
 

@@ -554,6 +554,10 @@ def cmd_sut(args: argparse.Namespace) -> int:
     from harness.flight.evaluation import RunOptions
     from harness.tools.sut_check import as_dicts, check, report_text
 
+    if args.action == "build":
+        from harness.tools.cli_firmware import sut_build
+
+        return sut_build(args)
     sut = _sut_spec(args)
     space = _space(args)
     x = space.sample_feasible(np.random.default_rng(0), 1)[0]
@@ -669,7 +673,8 @@ def cmd_export_regressions(args: argparse.Namespace) -> int:
 
     if args.format == "aerialist":
         return _export_aerialist(args)
-    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect, per_mode=args.per_mode)
+    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect, per_mode=args.per_mode,
+                                 revealing=args.revealing)
     text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
     emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
     return 0
@@ -890,13 +895,26 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--worst", type=int, default=5)
     p.add_argument("--baseline", default="NSGAII")
 
-    p = add("sut", "check that a SUT comes up against the simulator: each stage with its time")
-    p.add_argument("action", choices=["check"])
+    from harness.tools import cli_firmware
+
+    def json_flag(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    def sut_params(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter for both sides, e.g. CP_DIST=2.0; repeatable")
+        p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from a QGroundControl .params export or a NAME,VALUE CSV")
+
+    help_text = "check that a SUT comes up against the simulator (check), or build one from source (build)"
+    actions = sub.add_parser("sut", help=help_text, description=help_text).add_subparsers(dest="action", required=True)
+    p = actions.add_parser("check", help="start a SUT with the simulator and report each stage with its time")
+    json_flag(p)
     add_sut(p)
     p.add_argument("--scenario", default=str(scenarios_dir() / "examples" / "fig4.json"),
                    help="logical scenario whose world the check starts (default: Fig. 4)")
     p.add_argument("--profile", default="default")
     p.add_argument("--timeout-s", type=positive_float, default=60.0, help="per stage")
+    cli_firmware.add_build_parser(actions, json_flag)
+    cli_firmware.add_mutants_parser(sub, json_flag, sut_params)
 
     p = add("faults", "the bundled autopilot's seeded faults: list them, fly each witness with and without its fault, find a witness")
     p.add_argument("action", choices=["list", "check", "witness", "bench", "report"])
@@ -938,6 +956,9 @@ def parser() -> argparse.ArgumentParser:
                    help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
 
     p.add_argument("--per-mode", action="store_true", help="only the worst violation of each failure mode (`stella triage`) instead of every one")
+    p.add_argument("--revealing", action="store_true",
+                   help="instead: each revealing scenario of a differential campaign, as a case that fails unless the SUT does as well as the "
+                        "reference did (run it with --stella-px4-bin or --stella-autopilot-dir of either build)")
     p.add_argument("--format", choices=["stella", "aerialist"], default="stella",
                    help="stella: regression cases for pytest (default); aerialist: the UAV Testing Competition's YAML and .plan (static boxes only)")
 

@@ -44,6 +44,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--stella-drive", default=None, choices=DRIVES,
                     help="fly every case and `fly` scenario with this drive (mission or pilot) instead of the one its scenario names")
     group.addoption("--stella-px4-bin", default=None, help="the px4 binary or its build folder, for cases flown against PX4 SITL (default: $STELLA_PX4_BIN)")
+    group.addoption("--stella-autopilot-dir", default=None, help="fly cases of the bundled autopilot with the `autopilot` package in this folder (a build of "
+                                                                 "`stella sut build bundled` or `stella mutants build`)")
     group.addoption("--stella-workers", type=int, default=1, help="fly regression cases in parallel with this many local workers")
     group.addoption("--stella-repeat", type=int, default=1, help="fly each regression case N times and report the spread of its fitness")
     group.addoption("--stella-out", default=None, help="folder for the flights' MCAP logs (default: stella-logs/ in the rootdir)")
@@ -109,7 +111,8 @@ class RegressionItem(pytest.Item):
             spread = max(fitnesses) - min(fitnesses)
             flights.spreads[self.nodeid] = (spread, fitnesses)
             self.user_properties.append(("stella_fitness_spread", repr(spread)))
-        failures = [(i, message) for i, result in enumerate(results) if (message := verdict(self.regression.expect, result, self.regression.safety_distance_m))]
+        failures = [(i, message) for i, result in enumerate(results)
+                    if (message := verdict(self.regression.expect, result, self.regression.safety_distance_m, self.regression.reference))]
         if not failures:
             return
         expectation = f"{self.regression.name}: {EXPECTATIONS[self.regression.expect]}"
@@ -140,6 +143,7 @@ class Flights:
         self.sut_override: str | None = config.getoption("stella_sut")
         self.drive: str | None = config.getoption("stella_drive")
         self.px4_bin: str | None = config.getoption("stella_px4_bin")
+        self.autopilot_dir: str | None = config.getoption("stella_autopilot_dir")
         out = config.getoption("stella_out")
         self.out_dir = Path(out) if out else config.rootpath / "stella-logs"
         self.spreads: dict[str, tuple[float, list[float]]] = {}
@@ -152,7 +156,8 @@ class Flights:
         return self.run_options(sut, regression.sut.params, regression.sut.fault if sut == "bundled" else None)
 
     def run_options(self, sut: str, params: Mapping[str, float], fault: str | None = None) -> RunOptions:
-        return RunOptions(sut=SutConfig(sut, dict(params), fault, self.px4_bin if sut == "px4" else None))
+        return RunOptions(sut=SutConfig(sut, dict(params), fault, self.px4_bin if sut == "px4" else None,
+                                        autopilot_dir=self.autopilot_dir if sut == "bundled" else None))
 
     def names(self, regression: Regression) -> list[str]:
         return [regression.name] if self.repeat == 1 else [f"{regression.name}-repeat{i + 1}" for i in range(self.repeat)]

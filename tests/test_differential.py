@@ -1,0 +1,79 @@
+"""Differential evaluation's judgement (harness/flight/differential.py) and the refusals of the
+--reference-* options: pure, no flight."""
+
+from __future__ import annotations
+
+import pytest
+
+from harness.flight.differential import CLEARANCE_RESOLUTION_M, Outcome, Reveal, compare, objective_value, record
+from harness.flight.fitness import PENALTY, Status
+from harness.tools.cli import main
+
+
+def flight(status: Status, clearance: float | None, time_s: float = 40.0, safety_m: float = 1.0) -> Outcome:
+    fitness = PENALTY if clearance is None else clearance - safety_m + (PENALTY if status == Status.MISSION_FAILED else 0.0)
+    return Outcome(status, fitness, clearance, time_s)
+
+
+def test_the_subject_violating_where_the_reference_keeps_its_distance_is_unsafe():
+    verdict = compare([flight(Status.VIOLATION, 0.4)], [flight(Status.OK, 1.3)])
+    assert verdict.reveals == Reveal.UNSAFE and "0.40 m" in verdict.why and "1.30 m" in verdict.why
+
+
+def test_unsafe_needs_every_subject_flight_to_violate_and_no_reference_flight():
+    assert compare([flight(Status.VIOLATION, 0.4), flight(Status.OK, 1.2)], [flight(Status.OK, 1.3)]).reveals != Reveal.UNSAFE
+    assert compare([flight(Status.VIOLATION, 0.4)], [flight(Status.OK, 1.3), flight(Status.VIOLATION, 0.9)]).reveals != Reveal.UNSAFE
+
+
+def test_blocked_where_the_reference_flies_through_is_a_behaviour_difference():
+    # GIVEN the subject stopped 24 m before a wall that the reference passes at 1.3 m
+    verdict = compare([flight(Status.MISSION_FAILED, 24.0)], [flight(Status.OK, 1.3)])
+    assert verdict.reveals == Reveal.BEHAVIOUR and "mission_failed" in verdict.why
+
+
+def test_clearances_differ_only_beyond_the_references_measured_spread():
+    reference = [flight(Status.OK, 1.30), flight(Status.OK, 1.70)]  # 40 cm apart, as PX4's pilot flights can be
+    assert compare([flight(Status.OK, 1.95)], reference).reveals is None  # 25 cm beyond, inside the spread
+    assert compare([flight(Status.OK, 2.20)], reference).reveals == Reveal.BEHAVIOUR
+    # With one flight a side, the resolution decides.
+    assert compare([flight(Status.OK, 1.30 + CLEARANCE_RESOLUTION_M / 2)], [flight(Status.OK, 1.30)]).reveals is None
+    assert compare([flight(Status.OK, 1.30 + 3 * CLEARANCE_RESOLUTION_M)], [flight(Status.OK, 1.30)]).reveals == Reveal.BEHAVIOUR
+
+
+def test_flight_time_differs_as_a_behaviour_too():
+    assert compare([flight(Status.OK, 1.3, 60.0)], [flight(Status.OK, 1.3, 40.0)]).reveals == Reveal.BEHAVIOUR
+    assert compare([flight(Status.OK, 1.3, 40.4)], [flight(Status.OK, 1.3, 40.0)]).reveals is None
+
+
+def test_a_side_that_could_not_finish_reveals_nothing():
+    verdict = compare([flight(Status.VIOLATION, 0.4)], [Outcome(Status.SUT_CRASHED, PENALTY, None, 0.0, "px4 exited")])
+    assert verdict.reveals is None and not verdict.comparable and "reference could not finish" in verdict.why
+
+
+def test_the_difference_objective_is_lowest_where_the_subject_comes_closer():
+    closer, same = objective_value("difference", flight(Status.OK, 1.1), flight(Status.OK, 2.0)), \
+        objective_value("difference", flight(Status.OK, 2.0), flight(Status.OK, 2.0))
+    assert closer == pytest.approx(-0.9) and same == 0.0
+    # A reference that did not fly its mission leaves nothing to be worse than: the penalty.
+    assert objective_value("difference", flight(Status.OK, 1.1), flight(Status.MISSION_FAILED, 5.0)) == PENALTY
+    # The subject's own penalty stays: a search is not drawn to where the subject fails to fly.
+    assert objective_value("difference", flight(Status.MISSION_FAILED, 5.0), flight(Status.OK, 2.0)) > PENALTY / 2
+    assert objective_value("subject", flight(Status.OK, 1.1), flight(Status.OK, 2.0)) == pytest.approx(0.1)
+
+
+def test_a_record_keeps_both_sides_flights_and_the_verdict():
+    document = record("subject", [flight(Status.VIOLATION, 0.4)], [flight(Status.OK, 1.3), flight(Status.OK, 1.4)])
+    assert document["reveals"] == "unsafe" and len(document["subject"]) == 1 and len(document["reference"]) == 2
+    assert Outcome.from_dict(document["reference"][1]).min_clearance_m == 1.4
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--objective", "difference"], "difference needs a reference SUT"),
+    (["--reference-sut-param", "CP_DIST=1.0", "--sut-param", "CP_DIST=1.0"], "the reference is the subject itself"),
+    (["--reference-sut", "px4", "--reference-px4-bin", "/nonexistent/px4"], "is not an executable px4 binary"),
+    (["--reference-sut-param", "CP_DISTANCE=2"], "unknown parameter"),
+])
+def test_a_bad_reference_is_refused_with_the_option_named(argv, message, capsys, tmp_path):
+    assert main(["campaign", "scenarios/examples/wall.json", "--algorithm", "RANDOM", "--evaluations", "2", "--store", str(tmp_path / "c.db"), *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "c.db").exists()

@@ -1,0 +1,205 @@
+"""Mutants and builds from source (harness/firmware/): generation with the operators and the
+lines left alone, builds cached by key, equivalent and duplicate mutants sorted out by their
+compiled code, and the whole mutation analysis and differential search flown against the
+bundled autopilot's collision prevention. PX4's builds run in tests/test_px4_builds.py where a
+PX4 source tree is given."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from conftest import ROOT
+from harness.errors import InputError
+from harness.firmware import builds, mutants, mutation
+from harness.tools.cli import main
+
+COLLISION = "autopilot/collision.py"
+# A small C++ file in a PX4-shaped tree: what the generator must and must not touch.
+CPP = """\
+#include "CollisionPrevention.hpp"
+// a comment with a < and 2.0
+void CollisionPrevention::modifySetpoint(float &speed, float dist)
+{
+\tPX4_INFO("distance %f", (double)dist);
+\tif (dist < _param_cp_dist.get()) {
+\t\tspeed = math::min(speed, 0.5f * dist);
+\t}
+}
+
+void CollisionPrevention::other(float &x)
+{
+\tx = x + 1.0f;
+}
+"""
+
+
+def px4_shaped_tree(root: Path) -> Path:
+    for folder in ("boards/px4/sitl", "platforms/posix", "src/lib/collision_prevention"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
+    (root / "src/lib/collision_prevention/CollisionPrevention.cpp").write_text(CPP)
+    return root
+
+
+def test_cpp_mutants_cover_the_operators_and_leave_logging_comments_and_includes_alone(tmp_path):
+    tree = px4_shaped_tree(tmp_path / "px4")
+    index = mutants.generate(tree, "src/lib/collision_prevention/CollisionPrevention.cpp", tmp_path / "out", function="modifySetpoint")
+    by_line: dict[int, list[str]] = {}
+    for m in index["mutants"]:
+        by_line.setdefault(m["line"], []).append(m["mutated"].strip())
+    assert set(by_line) <= {6, 7}, "only the function's code lines: not its log line, the comment, the include or the other function"
+    assert "if (dist <= _param_cp_dist.get()) {" in by_line[6]  # relational operator replacement
+    assert "if (!(dist < _param_cp_dist.get())) {" in by_line[6]  # condition negation
+    assert "speed = math::max(speed, 0.5f * dist);" in by_line[7]  # min/max swap
+    assert "speed = math::min(speed, 1.0f * dist);" in by_line[7]  # constant perturbation of a whole literal
+    assert "speed = math::min(speed, 0.5f / dist);" in by_line[7]  # arithmetic operator replacement
+    assert any(text.startswith("/*") for text in by_line[7])  # statement deletion
+    assert not any(".(" in text for texts in by_line.values() for text in texts), "a float literal is never split into pieces"
+    patch = (tmp_path / "out" / "mutants" / "m0001.patch").read_text()
+    assert patch.startswith("--- a/src/lib/collision_prevention/CollisionPrevention.cpp")
+    assert subprocess.run(["git", "apply", "--check", str(tmp_path / "out" / "mutants" / "m0001.patch")], cwd=tree).returncode == 0
+
+
+def test_python_mutants_skip_docstrings_imports_and_seeded_fault_switches(tmp_path):
+    index = mutants.generate(ROOT, COLLISION, tmp_path, limit=None)
+    lines = (ROOT / COLLISION).read_text().splitlines()
+    touched = {m["line"] for m in index["mutants"]}
+    assert not any(lines[n - 1].lstrip().startswith(("import", "from ", "#")) or "fault" in lines[n - 1] for n in touched)
+    assert 1 not in touched and 5 not in touched  # the module docstring
+    assert index["generated"] == len(index["mutants"]) > 100
+
+
+def test_a_sample_is_seeded_and_a_function_limits_the_lines(tmp_path):
+    first = mutants.generate(ROOT, COLLISION, tmp_path / "a", limit=10, seed=3)
+    again = mutants.generate(ROOT, COLLISION, tmp_path / "b", limit=10, seed=3)
+    assert first["mutants"] == again["mutants"] and len(first["mutants"]) == 10
+    span = mutants.generate(ROOT, COLLISION, tmp_path / "c", function="max_speed_from_distance")
+    low, high = span["lines"]
+    assert all(low <= m["line"] <= high for m in span["mutants"]) and high - low < 20
+    with pytest.raises(InputError, match="no definition of 'nothing_like_this'"):
+        mutants.generate(ROOT, COLLISION, tmp_path / "d", function="nothing_like_this")
+
+
+def test_bad_sources_commits_and_patches_are_refused_with_exit_2(tmp_path, capsys):
+    assert main(["sut", "build", "px4", "--source", str(tmp_path), "--out", str(tmp_path / "cache")]) == 2
+    assert "neither a PX4-Autopilot source tree" in capsys.readouterr().err
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--commit", "no-such-commit", "--out", str(tmp_path / "cache")]) == 2
+    assert "is not a commit of" in capsys.readouterr().err
+    (tmp_path / "bad.patch").write_text("--- a/autopilot/collision.py\n+++ b/autopilot/collision.py\n@@ -1,1 +1,1 @@\n-nothing like this line\n+x\n")
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--patch", str(tmp_path / "bad.patch"), "--out", str(tmp_path / "cache")]) == 2
+    assert "does not apply" in capsys.readouterr().err
+    assert main(["mutants", "generate", "--source", str(ROOT), "--file", "autopilot/nothing.py", "--out", str(tmp_path / "m")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_bytecode_tells_computation_from_comments():
+    source = "def f(x):\n    return x < 1.0\n"
+    assert builds.bytecode_digest(source) == builds.bytecode_digest("def f(x):\n    # why\n\n    return x < 1.0  # note\n")
+    assert builds.bytecode_digest(source) != builds.bytecode_digest(source.replace("<", "<="))
+
+
+def _mutant_with(index: dict, original: str, mutated: str) -> dict:
+    return next(m for m in index["mutants"] if m["original"].strip() == original and m["mutated"].strip() == mutated)
+
+
+def _add_mutant(folder: Path, index: dict, ident: str, line: int, new_text: str) -> None:
+    """A hand-made mutant beside the generated ones (same patch format), to test sorting."""
+    lines = (ROOT / COLLISION).read_text().splitlines(keepends=True)
+    import difflib
+
+    changed = lines[: line - 1] + [new_text] + lines[line:]
+    (folder / "mutants" / f"{ident}.patch").write_text("".join(difflib.unified_diff(lines, changed, f"a/{COLLISION}", f"b/{COLLISION}")))
+    index["mutants"].append({"id": ident, "file": COLLISION, "line": line, "rule": "by hand", "original": lines[line - 1].rstrip("\n"),
+                             "mutated": new_text.rstrip("\n")})
+
+
+@pytest.mark.slow
+def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_path):
+    folder = tmp_path / "mutation"
+    # GIVEN every mutant of the CP module, of which we keep three generated ones and two made by
+    # hand: one that only adds a comment (equivalent), one the same as a generated one (duplicate)
+    index = mutants.generate(ROOT, COLLISION, folder)
+    braking = _mutant_with(index, "vn -= (along - allowed) * bin_n", "pass")  # stops limiting the velocity north: flies into the wall
+    quiet = _mutant_with(index, "STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0")  # range data counts as fresh for longer: same flights here
+    broken = next(m for m in index["mutants"] if m["mutated"].strip() == "pass" and m["original"].rstrip().endswith(":"))  # no body: stillborn
+    kept = [braking, quiet, broken]
+    index["mutants"] = kept
+    line = braking["line"]
+    source_line = (ROOT / COLLISION).read_text().splitlines()[line - 1]
+    _add_mutant(folder, index, "m9001", line, source_line + "  # the same code\n")
+    _add_mutant(folder, index, "m9002", quiet["line"], quiet["mutated"].replace("1.0", "1.00") + "\n")
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+
+    # WHEN they are built
+    assert main(["mutants", "build", str(folder)]) == 0
+    built = json.loads((folder / mutants.BUILT).read_text())["mutants"]
+    assert built[braking["id"]]["state"] == "built" and built[quiet["id"]]["state"] == "built"
+    assert built[broken["id"]]["state"] == "stillborn" and Path(built[broken["id"]]["log"]).is_file()
+    assert built["m9001"]["state"] == "equivalent"
+    assert built["m9002"]["state"] == "duplicate" and built["m9002"]["same_as"] == quiet["id"]
+    # built again from scratch, every variant comes from the cache, sorted the same
+    (folder / mutants.BUILT).unlink()
+    record = mutants.build_all(folder)
+    assert all(entry["cached"] for entry in record["mutants"].values() if entry["state"] != "stillborn")
+    assert {key: entry["state"] for key, entry in record["mutants"].items()} == {key: entry["state"] for key, entry in built.items()}
+
+    # AND screened with the wall, the survivors searched with two algorithms
+    wall = ROOT / "scenarios" / "examples" / "wall_concrete.json"
+    argv = ["mutants", "run", str(folder), "--suite", str(wall), "--scenario", str(ROOT / "scenarios" / "examples" / "wall.json"),
+            "--algorithm", "RANDOM", "--algorithm", "NSGAII", "--evaluations", "3", "--population", "2", "--workers", "2"]
+    assert main(argv) == 0
+    outcomes = json.loads((folder / mutation.RUN).read_text())["mutants"]
+    # THEN the mutant that flies into the wall is killed by the suite, as unsafe
+    assert outcomes[braking["id"]]["state"] == "killed_by_suite" and outcomes[braking["id"]]["level"] == "unsafe"
+    # and the other was searched by both algorithms, its searches stored
+    assert outcomes[quiet["id"]]["state"] == "survived_suite" and set(outcomes[quiet["id"]]["search"]) == {"RANDOM", "NSGAII"}
+    assert len(list((folder / "search" / quiet["id"]).glob("*.db"))) == 2
+    # the reference flew the wall once for both mutants
+    from harness.campaigns.pairs import ReferenceCache
+
+    cache = ReferenceCache(folder / mutation.CACHE)
+    assert cache.db.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0] >= 1
+    cache.close()
+
+    # AND a second run resumes: nothing left to fly
+    assert main(argv) == 0
+    report = mutation.report(folder)
+    assert report["built"] == {"built": 2, "stillborn": 1, "equivalent": 1, "duplicate": 1} and report["analysed"] == 2
+    assert report["killed_by_suite"]["unsafe"] == 1
+    assert report["scores"]["RANDOM"]["any"]["killed"] >= 1 and report["scores"]["RANDOM"]["any"]["mutants"] == 2
+    text = mutation.report_text(report)
+    assert "killed by the suite: 1 unsafe" in text and "RANDOM" in text
+
+
+@pytest.mark.slow
+def test_a_revealing_case_fails_on_the_subjects_build_and_passes_on_the_references(tmp_path, pytester):
+    # GIVEN a mutant that stops limiting northward velocity, and the original, both built
+    index = mutants.generate(ROOT, COLLISION, tmp_path / "m")
+    braking = _mutant_with(index, "vn -= (along - allowed) * bin_n", "pass")
+    cache = tmp_path / "builds"
+    original = builds.build(ROOT, out=cache)
+    subject = builds.build(ROOT, out=cache, patches=[tmp_path / "m" / "mutants" / f"{braking['id']}.patch"])
+    # WHEN a differential campaign flies the wall scenario against both
+    store = tmp_path / "diff.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "6", "--seed", "2",
+                 "--autopilot-dir", subject.folder, "--reference-autopilot-dir", original.folder, "--objective", "difference",
+                 "--store", str(store), "--workers", "2"]) == 0
+    from harness.campaigns.store import Store
+
+    with Store.existing(store) as opened:
+        revealing = opened.revealing_cases()
+        rows = list(opened.run_rows())
+    assert revealing and rows[0]["revealing"] == len(revealing)
+    # THEN each revealing case exports as a regression case against the reference's outcome
+    assert main(["export-regressions", str(store), "--revealing", "--out", str(tmp_path / "cases")]) == 0
+    cases = sorted((tmp_path / "cases").glob("*.regression.json"))
+    assert cases and all(json.loads(c.read_text())["expect"] == "as_reference" for c in cases)
+    case = cases[0]
+    # which fails against the subject's build and passes against the reference's
+    bad = pytester.runpytest_subprocess(str(case), "-p", "no:cacheprovider", "--stella-autopilot-dir", subject.folder, "--stella-out", str(tmp_path / "logs"))
+    bad.assert_outcomes(failed=1)
+    good = pytester.runpytest_subprocess(str(case), "-p", "no:cacheprovider", "--stella-autopilot-dir", original.folder, "--stella-out", str(tmp_path / "logs"))
+    good.assert_outcomes(passed=1)
