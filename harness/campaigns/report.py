@@ -164,9 +164,26 @@ def _failure_modes(store: Store) -> str:
     return summary + f"<table>{''.join(rows)}</table>"
 
 
+def _revealing(store: Store) -> list[str]:
+    """A differential campaign's revealing candidates, unsafe ones first: both sides' outcomes."""
+    if not store.is_differential():
+        return []
+    cases = store.revealing_cases()
+    rows = ["<tr><th>reveals</th><th>scenario</th><th>algorithm</th><th>run</th><th>evaluation</th><th>subject</th><th>reference</th><th>why</th><th>log</th></tr>"]
+    for case in cases:
+        sides = [" / ".join(f"{f['status']} {f['min_clearance_m'] if f['min_clearance_m'] is None else round(f['min_clearance_m'], 3)} m"
+                            for f in case["differential"][side]) for side in ("subject", "reference")]
+        rows.append(f"<tr><td class='text'>{case['reveals']}</td><td class='text'>{html.escape(Path(case['scenario_file']).stem)}</td>"
+                    f"<td class='text'>{case['algorithm']}</td><td>{case['run_index']}</td><td>{case['ordinal']}</td>"
+                    f"<td class='text'>{html.escape(sides[0])}</td><td class='text'>{html.escape(sides[1])}</td>"
+                    f"<td class='text'>{html.escape(case['differential']['why'])}</td><td class='text'><code>{html.escape(str(case['log_path']))}</code></td></tr>")
+    table = f"<table>{''.join(rows)}</table>" if cases else "<p>No candidate revealed a difference from the reference.</p>"
+    return ["<h2>Revealing cases (subject against reference)</h2>", table]
+
+
 def write_report(store: Store, out: Path, worst: int = 5, baseline: str = "NSGAII") -> None:
     report = compare(store, baseline)
-    body = ["<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
+    body = [*_revealing(store), "<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
             "<h2>Violations</h2>", _violations(store), "<h2>Failure modes</h2>", _failure_modes(store),
             f"<h2>The {worst} worst concrete scenarios</h2>", *_worst(store, worst)]
     out.write_text(PAGE.format(title=f"Campaign report: {html.escape(str(store.path))}", body="\n".join(body)), encoding="utf-8")

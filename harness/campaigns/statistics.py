@@ -43,12 +43,14 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     best: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     violations: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    revealing: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for run in store.run_rows():
         if run["best_fitness"] is None:
             continue
         best[run["scenario"]][run["algorithm"]].append(run["best_fitness"])
         violations[run["scenario"]][run["algorithm"]] += run["violations"] or 0
         flaky[run["scenario"]][run["algorithm"]] += run["flaky"] or 0
+        revealing[run["scenario"]][run["algorithm"]] += run["revealing"] or 0
     baseline = baseline.upper()
     rows = []
     pooled: dict[str, list[float]] = defaultdict(list)
@@ -58,7 +60,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         for algorithm, values in sorted(by_algorithm.items()):
             median = statistics.median(values)
             row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
-                   "violations": violations[scenario][algorithm], "flaky": flaky[scenario][algorithm],
+                   "violations": violations[scenario][algorithm], "flaky": flaky[scenario][algorithm], "revealing": revealing[scenario][algorithm],
                    "relative_performance_pct": None, "p_value": None, "a12": None}
             pooled[algorithm].extend(values)
             if base and algorithm != baseline:
@@ -73,23 +75,27 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         base = pooled.get(baseline)
         entry = {"algorithm": algorithm, "runs": len(values), "median_best_fitness": statistics.median(values),
                  "violations": sum(violations[s][algorithm] for s in violations), "flaky": sum(flaky[s][algorithm] for s in flaky),
-                 "relative_performance_pct": None, "p_value": None, "a12": None}
+                 "revealing": sum(revealing[s][algorithm] for s in revealing), "relative_performance_pct": None, "p_value": None, "a12": None}
         if base and algorithm != baseline:
             entry["relative_performance_pct"] = statistics.mean(relative[algorithm]) if relative[algorithm] else None
             entry["p_value"] = p_value(values, base)
             entry["a12"] = a12(values, base)
         overall.append(entry)
-    return {"baseline": baseline, "scenarios": rows, "overall": overall}
+    return {"baseline": baseline, "scenarios": rows, "overall": overall, "differential": store.is_differential()}
 
 
 def table(report: dict[str, Any]) -> str:
     def number(value, fmt):
         return "-" if value is None else format(value, fmt)
 
-    lines = [f"baseline: {report['baseline']}", f"{'scenario':<28} {'algorithm':<10} {'runs':>4} {'median best f':>14} {'violations':>10} {'rel. %':>8} {'p':>6} {'A12':>5}"]
+    # A differential campaign's candidates that reveal a difference from the reference come first.
+    revealing = report.get("differential", False)
+    lines = [f"baseline: {report['baseline']}", f"{'scenario':<28} {'algorithm':<10} {'runs':>4} " + (f"{'revealing':>9} " if revealing else "")
+             + f"{'median best f':>14} {'violations':>10} {'rel. %':>8} {'p':>6} {'A12':>5}"]
     for row in report["scenarios"] + [dict(r, scenario="overall") for r in report["overall"]]:
         lines.append(
-            f"{row['scenario'][:28]:<28} {row['algorithm']:<10} {row['runs']:>4} {row['median_best_fitness']:>14.3f} {row['violations']:>10} "
+            f"{row['scenario'][:28]:<28} {row['algorithm']:<10} {row['runs']:>4} " + (f"{row['revealing']:>9} " if revealing else "")
+            + f"{row['median_best_fitness']:>14.3f} {row['violations']:>10} "
             f"{number(row['relative_performance_pct'], '+.0f'):>8} {number(row['p_value'], '.2f'):>6} {number(row['a12'], '.2f'):>5}"
         )
     if any(row["flaky"] for row in report["overall"]):

@@ -232,6 +232,11 @@ class Store:
         return {"name": config.get("sut", "bundled"), "params": config.get("sut_params", {}),
                 **({"fault": config["sut_fault"]} if config.get("sut_fault") else {})}
 
+    def is_differential(self) -> bool:
+        """Whether the campaign flew every candidate against a reference SUT too."""
+        row = self.db.execute("SELECT config FROM campaigns").fetchone()
+        return bool(row) and "reference" in json.loads(row[0])
+
     def worst_cases(self, threshold: float, worst_per_run: int) -> list[dict[str, Any]]:
         """Flown evaluations with fitness below threshold, plus each run's worst_per_run lowest, lowest first."""
         query = (

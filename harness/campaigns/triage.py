@@ -115,19 +115,24 @@ def mode_name(entry: Mapping[str, Any]) -> str:
 
 
 def triage(store_path: Path) -> dict[str, Any]:
-    """The campaign's violations grouped into failure modes, most frequent first."""
+    """The campaign's violations grouped into failure modes, most frequent first; of a
+    differential campaign, its revealing candidates (the subject's flights), grouped also by
+    the level they reveal."""
     with Store.existing(store_path) as store:
+        differential = store.is_differential()
         rows = store.db.execute(
-            "SELECT e.id, r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key"
-            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status = 'violation' ORDER BY r.id, e.ordinal").fetchall()
+            "SELECT e.id, r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key, e.reveals"
+            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE " + ("e.reveals IS NOT NULL" if differential else "e.status = 'violation'")
+            + " ORDER BY r.id, e.ordinal").fetchall()
+    keys = ("reveals", *MODE_KEYS) if differential else MODE_KEYS
     violations, skipped = [], []
     seen = set()
-    for evaluation_id, scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key in rows:
+    for evaluation_id, scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key, reveals in rows:
         if vector_key in seen:
             continue
         seen.add(vector_key)
         where = {"id": evaluation_id, "scenario": scenario, "scenario_file": scenario_file, "algorithm": algorithm, "run": run, "evaluation": ordinal, "fitness": fitness,
-                 "log": log_path}
+                 "log": log_path, "reveals": reveals}
         if not log_path or not Path(log_path).is_file():
             skipped.append({**where, "why": "its log is missing"})
             continue
@@ -137,19 +142,20 @@ def triage(store_path: Path) -> dict[str, Any]:
             skipped.append({**where, "why": str(error)})
     modes: dict[tuple, list[dict[str, Any]]] = {}
     for violation in violations:
-        modes.setdefault(tuple(violation[key] for key in MODE_KEYS), []).append(violation)
+        modes.setdefault(tuple(violation[key] for key in keys), []).append(violation)
     described = []
     for key, members in sorted(modes.items(), key=lambda item: (-len(item[1]), item[0])):
         worst = min(members, key=lambda v: v["fitness"])
         typical = min(members, key=lambda v: sum(trajectory_distance(v["trajectory"], o["trajectory"]) for o in members))
+        fields = dict(zip(keys, key))
         described.append({
-            "mode": mode_name(dict(zip(MODE_KEYS, key))), **dict(zip(MODE_KEYS, key)), "count": len(members),
+            "mode": (f"reveals {fields['reveals']}: " if differential else "") + mode_name(fields), **fields, "count": len(members),
             "contacts": sum(v["min_clearance_m"] <= 0.0 for v in members), "near_misses": sum(v["min_clearance_m"] > 0.0 for v in members),
             "worst": _example(worst), "typical": _example(typical),
         })
     pairs = list(itertools.combinations([v["trajectory"] for v in violations], 2))
     return {
-        "store": str(store_path), "violations": len(violations), "modes": described, "skipped": skipped,
+        "store": str(store_path), "violations": len(violations), "modes": described, "skipped": skipped, "differential": differential,
         "diversity": {"modes": len(described), "mean_pairwise_trajectory_distance_m": float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None},
     }
 
@@ -161,7 +167,8 @@ def _example(violation: Mapping[str, Any]) -> dict[str, Any]:
 def triage_text(report: Mapping[str, Any]) -> str:
     diversity = report["diversity"]
     spread = diversity["mean_pairwise_trajectory_distance_m"]
-    lines = [f"{report['violations']} distinct violations in {diversity['modes']} failure modes; mean pairwise trajectory distance "
+    what = "revealing candidates (differential campaign)" if report.get("differential") else "violations"
+    lines = [f"{report['violations']} distinct {what} in {diversity['modes']} failure modes; mean pairwise trajectory distance "
              + (f"{spread:.1f} m" if spread is not None else "-")]
     for mode in report["modes"]:
         lines.append(f"{mode['count']:>4}  {mode['mode']}  ({mode['contacts']} contact, {mode['near_misses']} near miss)")

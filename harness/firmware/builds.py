@@ -148,7 +148,7 @@ def _save(variant: Variant) -> Variant:
 
 
 def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequence[Path] = (), jobs: int | None = None,
-          watch: Sequence[str] = ()) -> Variant:
+          watch: Sequence[str] = (), worktree_command: str | None = None) -> Variant:
     """The variant of the source tree at commit with the patches applied, from the cache or built;
     its `objects` digest the compiled code of the patched files and of those in `watch`."""
     source = Path(source).expanduser().resolve()
@@ -168,7 +168,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     started = time.monotonic()
     # A failed build keeps its folder for the log, but has no VARIANT_FILE: never taken for a build.
     if kind == "px4":
-        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch)
+        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch, worktree_command)
     else:
         objects = _build_bundled(source, resolved, [Path(p) for p in patches], folder, watch)
     return _save(Variant(key, kind, str(source), resolved, digests, str(folder), time.monotonic() - started, objects))
@@ -182,15 +182,27 @@ def _initialised_submodules(source: Path) -> list[str]:
     return [line[1:].split()[1] for line in status.stdout.splitlines() if line and line[0] != "-"]
 
 
-def _worktree(source: Path, commit: str, cache: Path, log_file) -> Path:
-    """The cache's worktree of the commit, made once; its submodules those the source tree uses."""
+def _worktree(source: Path, commit: str, cache: Path, log_file, command: str | None) -> Path:
+    """The cache's worktree of the commit, made once; its submodules those the source tree uses.
+    `command` (a template with {source}, {commit}, {dir}) makes it instead, for trees that need
+    more than `git worktree add` and `git submodule update` (sparse checkouts, local mirrors,
+    board edits); it runs once per commit."""
     tree = cache / "worktrees" / commit[:12]
-    if not (tree / ".git").exists():
-        tree.parent.mkdir(parents=True, exist_ok=True)
-        made = _git(source, "worktree", "add", "--detach", str(tree), commit, check=False)
-        log_file.write(made.stdout + made.stderr)
-        if made.returncode != 0:
-            raise InputError([Problem(str(source), "", f"cannot make a worktree of {commit[:12]}: {made.stderr.strip()[:400]}")])
+    if (tree / ".git").exists():
+        return tree
+    tree.parent.mkdir(parents=True, exist_ok=True)
+    if command:
+        argv = ["sh", "-c", command.format(source=source, commit=commit, dir=tree)]
+        log_file.write(f"$ {argv[2]}\n")
+        log_file.flush()
+        made = subprocess.run(argv, stdout=log_file, stderr=subprocess.STDOUT)
+        if made.returncode != 0 or not (tree / ".git").exists():
+            raise InputError([Problem("--worktree-command", "", f"exited {made.returncode} without making a worktree at {tree}; see {log_file.name}")])
+        return tree
+    made = _git(source, "worktree", "add", "--detach", str(tree), commit, check=False)
+    log_file.write(made.stdout + made.stderr)
+    if made.returncode != 0:
+        raise InputError([Problem(str(source), "", f"cannot make a worktree of {commit[:12]}: {made.stderr.strip()[:400]}")])
     modules = _initialised_submodules(source)
     if modules:
         updated = _git(tree, "submodule", "update", "--init", "--recursive", "--", *modules, check=False)
@@ -212,10 +224,11 @@ def _object_digest(build_dir: Path, source_file: str) -> str | None:
         return hashlib.sha256(Path(stripped.name).read_bytes()).hexdigest()
 
 
-def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str]) -> dict[str, str]:
+def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
+               worktree_command: str | None) -> dict[str, str]:
     log_path = folder / BUILD_LOG
     with open(log_path, "w") as log_file:
-        tree = _worktree(source, commit, cache, log_file)
+        tree = _worktree(source, commit, cache, log_file, worktree_command)
         touched = _apply(tree, patches)
         try:
             # The cache's worktree keeps the submodules at the pins checked out above; PX4's own

@@ -211,7 +211,7 @@ def load_index(out: Path) -> dict:
     return document
 
 
-def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, only: Sequence[str] = (),
+def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, only: Sequence[str] = (), worktree_command: str | None = None,
               progress: Callable[[str], None] = lambda _line: None) -> dict:
     """Build the original and each mutant (cached); sort them into built, stillborn, equivalent
     and duplicate; write out/built.json after each, so an interrupted build resumes."""
@@ -222,7 +222,7 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
     commit = index["commit"] if index["kind"] == "px4" else None
     built_path = out / BUILT
     record = json.loads(built_path.read_text()) if built_path.is_file() else {"mutants": {}}
-    original = builds.build(source, out=cache, commit=commit, jobs=jobs, watch=[index["file"]])
+    original = builds.build(source, out=cache, commit=commit, jobs=jobs, watch=[index["file"]], worktree_command=worktree_command)
     baseline = original.objects.get(index["file"])
     record["original"] = {"folder": original.folder, "build_s": original.build_s, "key": original.key, "digest": baseline}
     by_digest: dict[str, str] = {}
@@ -236,7 +236,7 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
             continue
         patch = out / "mutants" / f"{mutant['id']}.patch"
         try:
-            variant = builds.build(source, out=cache, commit=commit, patches=[patch], jobs=jobs, watch=[index["file"]])
+            variant = builds.build(source, out=cache, commit=commit, patches=[patch], jobs=jobs, watch=[index["file"]], worktree_command=worktree_command)
         except builds.BuildFailed as failed:
             entry = {"id": mutant["id"], "state": "stillborn", "log": str(failed.log_path)}
         else:

@@ -24,6 +24,13 @@ def add_build_parser(actions: argparse._SubParsersAction, json_flag: Callable[[a
     p.add_argument("--patch", action="append", default=[], metavar="FILE", help="apply this unified diff first; repeatable, applied in order")
     p.add_argument("--out", required=True, help="the build cache: one folder per variant, worktrees/ for PX4's commits")
     p.add_argument("--jobs", type=int, help="parallel compile jobs (default: cores)")
+    worktree_option(p)
+
+
+def worktree_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--worktree-command", metavar="TEMPLATE",
+                   help="PX4: make a commit's worktree with this shell command ({source}, {commit}, {dir} filled in) instead of `git worktree add` "
+                        "and `git submodule update` (for trees whose submodules come from local mirrors, sparse checkouts, board edits)")
 
 
 def sut_build(args: argparse.Namespace) -> int:
@@ -32,7 +39,8 @@ def sut_build(args: argparse.Namespace) -> int:
     source = Path(args.source).expanduser()
     if source.is_dir() and builds.tree_kind(source.resolve()) != args.kind:
         raise InputError([Problem(str(source), "", f"is a {builds.tree_kind(source.resolve())} tree, not {args.kind}: give the kind it is")])
-    variant = builds.build(source, out=Path(args.out), commit=args.commit, patches=[Path(p) for p in args.patch], jobs=args.jobs)
+    variant = builds.build(source, out=Path(args.out), commit=args.commit, patches=[Path(p) for p in args.patch], jobs=args.jobs,
+                           worktree_command=args.worktree_command)
     option = "--px4-bin" if variant.kind == "px4" else "--autopilot-dir"
     text = (f"{'cached' if variant.cached else 'built'}: {variant.folder} ({variant.build_s:.1f} s to build)\n"
             f"fly it with: {option} {variant.folder}\nbuild log: {Path(variant.folder) / builds.BUILD_LOG}")
@@ -62,6 +70,7 @@ def add_mutants_parser(sub: argparse._SubParsersAction, json_flag: Callable[[arg
     p.add_argument("--cache", help="the build cache (default: FOLDER/builds)")
     p.add_argument("--jobs", type=int, help="parallel compile jobs (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
+    worktree_option(p)
 
     p = actions.add_parser("run", help="screen each mutant with a suite, then search the survivors; resumable")
     json_flag(p)
@@ -109,7 +118,7 @@ def cmd_mutants(args: argparse.Namespace) -> int:
         return 0
     if args.action == "build":
         record = mutants.build_all(Path(args.folder), cache=Path(args.cache) if args.cache else None, jobs=args.jobs, only=args.only,
-                                   progress=lambda line: print(line, file=sys.stderr))
+                                   worktree_command=args.worktree_command, progress=lambda line: print(line, file=sys.stderr))
         counts = mutants.counts(record)
         emit(args, {**record, "counts": counts}, ", ".join(f"{n} {state}" for state, n in counts.items()))
         return 0
