@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from harness.flight.evaluation import EvaluationResult, RunOptions, infeasible
 from harness.flight.fitness import Status
 from harness.scenario.space import SearchSpace
 from harness.search.termination import Progress, Termination
+
+if TYPE_CHECKING:
+    from harness.campaigns.pairs import PairedFlights
 
 
 class StopSearch(Exception):
@@ -48,7 +51,7 @@ class CampaignProblem:
     optimizer: str = ""
     step_limit: int | None = None
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
-    pairs: Any = None  # a PairedFlights: each candidate flown against the reference too, confirmed there
+    pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)

@@ -86,7 +86,7 @@ def tree_kind(source: Path) -> str:
                                                "project (autopilot/): give --source the root of one")])
 
 
-def _git(source: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+def git(source: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
     return subprocess.run(["git", "-C", str(source), *args], capture_output=True, text=True, check=check)
 
 
@@ -94,7 +94,7 @@ def resolve_commit(source: Path, commit: str | None) -> str:
     """The full hash of `commit` in the source tree (HEAD when None)."""
     if not (source / ".git").exists():
         raise InputError([Problem(str(source), "", "not a git work tree: builds of a commit need the tree's history (give a clone)")])
-    found = _git(source, "rev-parse", "--verify", "--quiet", f"{commit or 'HEAD'}^{{commit}}", check=False)
+    found = git(source, "rev-parse", "--verify", "--quiet", f"{commit or 'HEAD'}^{{commit}}", check=False)
     if found.returncode != 0:
         raise InputError([Problem("--commit", "", f"{commit!r} is not a commit of {source}: give a hash, branch or tag that `git log` shows there")])
     return found.stdout.strip()
@@ -178,7 +178,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
 
 
 def _initialised_submodules(source: Path) -> list[str]:
-    status = _git(source, "submodule", "status", check=False)
+    status = git(source, "submodule", "status", check=False)
     return [line[1:].split()[1] for line in status.stdout.splitlines() if line and line[0] != "-"]
 
 
@@ -199,13 +199,13 @@ def _worktree(source: Path, commit: str, cache: Path, log_file, command: str | N
         if made.returncode != 0 or not (tree / ".git").exists():
             raise InputError([Problem("--worktree-command", "", f"exited {made.returncode} without making a worktree at {tree}; see {log_file.name}")])
         return tree
-    made = _git(source, "worktree", "add", "--detach", str(tree), commit, check=False)
+    made = git(source, "worktree", "add", "--detach", str(tree), commit, check=False)
     log_file.write(made.stdout + made.stderr)
     if made.returncode != 0:
         raise InputError([Problem(str(source), "", f"cannot make a worktree of {commit[:12]}: {made.stderr.strip()[:400]}")])
     modules = _initialised_submodules(source)
     if modules:
-        updated = _git(tree, "submodule", "update", "--init", "--recursive", "--", *modules, check=False)
+        updated = git(tree, "submodule", "update", "--init", "--recursive", "--", *modules, check=False)
         log_file.write(updated.stdout + updated.stderr)
         if updated.returncode != 0:
             raise InputError([Problem(str(tree), "", f"its submodules ({', '.join(modules)}) cannot be checked out at {commit[:12]}'s pins: "
@@ -246,7 +246,7 @@ def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cac
                 shutil.copytree(build_dir / part, folder / part, symlinks=True)
         finally:
             if touched:  # the next variant starts from the commit's own files
-                _git(tree, "checkout", "--", *touched, check=False)
+                git(tree, "checkout", "--", *touched, check=False)
     return objects
 
 
@@ -285,7 +285,7 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
     shutil.copytree(source / "autopilot", package, ignore=shutil.ignore_patterns("*.c", "__pycache__"))
     if commit is not None:
         for module in package.glob("*.py"):
-            shown = _git(source, "show", f"{commit}:autopilot/{module.name}", check=False)
+            shown = git(source, "show", f"{commit}:autopilot/{module.name}", check=False)
             if shown.returncode == 0:
                 module.write_text(shown.stdout)
     touched = _apply(folder, patches)

@@ -194,7 +194,7 @@ def generate(source: Path, file: str, out: Path, *, function: str | None = None,
         diff = difflib.unified_diff(lines, changed, f"a/{file}", f"b/{file}", n=3)
         (folder / mutant.patch_name).write_text("".join(diff))
         mutants.append(mutant)
-    commit = builds._git(source, "rev-parse", "HEAD", check=False).stdout.strip() if (source / ".git").exists() else None
+    commit = builds.git(source, "rev-parse", "HEAD", check=False).stdout.strip() if (source / ".git").exists() else None
     index = {"format": FORMAT, "source": str(source), "commit": commit or None, "kind": builds.tree_kind(source), "file": file, "function": function,
              "lines": [first, last], "generated": len(unique), "limit": limit, "seed": seed, "mutants": [asdict(m) for m in mutants]}
     (Path(out) / INDEX).write_text(json.dumps(index, indent=1) + "\n")
