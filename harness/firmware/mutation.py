@@ -152,12 +152,20 @@ def _screen(mutant: str, subject: SutConfig, reference: SutConfig, cases, plan: 
         flown += len(results)
         for job, result in results:
             reference_flights = result.differential["reference"]
-            if start == 0 and _started_badly(result) and reference_flights[0]["status"] in (Status.OK, Status.VIOLATION):
+            if start == 0 and _started_badly(result) and reference_flights[0]["status"] in (Status.OK, Status.VIOLATION) \
+                    and _fails_to_start_again(job, plan.confirm, executor):
                 return {"state": "killed_at_start", "case": job.name, "why": result.why, "suite_flights": flown}
             if result.differential["reveals"]:
                 return {"state": "killed_by_suite", "level": result.differential["reveals"], "case": job.name, "why": result.differential["why"],
                         "suite_flights": flown}
     return {"state": "survived_suite", "suite_flights": flown}
+
+
+def _fails_to_start_again(job: Job, times: int, executor: Executor) -> bool:
+    """A start that failed once, tried `times` more (a loaded machine can fail an arming that
+    the build itself would pass): killed at start only if every try failed."""
+    again = [replace(job, key=i, name=f"{job.name}-start{i + 1}") for i in range(times)]
+    return all(_started_badly(result) for _job, result in executor.run(again))
 
 
 def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, executor: Executor, cache: ReferenceCache,
