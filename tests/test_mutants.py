@@ -7,7 +7,9 @@ PX4 source tree is given."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -93,6 +95,19 @@ def test_bad_sources_commits_and_patches_are_refused_with_exit_2(tmp_path, capsy
     assert "does not apply" in capsys.readouterr().err
     assert main(["mutants", "generate", "--source", str(ROOT), "--file", "autopilot/nothing.py", "--out", str(tmp_path / "m")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_a_bundled_build_at_a_commit_is_cached_and_flies(tmp_path, capsys):
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    argv = ["sut", "build", "bundled", "--source", str(ROOT), "--commit", head, "--out", str(tmp_path), "--json"]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["commit"] == head and Path(first["folder"], "autopilot", "collision.py").is_file()
+    assert main(argv) == 0 and json.loads(capsys.readouterr().out)["cached"]
+    # the build's package is what imports, as the adapter starts it (in a working directory of its own)
+    started = subprocess.run([sys.executable, "-c", "import autopilot.collision as c; print(c.__file__)"], capture_output=True, text=True,
+                             env={**os.environ, "PYTHONPATH": first["folder"]}, cwd=tmp_path)
+    assert started.returncode == 0 and started.stdout.startswith(first["folder"]), started.stderr
 
 
 def test_bytecode_tells_computation_from_comments():

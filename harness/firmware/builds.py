@@ -283,11 +283,17 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
     # The package as the source tree has it, its compiled modules included (copy2 keeps their
     # times, so the unpatched ones stay newer than their sources: simlink.check_compiled).
     shutil.copytree(source / "autopilot", package, ignore=shutil.ignore_patterns("*.c", "__pycache__"))
+    changed = []
     if commit is not None:
-        for module in package.glob("*.py"):
+        for module in [*package.glob("*.py"), *package.glob("*.pxd")]:
             shown = git(source, "show", f"{commit}:autopilot/{module.name}", check=False)
-            if shown.returncode == 0:
+            if shown.returncode == 0 and shown.stdout != module.read_text():
                 module.write_text(shown.stdout)
+                changed.append(f"autopilot/{module.name}")
+    if changed:
+        # Another commit's sources or static types: every compiled module is compiled again, as
+        # a .pxd changed under one changes what the modules that cimport it compile to.
+        changed = [f"autopilot/{so.name.split('.', 1)[0]}.py" for so in package.glob("*.so")]
     touched = _apply(folder, patches)
     objects = {}
     with open(log_path, "w") as log_file:
@@ -298,7 +304,7 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
             except SyntaxError as error:
                 log_file.write(f"{name}: {error}\n")
                 raise BuildFailed(f"the bundled autopilot with {len(patches)} patch(es)", log_path, str(error)) from None
-        _compile_again(folder, [name for name in touched if name.endswith(".py")], log_file, log_path)
+        _compile_again(folder, [name for name in dict.fromkeys([*changed, *touched]) if name.endswith(".py")], log_file, log_path)
     return objects
 
 
