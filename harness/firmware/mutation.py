@@ -61,10 +61,14 @@ class MutationPlan:
     objective: str = "difference"
     sut_params: Mapping[str, float] = field(default_factory=dict)
 
-    def identity(self) -> dict[str, Any]:
-        return {"suite": [str(Path(s).resolve()) for s in self.suite], "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
-                "algorithms": list(self.algorithms), "evaluations": self.evaluations, "population": self.population, "confirm": self.confirm,
-                "seed": self.seed, "drive": self.drive, "objective": self.objective, "sut_params": dict(self.sut_params)}
+    def screening(self) -> dict[str, Any]:
+        """What decides the suite's verdicts: a folder's mutants are screened once with these.
+        Searches can be added later (other scenarios, other algorithms) to the same folder."""
+        return {"suite": [str(Path(s).resolve()) for s in self.suite], "confirm": self.confirm, "seed": self.seed, "drive": self.drive,
+                "sut_params": dict(self.sut_params)}
+
+    def searching(self) -> dict[str, Any]:
+        return {"evaluations": self.evaluations, "population": self.population, "objective": self.objective}
 
 
 def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
@@ -92,11 +96,16 @@ def _suite_cases(plan: MutationPlan) -> list[tuple[str, Any, Any, int]]:
 
 def _load(path: Path, plan: MutationPlan) -> dict[str, Any]:
     if not path.is_file():
-        return {"plan": plan.identity(), "mutants": {}}
+        return {"screening": plan.screening(), "searching": plan.searching(), "mutants": {}}
     document = json.loads(path.read_text())
-    if document["plan"] != plan.identity():
-        raise InputError([Problem(str(path), "/plan", "this folder's mutation run had other settings (suite, scenarios, algorithms, budget, confirm, "
-                                                      "seed, drive, objective); run it with the same ones, or give another --out")])
+    if document["screening"] != plan.screening():
+        raise InputError([Problem(str(path), "/screening", "this folder's mutants were screened with another suite, confirm, seed, drive or parameters; "
+                                                           "run with the same ones, or generate into another folder")])
+    searched = any(o.get("search") for o in document["mutants"].values())
+    if searched and document["searching"] != plan.searching():
+        raise InputError([Problem(str(path), "/searching", f"this folder's searches ran with {document['searching']}: keep --evaluations, "
+                                                           "--population and --objective, so that every search counts alike")])
+    document["searching"] = plan.searching()
     return document
 
 
@@ -126,15 +135,25 @@ def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequ
     options = RunOptions(sut=reference)
     try:
         for entry in sorted(built["mutants"].values(), key=lambda e: e["id"]):
-            if entry["state"] != "built" or entry["id"] in document["mutants"] or (only and entry["id"] not in only):
+            if entry["state"] != "built" or (only and entry["id"] not in only):
                 continue
             subject = _sut(index["kind"], entry["folder"], plan.sut_params)
-            outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject))
-            if outcome["state"] == "survived_suite" and plan.scenarios:
-                outcome["search"] = _search(entry["id"], subject, reference, plan, executor, cache, mutants_dir)
-            document["mutants"][entry["id"]] = outcome
-            _save(run_path, document)
-            progress(f"{entry['id']}: {describe(outcome)}")
+            outcome = document["mutants"].get(entry["id"])
+            if outcome is None:
+                outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject))
+                document["mutants"][entry["id"]] = outcome
+                _save(run_path, document)
+                progress(f"{entry['id']}: {describe(outcome)}")
+            if outcome["state"] != "survived_suite":
+                continue
+            for algorithm in plan.algorithms:
+                for scenario in plan.scenarios:
+                    done = outcome.setdefault("search", {}).setdefault(algorithm, {})
+                    if Path(scenario).stem in done:
+                        continue
+                    done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir)
+                    _save(run_path, document)
+                    progress(f"{entry['id']}: {describe(outcome)}")
     finally:
         cache.close()
     return document
@@ -168,19 +187,16 @@ def _fails_to_start_again(job: Job, times: int, executor: Executor) -> bool:
     return all(_started_badly(result) for _job, result in executor.run(again))
 
 
-def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, executor: Executor, cache: ReferenceCache,
-            folder: Path) -> dict[str, dict[str, Any]]:
-    found: dict[str, dict[str, Any]] = {}
-    for algorithm in plan.algorithms:
-        for scenario in plan.scenarios:
-            config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
-                                    confirm=plan.confirm, reference=reference, objective=plan.objective)
-            store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
-            with Store.for_campaign(store_path) as store:
-                run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache)
-                first = store.first_reveals()
-            found.setdefault(algorithm, {})[Path(scenario).stem] = first
-    return found
+def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, algorithm: str, scenario: str, executor: Executor,
+            cache: ReferenceCache, folder: Path) -> dict[str, Any]:
+    """One differential campaign of the algorithm on the scenario against the mutant: when it
+    first revealed a difference, and at which level."""
+    config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
+                            confirm=plan.confirm, reference=reference, objective=plan.objective)
+    store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
+    with Store.for_campaign(store_path) as store:
+        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache)
+        return store.first_reveals()
 
 
 def describe(outcome: Mapping[str, Any]) -> str:
@@ -224,30 +240,30 @@ def report(mutants_dir: Path, baseline: str = "RANDOM") -> dict[str, Any]:
     if not run_path.is_file():
         raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
     document = json.loads(run_path.read_text())
-    plan = document["plan"]
     states = [e["state"] for e in built["mutants"].values()]
     outcomes = document["mutants"]
-    algorithms = plan["algorithms"]
+    searched = {algorithm: set(by_scenario) for o in outcomes.values() for algorithm, by_scenario in (o.get("search") or {}).items()}
+    algorithms = sorted(searched) or ["suite"]  # screened only: the suite's score
     scores: dict[str, dict[str, Any]] = {}
-    budget = plan["evaluations"] * max(1, len(plan["scenarios"]))
+    budget = document["searching"]["evaluations"] * max([len(s) for s in searched.values()] or [1])
     for algorithm in algorithms:
         entry: dict[str, Any] = {}
         for level in LEVELS:
             killed = 0
-            to_kill, censored = [], []
+            to_kill, kills = [], []
             for outcome in outcomes.values():
                 by_suite = outcome["state"] in ("killed_at_start", "killed_by_suite") and (level == "any" or outcome.get("level") == "unsafe"
                                                                                             or outcome["state"] == "killed_at_start")
-                searched = _first_kill(outcome, algorithm, level) if outcome["state"] == "survived_suite" else None
-                killed += by_suite or searched is not None
+                by_search = _first_kill(outcome, algorithm, level) if outcome["state"] == "survived_suite" else None
+                killed += by_suite or by_search is not None
                 if outcome["state"] == "survived_suite":
-                    to_kill.append(searched if searched is not None else budget + 1)
-                    if searched is not None:
-                        censored.append(searched)
+                    to_kill.append(by_search if by_search is not None else budget + 1)
+                    if by_search is not None:
+                        kills.append(by_search)
             total = len(outcomes)
             entry[level] = {"killed": killed, "mutants": total, "score": killed / total if total else None, "ci95": wilson(killed, total),
-                            "search_kills": len(censored), "survivors_searched": len(to_kill),
-                            "median_evaluations_to_kill": statistics.median(censored) if censored else None, "_ranks": to_kill}
+                            "search_kills": len(kills), "survivors_searched": len(to_kill),
+                            "median_evaluations_to_kill": statistics.median(kills) if kills else None, "_ranks": to_kill}
         scores[algorithm] = entry
     base = scores.get(baseline.upper())
     for algorithm, entry in scores.items():
@@ -274,7 +290,8 @@ def report(mutants_dir: Path, baseline: str = "RANDOM") -> dict[str, Any]:
             "analysed": len(outcomes), "killed_at_start": sum(o["state"] == "killed_at_start" for o in outcomes.values()),
             "killed_by_suite": {level: sum(o["state"] == "killed_by_suite" and (level == "any" or o.get("level") == "unsafe") for o in outcomes.values())
                                 for level in LEVELS},
-            "baseline": baseline.upper(), "scores": scores, "survivors": survivors, "plan": plan}
+            "baseline": baseline.upper(), "scores": scores, "survivors": survivors, "screening": document["screening"],
+            "searching": document["searching"], "searched": {a: sorted(s) for a, s in searched.items()}}
 
 
 def report_text(result: Mapping[str, Any]) -> str:
