@@ -78,6 +78,9 @@ def test_a_sample_is_seeded_and_a_function_limits_the_lines(tmp_path):
     first = mutants.generate(ROOT, COLLISION, tmp_path / "a", limit=10, seed=3)
     again = mutants.generate(ROOT, COLLISION, tmp_path / "b", limit=10, seed=3)
     assert first["mutants"] == again["mutants"] and len(first["mutants"]) == 10
+    more = mutants.generate(ROOT, COLLISION, tmp_path / "e", limit=15, seed=3)
+    taken = {(m["line"], m["mutated"]) for m in more["mutants"]}
+    assert {(m["line"], m["mutated"]) for m in first["mutants"]} <= taken, "a larger sample keeps the smaller one's mutants"
     span = mutants.generate(ROOT, COLLISION, tmp_path / "c", function="max_speed_from_distance")
     low, high = span["lines"]
     assert all(low <= m["line"] <= high for m in span["mutants"]) and high - low < 20

@@ -183,7 +183,8 @@ def generate(source: Path, file: str, out: Path, *, function: str | None = None,
     unique = list({(lineno, mutated): (lineno, mutated, rule) for lineno, mutated, rule in found}.values())
     chosen = unique
     if limit is not None and limit < len(unique):
-        picked = np.random.default_rng(seed).choice(len(unique), size=limit, replace=False)
+        # A prefix of one seeded permutation: a larger --limit keeps every mutant a smaller one took.
+        picked = np.random.default_rng(seed).permutation(len(unique))[:limit]
         chosen = [unique[i] for i in sorted(picked)]
     folder = Path(out) / "mutants"
     folder.mkdir(parents=True, exist_ok=True)
