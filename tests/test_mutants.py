@@ -190,6 +190,13 @@ def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_pa
     assert report["scores"]["RANDOM"]["any"]["killed"] >= 1 and report["scores"]["RANDOM"]["any"]["mutants"] == 2
     text = mutation.report_text(report)
     assert "killed by the suite: 1 unsafe" in text and "RANDOM" in text
+    # beside another test method's kills (here made up: it kills only the survivor)
+    other = tmp_path / "unit.json"
+    other.write_text(json.dumps({"mutants": {braking["id"]: {"killed": False}, quiet["id"]: {"killed": True}}}))
+    table = mutation.report(folder, other_tests=other)["other_tests"]
+    survived = quiet["id"] in {m["id"] for m in report["survivors"]}
+    assert table["harness_only"] == [braking["id"]] and not table["neither"]
+    assert table["other_only" if survived else "both"] == [quiet["id"]]
 
 
 @pytest.mark.slow

@@ -232,7 +232,21 @@ def _first_kill(outcome: Mapping[str, Any], algorithm: str, level: str) -> int |
     return None
 
 
-def report(mutants_dir: Path, baseline: str = "RANDOM") -> dict[str, Any]:
+def against_other_tests(outcomes: Mapping[str, Any], algorithms: Sequence[str], other: Mapping[str, Any]) -> dict[str, Any]:
+    """Kills of the harness (suite or any search, either level) against another test method's
+    (`other`: {"mutants": {ID: {"killed": bool}}}, e.g. PX4's own unit tests run against each
+    mutant), over the mutants both judged."""
+    table = {"harness_only": [], "other_only": [], "both": [], "neither": []}
+    for key, outcome in sorted(outcomes.items()):
+        theirs = (other.get("mutants") or {}).get(key)
+        if theirs is None:
+            continue
+        ours = outcome["state"] != "survived_suite" or any(_first_kill(outcome, a, "any") is not None for a in algorithms)
+        table[{(True, True): "both", (True, False): "harness_only", (False, True): "other_only", (False, False): "neither"}[(ours, bool(theirs["killed"]))]].append(key)
+    return table
+
+
+def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None = None, other_name: str = "unit tests") -> dict[str, Any]:
     mutants_dir = Path(mutants_dir)
     index = load_index(mutants_dir)
     built = json.loads((mutants_dir / BUILT).read_text()) if (mutants_dir / BUILT).is_file() else {"mutants": {}}
@@ -291,7 +305,18 @@ def report(mutants_dir: Path, baseline: str = "RANDOM") -> dict[str, Any]:
             "killed_by_suite": {level: sum(o["state"] == "killed_by_suite" and (level == "any" or o.get("level") == "unsafe") for o in outcomes.values())
                                 for level in LEVELS},
             "baseline": baseline.upper(), "scores": scores, "survivors": survivors, "screening": document["screening"],
-            "searching": document["searching"], "searched": {a: sorted(s) for a, s in searched.items()}}
+            "searching": document["searching"], "searched": {a: sorted(s) for a, s in searched.items()},
+            **({"other_tests": {"name": other_name, "file": str(other_tests), **against_other_tests(outcomes, algorithms, _other(other_tests))}}
+               if other_tests else {})}
+
+
+def _other(path: Path) -> Mapping[str, Any]:
+    if not Path(path).is_file():
+        raise InputError([Problem(str(path), "", "no such file: give a JSON file {\"mutants\": {ID: {\"killed\": true|false}}}")])
+    document = json.loads(Path(path).read_text())
+    if not isinstance(document.get("mutants"), dict) or not all(isinstance(v, dict) and "killed" in v for v in document["mutants"].values()):
+        raise InputError([Problem(str(path), "/mutants", "expected {ID: {\"killed\": true|false}} for each mutant the other tests judged")])
+    return document
 
 
 def report_text(result: Mapping[str, Any]) -> str:
@@ -310,6 +335,12 @@ def report_text(result: Mapping[str, Any]) -> str:
             lines.append(f"{algorithm:<9} {level:<7} {e['killed']:>4}/{e['mutants']:<4} {fmt(e['score'], '.2f'):>6} {ci:>13} "
                          f"{e['search_kills']:>6}/{e['survivors_searched']:<6} {fmt(e['median_evaluations_to_kill'], '.1f'):>13} "
                          f"{fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
+    if "other_tests" in result:
+        other = result["other_tests"]
+        lines += ["", f"against {other['name']} ({other['file']}), over the mutants both judged:"]
+        for key, label in (("harness_only", "killed by the harness only"), ("other_only", f"killed by {other['name']} only"),
+                           ("both", "killed by both"), ("neither", "killed by neither")):
+            lines.append(f"  {label:<40} {len(other[key]):>3}  {' '.join(other[key])}")
     lines.append("")
     lines.append(f"surviving mutants ({len(result['survivors'])}):")
     for survivor in result["survivors"]:

@@ -93,6 +93,9 @@ def add_mutants_parser(sub: argparse._SubParsersAction, json_flag: Callable[[arg
     json_flag(p)
     p.add_argument("folder")
     p.add_argument("--baseline", default="RANDOM", help="the algorithm the others are tested against (default RANDOM)")
+    p.add_argument("--other-tests", metavar="FILE", help="another test method's kills, {\"mutants\": {ID: {\"killed\": true|false}}} (e.g. PX4's "
+                                                         "unit tests run against each mutant): the harness-only / other-only / both / neither table")
+    p.add_argument("--other-name", default="unit tests", help="what to call them in the table (default: unit tests)")
 
 
 def _suite(items: list[str]) -> tuple[str, ...]:
@@ -124,7 +127,7 @@ def cmd_mutants(args: argparse.Namespace) -> int:
         return 0
     if args.action == "run":
         return _mutants_run(args)
-    report = mutation.report(Path(args.folder), args.baseline)
+    report = mutation.report(Path(args.folder), args.baseline, Path(args.other_tests) if args.other_tests else None, args.other_name)
     emit(args, report, mutation.report_text(report))
     return 0
 
