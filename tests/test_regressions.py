@@ -81,9 +81,12 @@ def test_a_malformed_case_names_the_file_the_field_and_the_fix(tmp_path):
     with pytest.raises(InputError) as error:
         load_regression(path)
     assert str(error.value).splitlines() == [
-        f'{path}: /expect: "fixed" is not allowed; allowed values: "safe", "violation"',
+        f'{path}: /expect: "fixed" is not allowed; allowed values: "safe", "violation", "as_reference"',
         f"{path}: /seed: must be at least 0, got -1",
     ]
+    path.write_text(json.dumps(dict(KNOWN_VIOLATION, expect="as_reference")))
+    with pytest.raises(InputError, match="reference"):  # what the reference did is what such a case is judged by
+        load_regression(path)
     path.write_text(json.dumps(dict(KNOWN_VIOLATION, concrete_scenario=document["concrete_scenario"])))
     with pytest.raises(InputError) as error:
         load_regression(path)
@@ -157,7 +160,7 @@ def test_a_malformed_case_is_a_collection_error_with_the_located_message(pyteste
     copy_case(pytester, "safe_fig4.json", "broken", expect="fixed")
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
     assert result.ret == pytest.ExitCode.INTERRUPTED
-    result.stdout.fnmatch_lines(['*broken.regression.json: /expect: "fixed" is not allowed; allowed values: "safe", "violation"'])
+    result.stdout.fnmatch_lines(['*broken.regression.json: /expect: "fixed" is not allowed; allowed values: "safe", "violation", "as_reference"'])
 
 
 @pytest.mark.slow
