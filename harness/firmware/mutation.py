@@ -270,7 +270,7 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
                                                                                             or outcome["state"] == "killed_at_start")
                 by_search = _first_kill(outcome, algorithm, level) if outcome["state"] == "survived_suite" else None
                 killed += by_suite or by_search is not None
-                if outcome["state"] == "survived_suite":
+                if outcome["state"] == "survived_suite" and algorithm in (outcome.get("search") or {}):
                     to_kill.append(by_search if by_search is not None else budget + 1)
                     if by_search is not None:
                         kills.append(by_search)
