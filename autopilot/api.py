@@ -355,6 +355,12 @@ class ApiLink:
             self.statustext(f"param rejected: {error}"[:50], mavlink.MAV_SEVERITY_WARNING)
             if name not in params.names():
                 return
+        if name in params.unmodelled:
+            # A PX4 parameter it does not model: acknowledged as sent, so the client does not
+            # wait for an answer, and said to have no effect; 65535: not in the list.
+            self.statustext(f"{name} accepted without effect"[:50], mavlink.MAV_SEVERITY_NOTICE)
+            self.send(self.mav.param_value_encode(name.encode(), msg.param_value, msg.param_type, len(params.names()), 65535))
+            return
         self._param_value(name)
 
     # missions
