@@ -162,7 +162,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 best = problem.best
                 summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,
                                      "evaluations": problem.spent, "flown": problem.flown, "replayed": problem.replayed, "violations": problem.violations,
-                                     "best_fitness": best[1] if best else None})
+                                     "failures_refused": store.failures_refused(run_id), "best_fitness": best[1] if best else None})
                 print(f"{space.logical.name} {algorithm.upper()} run {run_index}: best fitness {best[1] if best else float('nan'):.3f}, "
                       f"{problem.violations} violations in {problem.spent} evaluations", file=sys.stderr)
     return summary

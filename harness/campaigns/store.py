@@ -59,6 +59,7 @@ CREATE TABLE IF NOT EXISTS evaluations (
     created REAL NOT NULL,
     attempts TEXT,
     confirmations TEXT,
+    failures_refused TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -133,6 +134,8 @@ class Store:
             self.db.execute("ALTER TABLE evaluations ADD COLUMN attempts TEXT")
         if "confirmations" not in columns:  # ... or before violations were re-flown (--confirm)
             self.db.execute("ALTER TABLE evaluations ADD COLUMN confirmations TEXT")
+        if "failures_refused" not in columns:  # ... or before failure injections the SUT refused were kept
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN failures_refused TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -187,14 +190,15 @@ class Store:
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult, concrete: Mapping[str, Any] | None) -> None:
         with self.db:
             self.db.execute(
-                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
+                " failures_refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
                     result.min_clearance_m, result.sim_time_s, result.wall_time_s, result.log_path, result.seed, time.time(),
                     json.dumps(result.attempts) if result.attempts else None,
                     json.dumps(result.confirmations) if result.confirmations else None,
+                    json.dumps(result.failures_refused) if result.failures_refused else None,
                 ),
             )
 
@@ -208,11 +212,14 @@ class Store:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
             " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id),"
-            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats'))"
+            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')),"
+            " SUM(e.failures_refused IS NOT NULL)"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
+        names = ("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky",
+                 "failures_refused")  # flights in which the SUT refused a failure injection
         for row in self.db.execute(query):
-            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky"), row))
+            yield dict(zip(names, row))
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
@@ -232,6 +239,10 @@ class Store:
         )
         names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "confirmations", "scenario_file", "algorithm", "run_index")
         return [dict(zip(names, row)) for row in self.db.execute(query, (threshold, worst_per_run))]
+
+    def failures_refused(self, run_id: int) -> int:
+        """How many of a run's flights the SUT refused a failure injection in."""
+        return self.db.execute("SELECT COUNT(*) FROM evaluations WHERE run_id = ? AND failures_refused IS NOT NULL", (run_id,)).fetchone()[0]
 
     def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
         """(ordinal, best fitness up to it) for a convergence curve."""
