@@ -455,7 +455,7 @@ class ApiLink:
                 if ok:
                     ap.on_armed()
             else:
-                ok, text = c.disarm(force=int(msg.param2) == FORCE_DISARM_MAGIC)
+                ok, text = c.disarm(force=_rounded(msg.param2) == FORCE_DISARM_MAGIC)  # MAVSDK sends NaN: not forced
             if not ok:
                 self.statustext(text, mavlink.MAV_SEVERITY_CRITICAL)
             self._ack(msg, accepted if ok else denied)

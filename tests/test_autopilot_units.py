@@ -359,3 +359,30 @@ def test_a_px4_parameter_it_does_not_model_is_acknowledged_over_mavlink_as_witho
         assert not any(kind == "PARAM_VALUE" and name == "CP_DISTANCE" for kind, name in kinds)
         assert autopilot.params.unmodelled == {"MIS_YAW_ERR": 12.0} and "MIS_YAW_ERR" not in autopilot.params.names()
         link.sock.close()
+
+
+def test_a_disarm_without_the_force_parameter_is_answered():
+    """MAVSDK's action.disarm() sends param2 as NaN; the autopilot took int() of it and its API
+    link died."""
+    import socket
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from autopilot.api import ApiLink
+    from autopilot.app import Autopilot
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        gcs.bind(("127.0.0.1", 0))
+        link = ApiLink(Autopilot(Params()), gcs.getsockname())
+        client = mavlink.MAVLink(None, srcSystem=245)
+        disarm = client.command_long_encode(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0.0, float("nan"), 0, 0, 0, 0, 0)
+        gcs.sendto(disarm.pack(client), link.sock.getsockname())
+        time.sleep(0.05)
+        link.receive()
+        gcs.settimeout(1.0)
+        acks = []
+        while not acks:
+            acks = [m for m in mavlink.MAVLink(None).parse_buffer(gcs.recv(65536)) or [] if m.get_type() == "COMMAND_ACK"]
+        assert (acks[0].command, acks[0].result) == (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED)  # already disarmed
+        link.sock.close()
