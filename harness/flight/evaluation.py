@@ -57,6 +57,11 @@ LINGER_S = 5.0
 ARM_RETRY_S = 10.0
 
 
+def arm_retry_for(system: SystemUnderTest) -> float:
+    """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
+    return ARM_RETRY_S if system.hold_mode == "paced" else 0.0
+
+
 @dataclass(frozen=True)
 class RunOptions:
     sut: SutConfig = field(default_factory=SutConfig)
@@ -256,8 +261,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            arm_retry_s = ARM_RETRY_S if system.hold_mode == "paced" else 0.0
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_s)
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_for(system))
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
