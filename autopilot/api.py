@@ -355,6 +355,12 @@ class ApiLink:
             self.statustext(f"param rejected: {error}"[:50], mavlink.MAV_SEVERITY_WARNING)
             if name not in params.names():
                 return
+        if name in params.unmodelled:
+            # A PX4 parameter it does not model: acknowledged as sent, so the client does not
+            # wait for an answer, and said to have no effect; 65535: not in the list.
+            self.statustext(f"{name} accepted without effect"[:50], mavlink.MAV_SEVERITY_NOTICE)
+            self.send(self.mav.param_value_encode(name.encode(), msg.param_value, msg.param_type, len(params.names()), 65535))
+            return
         self._param_value(name)
 
     # missions
@@ -449,7 +455,7 @@ class ApiLink:
                 if ok:
                     ap.on_armed()
             else:
-                ok, text = c.disarm(force=int(msg.param2) == FORCE_DISARM_MAGIC)
+                ok, text = c.disarm(force=_rounded(msg.param2) == FORCE_DISARM_MAGIC)  # MAVSDK sends NaN: not forced
             if not ok:
                 self.statustext(text, mavlink.MAV_SEVERITY_CRITICAL)
             self._ack(msg, accepted if ok else denied)

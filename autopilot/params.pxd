@@ -5,3 +5,4 @@ cimport simlink.pymath as math
 cdef class Params:
     cdef public object fault
     cdef public dict _values
+    cdef public dict unmodelled

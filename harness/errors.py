@@ -20,6 +20,8 @@ class Problem:
     message: str
 
     def __str__(self) -> str:
+        if self.file.startswith("--") and not self.pointer:
+            return f"{self.file}: {self.message}"  # a command-line option: no document to point into
         return f"{self.file}: {self.pointer or '/'}: {self.message}"
 
 

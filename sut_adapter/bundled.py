@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import json
 import os
+import logging
 import sys
 from pathlib import Path
 from typing import Any, Mapping
 
 from sut_adapter.base import SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess
+
+log = logging.getLogger(__name__)
 
 
 class BundledAutopilot:
@@ -42,12 +45,17 @@ class BundledAutopilot:
             self.inline_arguments = None
 
     def check_params(self, params: Mapping[str, float]) -> None:
-        from autopilot.params import ParamError, Params
+        """Refuse a name neither the bundled autopilot nor PX4 has; say, once, which PX4
+        parameters are accepted without effect, so nobody believes they shaped the flights."""
+        from autopilot.params import ParamError, Params, without_effect
 
         try:
             Params(dict(params))
         except ParamError as error:
             raise SutError(self.name, f"{error} (`python -m autopilot.params` lists its parameters)") from None
+        ignored = without_effect(params)
+        if ignored:
+            log.warning("%s: accepted without effect (PX4 parameters it does not model): %s", self.name, ", ".join(ignored))
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0, sim_socket: str | None = None, sim_shared_memory: bool = False) -> SutHandle:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 import shutil
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from sim_bridge.spec import Origin
 
 DATA = ROOT / "tests" / "data" / "aerialist"
 HOVER = DATA / "hover_two_boxes.yaml"
+LAND_AT = DATA / "takeoff_land_at.yaml"  # takeoff and a land item at a position, no waypoint
 BODY_M = 0.6  # the default profile's F450 box, length and width
 
 
@@ -173,6 +175,31 @@ def test_a_hand_written_case_flies_and_its_clearance_to_each_box_matches_hand_co
     summary = json.loads(capsys.readouterr().out)
     assert 0.1 <= summary["competition"]["min_distance_m"] - summary["min_clearance_m"] <= 0.35, summary
     assert (summary["competition"]["verdict"], summary["competition"]["points"]) == ("pass", 0)
+
+
+def test_a_case_that_takes_off_and_lands_at_a_position_has_that_position_as_its_goal():
+    concrete, params = import_aerialist(LAND_AT)
+    assert params["MIS_YAW_ERR"] == 12.0  # the competition's PX4 parameter file, carried whole
+    mission = world_of(concrete).mission
+    (goal,) = mission.waypoints
+    # PX4 climbs to the takeoff altitude, flies to the land item's position at it and lands there.
+    assert (goal.north_m, goal.east_m, goal.altitude_m) == pytest.approx((50.0, 10.0, 5.0), abs=0.5)
+    assert mission.land and (mission.landing.north_m, mission.landing.east_m) == (goal.north_m, goal.east_m)
+
+
+@pytest.mark.slow
+def test_a_takeoff_and_land_at_case_flies_with_the_printed_command_and_the_competition_scores_it(tmp_path, capsys):
+    out = tmp_path / "land_at.json"
+    assert main(["import", "aerialist", str(LAND_AT), "--out", str(out), "--json"]) == 0
+    command = shlex.split(json.loads(capsys.readouterr().out)["fly"])
+    assert command[0] == "stella" and "--sut-params-file" in command
+    assert main([*command[1:], "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] == "ok", result["why"]  # it reached the land position and landed within 3 m of it
+    assert main(["inspect", result["log_path"], "--competition", "--json"]) == 0
+    competition = json.loads(capsys.readouterr().out)["competition"]
+    # The box stands about 6 m beside the way: the competition passes the flight and gives no points.
+    assert (competition["verdict"], competition["points"]) == ("pass", 0) and 4.0 < competition["min_distance_m"] < 9.0, competition
 
 
 SQUARE = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]  # 2 m box at the origin

@@ -322,3 +322,67 @@ def test_the_autopilot_takes_any_timestamp_hil_sensor_can_carry():
     autopilot = Autopilot(Params())
     assert autopilot.step(2**64 - 1, (0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 15.0)) == (0.0, 0.0, 0.0, 0.0)
     assert autopilot.now_s == (2**64 - 1) / 1e6
+
+
+def test_a_px4_parameter_it_does_not_model_is_acknowledged_over_mavlink_as_without_effect():
+    """A client (QGroundControl, MAVSDK's param plugin) setting a PX4 parameter waits for the
+    PARAM_VALUE echo; the bundled autopilot gives it, says the value has no effect, and still
+    refuses a name PX4 does not have."""
+    import socket
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from autopilot.api import ApiLink
+    from autopilot.app import Autopilot
+
+    def answers(sock) -> list:
+        time.sleep(0.05)
+        link.receive()
+        sock.setblocking(False)
+        messages = []
+        while True:
+            try:
+                messages += mavlink.MAVLink(None).parse_buffer(sock.recv(65536)) or []
+            except BlockingIOError:
+                return messages
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        gcs.bind(("127.0.0.1", 0))
+        autopilot = Autopilot(Params())
+        link = ApiLink(autopilot, gcs.getsockname())
+        client = mavlink.MAVLink(None, srcSystem=245)
+        for name in (b"MIS_YAW_ERR", b"CP_DISTANCE"):
+            gcs.sendto(client.param_set_encode(1, 1, name, 12.0, mavlink.MAV_PARAM_TYPE_REAL32).pack(client), link.sock.getsockname())
+        kinds = [(m.get_type(), m.param_id if m.get_type() == "PARAM_VALUE" else m.text) for m in answers(gcs)]
+        assert ("PARAM_VALUE", "MIS_YAW_ERR") in kinds and ("STATUSTEXT", "MIS_YAW_ERR accepted without effect") in kinds
+        assert not any(kind == "PARAM_VALUE" and name == "CP_DISTANCE" for kind, name in kinds)
+        assert autopilot.params.unmodelled == {"MIS_YAW_ERR": 12.0} and "MIS_YAW_ERR" not in autopilot.params.names()
+        link.sock.close()
+
+
+def test_a_disarm_without_the_force_parameter_is_answered():
+    """MAVSDK's action.disarm() sends param2 as NaN; the autopilot took int() of it and its API
+    link died."""
+    import socket
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from autopilot.api import ApiLink
+    from autopilot.app import Autopilot
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        gcs.bind(("127.0.0.1", 0))
+        link = ApiLink(Autopilot(Params()), gcs.getsockname())
+        client = mavlink.MAVLink(None, srcSystem=245)
+        disarm = client.command_long_encode(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0.0, float("nan"), 0, 0, 0, 0, 0)
+        gcs.sendto(disarm.pack(client), link.sock.getsockname())
+        time.sleep(0.05)
+        link.receive()
+        gcs.settimeout(1.0)
+        acks = []
+        while not acks:
+            acks = [m for m in mavlink.MAVLink(None).parse_buffer(gcs.recv(65536)) or [] if m.get_type() == "COMMAND_ACK"]
+        assert (acks[0].command, acks[0].result) == (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED)  # already disarmed
+        link.sock.close()

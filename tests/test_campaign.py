@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import random
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -297,3 +298,84 @@ def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_noth
     assert main(command(tmp_path / "room.db")) == 0
     with sqlite3.connect(tmp_path / "room.db") as db:
         assert db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall() == [row[:3] for row in after]
+
+
+SPHERE = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
+
+
+def campaign_command(scenario, store) -> list[str]:
+    return ["campaign", str(scenario), "--algorithm", "RANDOM", "--evaluations", "3", "--population", "3", "--executor", "sequential",
+            "--store", str(store), "--json"]
+
+
+def evaluations(store) -> list[tuple]:
+    with sqlite3.connect(store) as db:
+        return db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall()
+
+
+def killed_before_its_last_evaluation(store) -> None:
+    """What kill -9 leaves when it strikes before the last evaluation is committed."""
+    with sqlite3.connect(store) as db:
+        db.execute("DELETE FROM evaluations WHERE ordinal = (SELECT MAX(ordinal) FROM evaluations)")
+        db.execute("DELETE FROM checkpoints")
+        db.execute("UPDATE runs SET finished = NULL")
+
+
+@pytest.mark.slow
+def test_a_store_copied_to_another_clone_at_another_path_resumes_there(tmp_path, capsys):
+    from harness.tools.cli import main
+
+    # GIVEN two clones with the same scenario at different paths, and a campaign made in the first
+    here, there = tmp_path / "clone" / "scenarios", tmp_path / "elsewhere" / "other-clone" / "s"
+    for folder in (here, there):
+        folder.mkdir(parents=True)
+        shutil.copy(SPHERE, folder / "sphere.json")
+    store = tmp_path / "clone" / "c.db"
+    assert main(campaign_command(here / "sphere.json", store)) == 0
+    uninterrupted = evaluations(store)
+    # WHEN its store, killed before its last evaluation, is copied to the other clone
+    copy = tmp_path / "elsewhere" / "other-clone" / "c.db"
+    shutil.copy(store, copy)
+    killed_before_its_last_evaluation(copy)
+    capsys.readouterr()
+    # THEN the same command there resumes it: the missing evaluation flown, the others from the store
+    assert main(campaign_command(there / "sphere.json", copy)) == 0
+    (run,) = json.loads(capsys.readouterr().out)["runs"]
+    assert (run["replayed"], run["flown"]) == (len(uninterrupted) - 1, 1)
+    assert evaluations(copy) == uninterrupted
+    with sqlite3.connect(copy) as db:  # where it was made is kept, as information
+        assert db.execute("SELECT scenario_file FROM runs").fetchall() == [(str(here / "sphere.json"),)]
+        assert json.loads(db.execute("SELECT sources FROM campaigns").fetchone()[0])["scenario_files"] == [str(here / "sphere.json")]
+
+
+@pytest.mark.slow
+def test_a_store_made_when_campaigns_were_known_by_path_keeps_resuming(tmp_path, capsys):
+    from harness.tools.cli import main
+
+    scenario = tmp_path / "sphere.json"
+    shutil.copy(SPHERE, scenario)
+    store = tmp_path / "old.db"
+    assert main(campaign_command(scenario, store)) == 0
+    uninterrupted = evaluations(store)
+    # Made the old way: the campaign known by the scenario's absolute path and the profile's name,
+    # its runs by the scenario's path, no record of where its files lay.
+    old_identity = {"scenarios": [str(scenario.resolve())], "algorithms": ["RANDOM"], "evaluations": 3, "runs": 1, "seed": 0, "population": 3,
+                    "profile": "default", "stop_at_violation": False, "sut": "bundled", "sut_params": {}}
+    with sqlite3.connect(store) as db:
+        db.execute("UPDATE campaigns SET config = ?", (json.dumps(old_identity, sort_keys=True),))
+        db.execute("ALTER TABLE campaigns DROP COLUMN sources")
+        db.execute("ALTER TABLE runs DROP COLUMN scenario_key")
+    killed_before_its_last_evaluation(store)
+    capsys.readouterr()
+    assert main(campaign_command(scenario, store)) == 0
+    (run,) = json.loads(capsys.readouterr().out)["runs"]
+    assert (run["replayed"], run["flown"]) == (len(uninterrupted) - 1, 1)
+    assert evaluations(store) == uninterrupted
+    # Resumed once where it was made, it is known by content: a copy elsewhere resumes too.
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    shutil.copy(scenario, moved / "sphere.json")
+    shutil.copy(store, moved / "old.db")
+    killed_before_its_last_evaluation(moved / "old.db")
+    assert main(campaign_command(moved / "sphere.json", moved / "old.db")) == 0
+    assert evaluations(moved / "old.db") == uninterrupted

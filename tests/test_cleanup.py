@@ -22,6 +22,8 @@ SCENARIO = ROOT / "scenarios" / "table3" / "scenario_05.json"
 
 
 def our_processes() -> list[str]:
+    """The simulator and autopilot processes this checkout's Python started: on a shared machine
+    another checkout's campaign may be running its own."""
     found = []
     for pid in os.listdir("/proc"):
         if not pid.isdigit():
@@ -31,7 +33,8 @@ def our_processes() -> list[str]:
                 argv = handle.read().split(b"\0")
         except OSError:
             continue
-        if b"-m" in argv and ({b"sim_bridge", b"autopilot", b"sut_adapter.inline"} & set(argv)):
+        ours = os.path.dirname(argv[0].decode(errors="replace")) == os.path.dirname(sys.executable)
+        if ours and b"-m" in argv and ({b"sim_bridge", b"autopilot", b"sut_adapter.inline"} & set(argv)):
             found.append(f"{pid}: {b' '.join(argv).decode(errors='replace')}")
     return found
 

@@ -4,9 +4,11 @@ merge with --sut-param."""
 from __future__ import annotations
 
 import argparse
+import logging
 
 import pytest
 
+from autopilot.params import Params
 from harness.errors import InputError
 from harness.interop.param_files import load_params_file
 from harness.tools.cli import _sut_spec, main
@@ -37,6 +39,37 @@ def test_competition_csv_with_or_without_a_header(tmp_path):
     assert load_params_file(path) == {"CP_DIST": 3, "MPC_XY_VEL_MAX": 8.5}
     path.write_text("CP_DIST,3\n")
     assert load_params_file(path) == {"CP_DIST": 3}
+
+
+# The UAV Testing Competition's parameter file (Aerialist's samples/flights/auto-params.csv),
+# written for PX4: most of it the bundled autopilot models, five names it does not.
+COMPETITION = "NAV_ACC_RAD, 1.5\nNAV_MC_ALT_RAD, 0.5\nNAV_RCL_ACT, 3\nNAV_DLL_ACT, 0\nMIS_YAW_ERR, 12.0\nMIS_TAKEOFF_ALT, 0.5\nMPC_YAW_MODE, 0\nSDLOG_PROFILE, 131\n"
+
+
+def spec_args(path, **more) -> argparse.Namespace:
+    return argparse.Namespace(**{"sut": "bundled", "px4_bin": None, "sut_command": None, "sut_hold": None, "sut_param": None,
+                                 "sut_params_file": str(path), "sut_fault": None, **more})
+
+
+def test_the_bundled_autopilot_takes_the_competitions_px4_parameters_and_says_once_which_have_no_effect(tmp_path, caplog):
+    path = tmp_path / "mission-params.csv"
+    path.write_text(COMPETITION)
+    with caplog.at_level(logging.WARNING):
+        config = _sut_spec(spec_args(path))
+    assert config.params == load_params_file(path)
+    assert [r.getMessage() for r in caplog.records] == [
+        "bundled: accepted without effect (PX4 parameters it does not model): MIS_YAW_ERR, MPC_YAW_MODE, NAV_DLL_ACT, NAV_MC_ALT_RAD, SDLOG_PROFILE"]
+    params = Params(dict(config.params))
+    assert (params["NAV_ACC_RAD"], params["NAV_RCL_ACT"], params["MIS_TAKEOFF_ALT"]) == (1.5, 3, 0.5)
+    assert params.unmodelled == {"MIS_YAW_ERR": 12.0, "MPC_YAW_MODE": 0, "NAV_DLL_ACT": 0, "NAV_MC_ALT_RAD": 0.5, "SDLOG_PROFILE": 131}
+    assert "MIS_YAW_ERR" not in params.names()  # not listed on the parameter protocol as if it worked
+
+
+def test_a_name_px4_does_not_have_is_still_refused_and_the_message_names_the_option(tmp_path, capsys):
+    path = tmp_path / "typo.csv"
+    path.write_text("MIS_YAW_ERR,12\nCP_DISTANCE,2\n")
+    assert main(["sut", "check", "--sut-params-file", str(path)]) == 2
+    assert "--sut-params-file: bundled: unknown parameter 'CP_DISTANCE' (`python -m autopilot.params` lists its parameters)" in capsys.readouterr().err
 
 
 def test_sut_param_wins_over_the_file(tmp_path):

@@ -214,7 +214,7 @@ def test_a_mission_concrete_scenario_flown_by_the_pilot_gets_full_stick_along_th
 
 
 def test_the_drive_override_is_part_of_the_campaign_identity():
-    base = CampaignConfig(("a.json",), ("NSGAII",), 10)
+    base = CampaignConfig((str(ROOT / "scenarios" / "examples" / "fig4.json"),), ("NSGAII",), 10)
     assert "drive" not in base.identity()
     assert replace(base, drive="pilot").identity()["drive"] == "pilot"
     assert replace(base, drive="pilot").identity() != replace(base, drive="mission").identity()

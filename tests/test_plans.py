@@ -114,8 +114,12 @@ BAD_PLANS = {
     "waits_for_operator": (lambda d: d["mission"]["items"][2].update(autoContinue=False), "/mission/items/2/autoContinue", "cannot be flown unattended"),
     "after_landing": (lambda d: d["mission"]["items"].append(copy.deepcopy(d["mission"]["items"][2])), "/mission/items/5",
                       "comes after the land item 4"),
-    "no_waypoint": (lambda d: d["mission"].update(items=[d["mission"]["items"][0], d["mission"]["items"][4]]), "/mission/items",
-                    "no waypoint"),
+    "lands_where_it_took_off": (lambda d: d["mission"].update(items=[d["mission"]["items"][0], item(21, 3)]), "/mission/items",
+                                "no waypoint, and the plan lands where it took off"),
+    "starts_with_landing": (lambda d: d["mission"].update(items=[d["mission"]["items"][4]]), "/mission/items/0",
+                            "the plan starts with landing: add a takeoff item before it (PX4 refuses it too)"),
+    "takeoff_after_a_waypoint": (lambda d: d["mission"]["items"].insert(3, copy.deepcopy(d["mission"]["items"][0])), "/mission/items/3",
+                                 "a takeoff that is not the first item with a position (item 0 is): remove it or move it first (PX4 refuses it too)"),
     "text_for_command": (lambda d: d["mission"]["items"][0].update(command="takeoff"), "/mission/items/0/command", "'takeoff' is not supported"),
 }
 

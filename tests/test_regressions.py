@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import xml.etree.ElementTree as ElementTree
 
 import numpy as np
@@ -17,7 +18,6 @@ from harness.flight.evaluation import EvaluationResult
 from harness.flight.fitness import Status
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
-from harness.tools.cli import main
 from sut_adapter import SutConfig
 
 CASES = ROOT / "tests" / "data" / "regressions"
@@ -176,10 +176,14 @@ def test_the_documented_example_suite_passes(pytester):
 
 @pytest.mark.slow
 def test_campaign_then_export_then_pytest_reproduces_the_fitness_the_campaign_found(pytester):
+    # Each command in a process of its own, as a user runs them: pytester removes from
+    # sys.modules what a test imported, and numpy's extension modules (numpy.fft, which the
+    # campaign imports through scipy) cannot be imported again in this process by later tests.
     store = pytester.path / "c.db"
-    assert main(["campaign", str(ROOT / "scenarios" / "table3" / "scenario_02.json"), "--algorithm", "RANDOM", "--evaluations", "4",
-                 "--executor", "sequential", "--store", str(store), "--json"]) == 0
-    assert main(["export-regressions", str(store), "--out", str(pytester.path / "cases"), "--worst", "1", "--json"]) == 0
+    stella = (sys.executable, "-m", "harness.tools.cli")
+    assert pytester.run(*stella, "campaign", str(ROOT / "scenarios" / "table3" / "scenario_02.json"), "--algorithm", "RANDOM", "--evaluations", "4",
+                        "--executor", "sequential", "--store", str(store), "--json").ret == 0
+    assert pytester.run(*stella, "export-regressions", str(store), "--out", str(pytester.path / "cases"), "--worst", "1", "--json").ret == 0
     [case] = (pytester.path / "cases").glob("*.regression.json")
     found = json.loads(case.read_text())["found"]
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "cases", "--junitxml=junit.xml")

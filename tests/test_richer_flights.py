@@ -3,8 +3,10 @@ whose outcome the element decides, deterministic to the last bit."""
 
 from __future__ import annotations
 
+import json
 import math
 import struct
+import sys
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -14,6 +16,7 @@ from harness.flight import logs
 from harness.flight.evaluation import evaluate
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
+from harness.tools.cli import main
 from simlink import codec
 
 pytestmark = pytest.mark.slow
@@ -153,3 +156,26 @@ def test_the_combined_example_flies_the_same_twice(tmp_path, profile):
     assert first.fitness == second.fitness
     traces = [[m for _t, _ns, m in logs.messages(r.log_path, ["/clearance", "/wind", "/events"])] for r in (first, second)]
     assert traces[0] == traces[1]
+
+
+# The bundled autopilot refusing every injection, as PX4 refuses a unit or type it cannot fail.
+REFUSING_SUT = ["--sut", "command", "--sut-command", f"{sys.executable} {ROOT / 'tests' / 'refusing_sut.py'} {{sim_port}} {{api_port}}", "--sut-hold", "frozen"]
+
+
+def test_a_failure_the_sut_refuses_shows_in_the_result_and_a_campaign_counts_such_flights(tmp_path, capsys):
+    scenario = str(DATA / "wall_baro_wrong_gps_off.json")  # its barometer failure is told to the SUT, at 0-15 s: always in flight
+    assert main(["run", scenario, "--seed", "3", *REFUSING_SUT, "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "warning: the SUT refused the barometer wrong failure at t=" in text and "(UNSUPPORTED): it flew on without it" in text
+    (log,) = tmp_path.glob("*.mcap")
+    assert main(["inspect", str(log), "--json"]) == 0
+    assert [(f["unit"], f["type"], f["result"]) for f in json.loads(capsys.readouterr().out)["failures_refused"]] == [("barometer", "wrong", "UNSUPPORTED")]
+    store = str(tmp_path / "c.db")
+    assert main(["campaign", scenario, "--algorithm", "RANDOM", "--evaluations", "2", "--population", "2", "--workers", "1", *REFUSING_SUT,
+                 "--store", store, "--json"]) == 0
+    (run,) = json.loads(capsys.readouterr().out)["runs"]
+    assert run["flown"] > 0 and run["failures_refused"] == run["flown"]
+    assert main(["compare", store]) == 0
+    assert f"the SUT refused a failure injection: RANDOM in {run['flown']} flights" in capsys.readouterr().out
+    assert main(["report", store, "--out", str(tmp_path / "c.html")]) == 0
+    assert f"RANDOM in {run['flown']} flights; they flew without the failure their scenario asks for" in (tmp_path / "c.html").read_text()

@@ -67,7 +67,7 @@ def test_bad_templates_say_what_to_fix(config, message):
 
 def test_the_cli_refuses_a_bad_sut_before_flying(capsys):
     assert main(["run", str(FIG4), "--sut", "command", "--sut-command", "ap {sim_port}"]) == 2
-    assert "--sut: /: command: --sut-command must use {api_port}" in capsys.readouterr().err
+    assert "--sut: command: --sut-command must use {api_port}" in capsys.readouterr().err
     assert main(["run", str(FIG4), "--sut", "nope"]) == 2
     assert "unknown SUT; available: bundled, command, px4" in capsys.readouterr().err
 
@@ -186,6 +186,33 @@ def test_sut_check_passes_every_stage_for_the_bundled_autopilot(capsys):
     assert all(stage["ok"] for stage in report["stages"])
     times = [stage["after_s"] for stage in report["stages"]]
     assert times == sorted(times)
+
+
+def late_armable(late_s: float) -> list[str]:
+    """A paced SUT (as PX4) that denies arming for late_s of simulated time after MAVSDK reports it healthy."""
+    return ["--sut", "command", "--sut-command", f"{sys.executable} {ROOT / 'tests' / 'late_armable_sut.py'} {{sim_port}} {{api_port}} {late_s}"]
+
+
+@pytest.mark.slow
+def test_sut_check_judges_armability_as_a_flight_does_and_says_how_long_arming_took(capsys, tmp_path):
+    # GIVEN a SUT healthy but not yet armable, as PX4 just after its start-up
+    assert main(["sut", "check", *late_armable(1.0), "--json"]) == 0
+    armable = json.loads(capsys.readouterr().out)["stages"][5]
+    # THEN the check arms it as a flight would, asking again while it denies
+    assert armable["name"] == "armable" and armable["ok"], armable
+    assert armable["detail"].startswith("armed ") and "s after asking (a flight asks again for up to 10 s), then disarmed" in armable["detail"]
+    # ... and a flight of the same SUT arms too
+    assert main(["run", str(ROOT / "scenarios" / "examples" / "fig4.json"), "--seed", "1", *late_armable(1.0), "--out", str(tmp_path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["status"] in ("ok", "violation")
+
+
+@pytest.mark.slow
+def test_sut_check_fails_at_armable_a_sut_that_denies_arming_longer_than_a_flight_asks(capsys):
+    assert main(["sut", "check", *late_armable(1e6), "--json"]) == 3
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    assert [stage["ok"] for stage in stages] == [True, True, True, True, True, False, None]
+    assert "arming refused" in stages[5]["detail"] and "as long as a flight asks" in stages[5]["detail"]
+    assert "pre-arm checks still running" in stages[5]["detail"]  # the SUT's own reason, from its status texts
 
 
 @pytest.mark.slow

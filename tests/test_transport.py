@@ -108,13 +108,13 @@ def test_auto_takes_a_unix_socket_where_shared_memory_is_not_available(monkeypat
 def test_unix_is_refused_for_a_sut_that_connects_over_tcp_only(capsys):
     assert main(["run", str(ROOT / "scenarios" / "table3" / "scenario_05.json"), "--sut", "command",
                  "--sut-command", "my-autopilot --sim {sim_port} --api {api_port}", "--transport", "unix"]) == 2
-    assert "--transport: /: unix carries the bundled autopilot only; command connects to the simulator over TCP" in capsys.readouterr().err
+    assert "--transport: unix carries the bundled autopilot only; command connects to the simulator over TCP" in capsys.readouterr().err
 
 
 def test_memory_is_refused_for_a_sut_in_a_process_of_its_own(capsys):
     assert main(["run", str(ROOT / "scenarios" / "table3" / "scenario_05.json"), "--sut", "command",
                  "--sut-command", "my-autopilot --sim {sim_port} --api {api_port}", "--transport", "memory"]) == 2
-    assert "--transport: /: memory carries the bundled autopilot only; command runs in a process of its own" in capsys.readouterr().err
+    assert "--transport: memory carries the bundled autopilot only; command runs in a process of its own" in capsys.readouterr().err
 
 
 def test_an_autopilot_that_raises_inside_the_bridge_is_a_crashed_sut_not_a_crashed_simulator(capsys):

@@ -10,6 +10,8 @@ The run's result is the lowest fitness of all its steps.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import sys
 from dataclasses import dataclass, field, replace
@@ -22,7 +24,7 @@ from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.evaluation import EvaluationResult, RunOptions
-from harness.scenario.logical import load_logical
+from harness.scenario.logical import LogicalScenario, load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
@@ -58,15 +60,39 @@ class CampaignConfig:
     objective: str = "subject"
     stop_at_reveal: bool = False  # end each run at its first confirmed revealing candidate
 
+    def scenario_documents(self) -> list[LogicalScenario]:
+        """The logical scenarios as this campaign flies them (drive and plan applied)."""
+        profile = load_profile(self.profile)
+        plan = Path(self.mission_plan) if self.mission_plan else None
+        return [load_logical(Path(s), profile, self.drive, plan) for s in self.scenarios]
+
     def identity(self) -> dict[str, Any]:
-        """What makes two invocations the same campaign (and so resumable from one store)."""
+        """What makes two invocations the same campaign (and so resumable from one store): the
+        scenario documents and the profile as read, by content, not where they lie, so a store
+        copied to another checkout or machine resumes there."""
+        return self._identity(scenarios=[content_key(s.document) for s in self.scenario_documents()],
+                              profile=content_key(load_profile(self.profile).document))
+
+    def legacy_identity(self) -> dict[str, Any]:
+        """The identity stores were made with before it was by content: the scenario files' (and
+        the mission plan's) absolute paths and the profile's name. Such a store resumes where it
+        was made."""
+        identity = self._identity(scenarios=[str(Path(s).resolve()) for s in self.scenarios], profile=self.profile)
+        if self.mission_plan:
+            identity["mission_plan"] = str(Path(self.mission_plan).resolve())
+        return identity
+
+    def sources(self) -> dict[str, Any]:
+        """Where the campaign's documents were read from: information, not identity."""
+        return {"scenario_files": [str(Path(s).resolve()) for s in self.scenarios], "profile": self.profile,
+                **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {})}
+
+    def _identity(self, *, scenarios: list[str], profile: str) -> dict[str, Any]:
         overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}
         if self.batch != DEFAULT_BATCH:  # stores made before the batch was a setting resume as they were
             overrides["batch"] = self.batch
         if self.confirm:
             overrides["confirm"] = self.confirm
-        if self.mission_plan:
-            overrides["mission_plan"] = str(Path(self.mission_plan).resolve())
         if self.sut.fault:
             overrides["sut_fault"] = self.sut.fault
         if self.reference is not None:
@@ -76,18 +102,23 @@ class CampaignConfig:
         if self.stop_at_reveal:
             overrides["stop_at_reveal"] = True
         return {
-            "scenarios": [str(Path(s).resolve()) for s in self.scenarios],
+            "scenarios": scenarios,
             "algorithms": list(self.algorithms),
             "evaluations": self.evaluations,
             "runs": self.runs,
             "seed": self.seed,
             "population": self.population,
-            "profile": self.profile,
+            "profile": profile,
             "stop_at_violation": self.stop_at_violation,
             "sut": self.sut.name,
             "sut_params": dict(self.sut.params),
             **overrides,
         }
+
+
+def content_key(document: Any) -> str:
+    """A JSON document's identity by content: the SHA-256 of its canonical text."""
+    return "sha256:" + hashlib.sha256(json.dumps(document, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def least_explored(space: SearchSpace, evaluated: Sequence[np.ndarray], count: int, rng: np.random.Generator) -> list[np.ndarray]:
@@ -158,7 +189,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     flights in its store unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
-    campaign_id = store.campaign(config.identity())
+    campaign_id = store.campaign(config.identity(), legacy=config.legacy_identity(), sources=config.sources())
     pairs = None
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache
@@ -167,12 +198,13 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                               cache=reference_cache or ReferenceCache(store.path))
     profile = load_profile(config.profile)
     summary = CampaignSummary()
-    for scenario_file in config.scenarios:
-        space = SearchSpace(load_logical(Path(scenario_file), profile, config.drive, Path(config.mission_plan) if config.mission_plan else None), profile)
+    for scenario_file, logical in zip(config.scenarios, config.scenario_documents()):
+        space = SearchSpace(logical, profile)
         for algorithm, combination in zip(config.algorithms, combinations):
             for run_index in range(config.runs):
                 seed = config.seed + run_index
-                run_id, finished = store.run(campaign_id, str(Path(scenario_file).resolve()), space.logical.name, algorithm.upper(), run_index, seed)
+                run_id, finished = store.run(campaign_id, str(Path(scenario_file).resolve()), space.logical.name, algorithm.upper(), run_index, seed,
+                                             scenario_key=content_key(logical.document))
                 if finished:
                     continue
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
@@ -182,7 +214,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 best = problem.best
                 summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,
                                      "evaluations": problem.spent, "flown": problem.flown, "replayed": problem.replayed, "violations": problem.violations,
-                                     "best_fitness": best[1] if best else None, **({"revealing": problem.revealing} if pairs else {})})
+                                     "failures_refused": store.failures_refused(run_id), "best_fitness": best[1] if best else None,
+                                     **({"revealing": problem.revealing} if pairs else {})})
                 print(f"{space.logical.name} {algorithm.upper()} run {run_index}: best fitness {best[1] if best else float('nan'):.3f}, "
                       f"{problem.violations} violations in {problem.spent} evaluations", file=sys.stderr)
     return summary

@@ -17,7 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from harness.campaigns.statistics import compare
+from harness.campaigns.statistics import compare, refused_text
 from harness.campaigns.store import Store, is_flaky
 
 PAGE = """<!DOCTYPE html>
@@ -28,6 +28,7 @@ table {{ border-collapse: collapse; margin: 1em 0; }}
 td, th {{ border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }}
 th {{ background: #f2f2f2; }} td.text {{ text-align: left; }}
 img {{ max-width: 100%; border: 1px solid #eee; }}
+p.warning {{ color: #a40; }}
 code {{ font-size: 0.9em; }}
 </style></head>
 <body>
@@ -100,7 +101,9 @@ def _comparison_table(report: dict[str, Any]) -> str:
             f"<td>{row['median_best_fitness']:.3f}</td><td>{row['violations']}</td><td>{cell(row['relative_performance_pct'], '+.0f')}</td>"
             f"<td>{cell(row['p_value'], '.3f')}</td><td>{cell(row['a12'], '.2f')}</td></tr>"
         )
-    return f"<p>Baseline: {report['baseline']}.</p><table>{''.join(rows)}</table>"
+    refused = any(row["failures_refused"] for row in report["overall"])
+    return (f"<p>Baseline: {report['baseline']}.</p><table>{''.join(rows)}</table>"
+            + (f"<p class='warning'>{html.escape(refused_text(report))}.</p>" if refused else ""))
 
 
 def _worst(store: Store, count: int) -> list[str]:

@@ -44,6 +44,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     violations: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     revealing: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    refused: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for run in store.run_rows():
         if run["best_fitness"] is None:
             continue
@@ -51,6 +52,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         violations[run["scenario"]][run["algorithm"]] += run["violations"] or 0
         flaky[run["scenario"]][run["algorithm"]] += run["flaky"] or 0
         revealing[run["scenario"]][run["algorithm"]] += run["revealing"] or 0
+        refused[run["scenario"]][run["algorithm"]] += run["failures_refused"] or 0
     baseline = baseline.upper()
     rows = []
     pooled: dict[str, list[float]] = defaultdict(list)
@@ -61,6 +63,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
             median = statistics.median(values)
             row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
                    "violations": violations[scenario][algorithm], "flaky": flaky[scenario][algorithm], "revealing": revealing[scenario][algorithm],
+                   "failures_refused": refused[scenario][algorithm],
                    "relative_performance_pct": None, "p_value": None, "a12": None}
             pooled[algorithm].extend(values)
             if base and algorithm != baseline:
@@ -75,7 +78,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         base = pooled.get(baseline)
         entry = {"algorithm": algorithm, "runs": len(values), "median_best_fitness": statistics.median(values),
                  "violations": sum(violations[s][algorithm] for s in violations), "flaky": sum(flaky[s][algorithm] for s in flaky),
-                 "revealing": sum(revealing[s][algorithm] for s in revealing), "relative_performance_pct": None, "p_value": None, "a12": None}
+                 "revealing": sum(revealing[s][algorithm] for s in revealing), "failures_refused": sum(refused[s][algorithm] for s in refused),
+                 "relative_performance_pct": None, "p_value": None, "a12": None}
         if base and algorithm != baseline:
             entry["relative_performance_pct"] = statistics.mean(relative[algorithm]) if relative[algorithm] else None
             entry["p_value"] = p_value(values, base)
@@ -101,7 +105,15 @@ def table(report: dict[str, Any]) -> str:
     if any(row["flaky"] for row in report["overall"]):
         lines.append("flaky: " + ", ".join(f"{row['algorithm']} {row['flaky']} of its {row['violations']} violations did not come back in "
                                             "every --confirm re-flight" for row in report["overall"] if row["flaky"]))
+    if any(row["failures_refused"] for row in report["overall"]):
+        lines.append(refused_text(report))
     return "\n".join(lines)
+
+
+def refused_text(report: dict[str, Any]) -> str:
+    return ("the SUT refused a failure injection: " + ", ".join(f"{row['algorithm']} in {row['failures_refused']} flights" for row in report["overall"]
+                                                                  if row["failures_refused"])
+            + "; they flew without the failure their scenario asks for")
 
 
 def spread(results: Sequence[dict[str, Any]]) -> dict[str, Any]:

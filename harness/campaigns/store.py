@@ -26,7 +26,8 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS campaigns (
     id INTEGER PRIMARY KEY,
     created REAL NOT NULL,
-    config TEXT NOT NULL UNIQUE
+    config TEXT NOT NULL UNIQUE,
+    sources TEXT
 );
 CREATE TABLE IF NOT EXISTS runs (
     id INTEGER PRIMARY KEY,
@@ -37,6 +38,7 @@ CREATE TABLE IF NOT EXISTS runs (
     run_index INTEGER NOT NULL,
     seed INTEGER NOT NULL,
     finished REAL,
+    scenario_key TEXT,
     UNIQUE (campaign_id, scenario_file, algorithm, run_index)
 );
 CREATE TABLE IF NOT EXISTS evaluations (
@@ -61,6 +63,7 @@ CREATE TABLE IF NOT EXISTS evaluations (
     confirmations TEXT,
     reveals TEXT,
     differential TEXT,
+    failures_refused TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -139,6 +142,13 @@ class Store:
         if "differential" not in columns:  # ... or before flights were paired with a reference
             self.db.execute("ALTER TABLE evaluations ADD COLUMN reveals TEXT")
             self.db.execute("ALTER TABLE evaluations ADD COLUMN differential TEXT")
+        if "failures_refused" not in columns:  # ... or before failure injections the SUT refused were kept
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN failures_refused TEXT")
+        # Stores from before campaigns and runs were known by the content of their documents.
+        if "sources" not in {row[1] for row in self.db.execute("PRAGMA table_info(campaigns)")}:
+            self.db.execute("ALTER TABLE campaigns ADD COLUMN sources TEXT")
+        if "scenario_key" not in {row[1] for row in self.db.execute("PRAGMA table_info(runs)")}:
+            self.db.execute("ALTER TABLE runs ADD COLUMN scenario_key TEXT")
         self.db.commit()
 
     def close(self) -> None:
@@ -152,31 +162,49 @@ class Store:
 
     # -- campaigns and runs --------------------------------------------------------------------
 
-    def campaign(self, config: Mapping[str, Any]) -> int:
-        """The campaign with exactly this configuration; a store holds one campaign."""
+    def campaign(self, config: Mapping[str, Any], *, legacy: Mapping[str, Any] | None = None, sources: Mapping[str, Any] | None = None) -> int:
+        """The campaign with exactly this configuration; a store holds one campaign. A store made
+        with its `legacy` configuration (before campaigns were known by content) is that
+        campaign: it is re-keyed by `config` from now on, so a copy of it resumes anywhere.
+        `sources` (where its files lie) is kept as information."""
         text = json.dumps(config, sort_keys=True)
         row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (text,)).fetchone()
         if row:
             return row[0]
+        if legacy is not None:
+            row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (json.dumps(legacy, sort_keys=True),)).fetchone()
+            if row:
+                with self.db:
+                    self.db.execute("UPDATE campaigns SET config = ?, sources = ? WHERE id = ?", (text, json.dumps(sources), row[0]))
+                return row[0]
         other = self.db.execute("SELECT config FROM campaigns").fetchone()
         if other:
             raise InputError([Problem(str(self.path), "", "this store holds a different campaign (other scenarios, algorithms, budget, runs or seed); "
                                       "resume it with the same arguments or use a new --store")])
         with self.db:
-            return self.db.execute("INSERT INTO campaigns (created, config) VALUES (?, ?)", (time.time(), text)).lastrowid
+            return self.db.execute("INSERT INTO campaigns (created, config, sources) VALUES (?, ?, ?)",
+                                   (time.time(), text, json.dumps(sources) if sources is not None else None)).lastrowid
 
-    def run(self, campaign_id: int, scenario_file: str, scenario: str, algorithm: str, run_index: int, seed: int) -> tuple[int, bool]:
-        """(run id, already finished)."""
-        row = self.db.execute(
-            "SELECT id, finished FROM runs WHERE campaign_id = ? AND scenario_file = ? AND algorithm = ? AND run_index = ?",
-            (campaign_id, scenario_file, algorithm, run_index),
-        ).fetchone()
+    def run(self, campaign_id: int, scenario_file: str, scenario: str, algorithm: str, run_index: int, seed: int, *,
+            scenario_key: str | None = None) -> tuple[int, bool]:
+        """(run id, already finished). A run is found by its scenario's content (`scenario_key`)
+        where given, the file it was read from (`scenario_file`) being information; a run made
+        before runs were keyed so is found by its file and keyed from now on."""
+        select = "SELECT id, finished FROM runs WHERE campaign_id = ? AND algorithm = ? AND run_index = ?"
+        row = None
+        if scenario_key is not None:
+            row = self.db.execute(f"{select} AND scenario_key = ?", (campaign_id, algorithm, run_index, scenario_key)).fetchone()
+        if row is None:
+            row = self.db.execute(f"{select} AND scenario_file = ? AND scenario_key IS NULL", (campaign_id, algorithm, run_index, scenario_file)).fetchone()
+            if row is not None and scenario_key is not None:
+                with self.db:
+                    self.db.execute("UPDATE runs SET scenario_key = ? WHERE id = ?", (scenario_key, row[0]))
         if row:
             return row[0], row[1] is not None
         with self.db:
             cursor = self.db.execute(
-                "INSERT INTO runs (campaign_id, scenario_file, scenario, algorithm, run_index, seed) VALUES (?, ?, ?, ?, ?, ?)",
-                (campaign_id, scenario_file, scenario, algorithm, run_index, seed),
+                "INSERT INTO runs (campaign_id, scenario_file, scenario, algorithm, run_index, seed, scenario_key) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (campaign_id, scenario_file, scenario, algorithm, run_index, seed, scenario_key),
             )
         return cursor.lastrowid, False
 
@@ -195,7 +223,7 @@ class Store:
         with self.db:
             self.db.execute(
                 "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
-                " reveals, differential) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " reveals, differential, failures_refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
@@ -204,6 +232,7 @@ class Store:
                     json.dumps(result.confirmations) if result.confirmations else None,
                     result.differential["reveals"] if result.differential else None,
                     json.dumps(result.differential) if result.differential else None,
+                    json.dumps(result.failures_refused) if result.failures_refused else None,
                 ),
             )
 
@@ -218,12 +247,14 @@ class Store:
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
             " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id),"
             " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')),"
-            " SUM(e.reveals IS NOT NULL), SUM(e.reveals = 'unsafe'), MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END)"
+            " SUM(e.failures_refused IS NOT NULL), SUM(e.reveals IS NOT NULL), SUM(e.reveals = 'unsafe'), MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END)"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
+        names = ("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky",
+                 "failures_refused",  # flights in which the SUT refused a failure injection
+                 "revealing", "revealing_unsafe", "first_revealing")  # a differential campaign's candidates that reveal a difference
         for row in self.db.execute(query):
-            yield dict(zip(("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky",
-                                "revealing", "revealing_unsafe", "first_revealing"), row))
+            yield dict(zip(names, row))
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
@@ -266,6 +297,10 @@ class Store:
         names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "reveals", "differential",
                  "scenario_file", "algorithm", "run_index")
         return [{**dict(zip(names, row)), "differential": json.loads(row[9])} for row in self.db.execute(query)]
+
+    def failures_refused(self, run_id: int) -> int:
+        """How many of a run's flights the SUT refused a failure injection in."""
+        return self.db.execute("SELECT COUNT(*) FROM evaluations WHERE run_id = ? AND failures_refused IS NOT NULL", (run_id,)).fetchone()[0]
 
     def best_so_far(self, run_id: int) -> list[tuple[int, float]]:
         """(ordinal, best fitness up to it) for a convergence curve."""

@@ -57,6 +57,11 @@ LINGER_S = 5.0
 ARM_RETRY_S = 10.0
 
 
+def arm_retry_for(system: SystemUnderTest) -> float:
+    """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
+    return ARM_RETRY_S if system.hold_mode == "paced" else 0.0
+
+
 @dataclass(frozen=True)
 class RunOptions:
     sut: SutConfig = field(default_factory=SutConfig)
@@ -122,6 +127,9 @@ class EvaluationResult:
     # Flown against a reference SUT too (harness/flight/differential.py): both sides' flights,
     # whether they reveal a difference, and the objective that made `fitness`.
     differential: dict[str, Any] | None = None
+    # Failure injections the SUT refused (t, unit, type, its answer): it flew on without them, so
+    # the flight did not test what the scenario says.
+    failures_refused: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -148,6 +156,12 @@ def _logged_api_traffic(log_path: Path) -> Iterator[bytes]:
     for _t, _ns, record in logs.messages(log_path, ["/mavlink/api"]):
         if record["direction"] == "from_sut":
             yield bytes.fromhex(record["hex"])
+
+
+def refused_failures(events: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The failure injections the SUT refused, from the simulator's /events."""
+    return [{"t": event["t"], "unit": event["detail"]["unit"], "type": event["detail"]["type"], "result": event["detail"]["result"]}
+            for event in events if event.get("event") == "failure_refused"]
 
 
 def _score(recorded: Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]], world: WorldSpec, summary: Mapping[str, Any],
@@ -184,7 +198,7 @@ def rescore(log_path: Path) -> dict[str, Any]:
     status, value, why, clearance = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, _logged_api_traffic(log_path),
                                            partial=cut is not None)
     return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
-            "truncation": cut}
+            "truncation": cut, "failures_refused": refused_failures(m for _t, _ns, m in logs.messages(log_path, ["/events"]))}
 
 
 def infeasible(space: SearchSpace, x: np.ndarray, *, seed: int, sut: str) -> EvaluationResult | None:
@@ -222,7 +236,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     mavsdk_info: dict[str, Any] = {}
     artifacts: list[str] = []
 
-    def finish(status: Status, value: float, why: str | None, clearance: scoring.Clearance | None, log_path: Path | None) -> EvaluationResult:
+    def finish(status: Status, value: float, why: str | None, clearance: scoring.Clearance | None, log_path: Path | None,
+               failures_refused: list[dict[str, Any]] | None = None) -> EvaluationResult:
         in_run = summary.get("wall_in_run_s") or 0.0
         run_time = summary.get("run_time_s") or 0.0
         return EvaluationResult(
@@ -243,13 +258,13 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             artifacts=artifacts,
             timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
             mavsdk=mavsdk_info,
+            failures_refused=failures_refused or [],
         )
 
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            arm_retry_s = ARM_RETRY_S if system.hold_mode == "paced" else 0.0
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_s)
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_for(system))
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
@@ -263,7 +278,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
         status, value, why, clearance = _score(recording.messages, world, summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
-        result = finish(status, value, why, clearance, log_path)
+        result = finish(status, value, why, clearance, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(), "placement": stack.placement,

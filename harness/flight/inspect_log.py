@@ -48,6 +48,7 @@ def summarize(path: Path) -> dict[str, Any]:
         "min_clearance_obstacle": clearance.obstacle,
         "safety_distance_m": scored["world"].safety_distance_m,
         "touchdown": summary.get("touchdown"),
+        "failures_refused": scored["failures_refused"],
         "partial": cut is not None,
         "truncation": None if cut is None else {"readable_bytes": cut.readable_bytes, "size_bytes": cut.size_bytes, "last_time_s": cut.last_time_s},
         "truncation_text": None if cut is None else cut.describe(),

@@ -3,9 +3,16 @@ mission the harness flies and scores, in the local frame whose origin is the pla
 
 A plan's SimpleItems are uploaded as they are (command, frame, params, position), as
 QGroundControl uploads them, so PX4 sees the mission its user planned. Supported: takeoff,
-waypoint (hold time, acceptance radius), land, return to launch, change speed and delay, with
-altitudes relative to home (frame 3) or above mean sea level (frame 0). Everything else is refused
-with the item's location, rather than flown differently from what the plan says.
+waypoint (hold time, acceptance radius), land (at a position or where the vehicle is), return to
+launch, change speed and delay, with altitudes relative to home (frame 3) or above mean sea level
+(frame 0). A plan without a waypoint flies to its land item's position, as PX4 does: that
+position is its goal.
+
+Everything else is refused with the item's location, rather than flown differently from what the
+plan says, and each refusal says whose it is: PX4's (its mission protocol,
+src/modules/mavlink/mavlink_mission.cpp, or its feasibility checker,
+src/modules/navigator/MissionFeasibility/) or the simulator's (what it cannot fly or score as
+planned, though PX4 would take it).
 """
 
 from __future__ import annotations
@@ -46,6 +53,8 @@ MAX_DISTANCE_FROM_HOME_M = 5000.0
 # Where obstacles may be placed around a plan's route (the landforms give their 60 m route 20 m
 # before and after it).
 AREA_MARGIN_M = 20.0
+PX4_REFUSES = " (PX4 refuses it too)"
+SIMULATOR_LIMIT = " (a limit of the simulator, not PX4's)"
 
 
 @dataclass(frozen=True)
@@ -94,6 +103,15 @@ class Plan:
             return 0.0, 0.0
         positioned = [item for item in self.items if item.has_position]
         return (positioned[-1].north_m, positioned[-1].east_m) if positioned else (0.0, 0.0)
+
+    @property
+    def route(self) -> tuple[tuple[float, float, float, float | None], ...]:
+        """north_m, east_m, altitude_m and acceptance radius (None: the default) of each position
+        the flight must pass: the waypoints, or in a plan without any, the land item's position,
+        which PX4 flies to at the altitude it took off to before it descends."""
+        if self.waypoints:
+            return tuple((w.north_m, w.east_m, w.altitude_m, w.params[1] if w.params[1] > 0 else None) for w in self.waypoints)
+        return (*self.landing_point, self.takeoff_altitude_m, None),
 
     @property
     def takeoff_altitude_m(self) -> float:
@@ -150,7 +168,8 @@ def _home_problems(mission: Mapping[str, Any], file: str, at: str) -> list[Probl
     home = mission.get("plannedHomePosition")
     if not isinstance(home, list) or len(home) != 3 or not all(_number(v) for v in home):
         return [Problem(file, f"{at}/mission/plannedHomePosition", "expected [latitude deg, longitude deg, altitude m AMSL]: "
-                                                                   "QGroundControl writes it when the plan has a home position")]
+                                                                   "QGroundControl writes it when the plan has a home position; "
+                                                                   "the simulator builds its world around it")]
     if not (-90.0 <= home[0] <= 90.0 and -180.0 <= home[1] <= 180.0):
         return [Problem(file, f"{at}/mission/plannedHomePosition", f"latitude {home[0]} / longitude {home[1]} out of range")]
     return []
@@ -164,33 +183,40 @@ def _item_problems(item: Any, index: int, home: Mapping[str, float], file: str, 
     if kind != "SimpleItem":
         what = f'{item.get("complexItemType", kind)!s}' if kind == "ComplexItem" else repr(kind)
         return [Problem(file, f"{where}/type", f"{what} items are not supported (surveys, corridor scans and other complex items): "
-                                                f"plan the route as single waypoints")]
+                                                f"plan the route as single waypoints{SIMULATOR_LIMIT}: QGroundControl expands them "
+                                                f"into single items when it uploads, this reader does not")]
     command = item.get("command")
     if command not in COMMANDS or isinstance(command, bool):
         supported = ", ".join(f"{name} ({number})" for number, name in COMMANDS.items())
-        return [Problem(file, f"{where}/command", f"command {command!r} is not supported: use {supported}")]
+        return [Problem(file, f"{where}/command", f"command {command!r} is not supported: use {supported}{SIMULATOR_LIMIT}: "
+                                                   "PX4 flies more commands, the simulator models and scores these")]
     problems = []
     frame = item.get("frame")
     wanted = ALTITUDE_FRAMES if command in POSITION_COMMANDS else (FRAME_MISSION, *ALTITUDE_FRAMES)
     if frame not in wanted or isinstance(frame, bool):
         name = FRAME_NAMES.get(frame, "unknown") if isinstance(frame, int) else "not a number"
         choices = " or ".join(f"{f} ({FRAME_NAMES[f]})" for f in wanted)
-        problems.append(Problem(file, f"{where}/frame", f"frame {frame!r} ({name}) is not supported for {COMMANDS[command]}: use {choices}"))
+        problems.append(Problem(file, f"{where}/frame", f"frame {frame!r} ({name}) is not supported for {COMMANDS[command]}: use {choices}"
+                                                        f"{PX4_REFUSES}"))
     if item.get("autoContinue", True) is not True:
-        problems.append(Problem(file, f"{where}/autoContinue", "a mission that waits for the operator cannot be flown unattended: set it true"))
+        problems.append(Problem(file, f"{where}/autoContinue", "a mission that waits for the operator cannot be flown unattended: set it true"
+                                                               f"{SIMULATOR_LIMIT}"))
     params = item.get("params")
     if not isinstance(params, list) or len(params) != 7 or not all(p is None or _number(p) for p in params):
         problems.append(Problem(file, f"{where}/params", "expected 7 numbers (null for unset): param1-4, latitude, longitude, altitude"))
         return problems
     p = [_param(v) for v in params]
     if command == DO_CHANGE_SPEED and not (p[1] > 0 or p[1] == -1):
-        problems.append(Problem(file, f"{where}/params/1", f"speed {params[1]} m/s: give a positive speed (-1 keeps the current one)"))
+        problems.append(Problem(file, f"{where}/params/1", f"speed {params[1]} m/s: give a positive speed (-1 keeps the current one)"
+                                                            f"{SIMULATOR_LIMIT}: its time limit follows from the speeds"))
     if command == NAV_DELAY and not p[0] >= 0:
-        problems.append(Problem(file, f"{where}/params/0", f"delay {params[0]}: give the seconds to wait (a time of day is not supported)"))
+        problems.append(Problem(file, f"{where}/params/0", f"delay {params[0]}: give the seconds to wait (a time of day is not supported"
+                                                            f"{SIMULATOR_LIMIT}: simulated time has no time of day)"))
     if command == NAV_WAYPOINT:
         for number, what in ((0, "hold time (s)"), (1, "acceptance radius (m)")):
             if math.isfinite(p[number]) and p[number] < 0:
-                problems.append(Problem(file, f"{where}/params/{number}", f"{what} {params[number]} must not be negative"))
+                problems.append(Problem(file, f"{where}/params/{number}", f"{what} {params[number]} must not be negative{SIMULATOR_LIMIT}: "
+                                                                          "its mission check needs a meaning for it"))
     if command in POSITION_COMMANDS and not problems:
         problems += _position_problems(command, frame, p, home, file, where)
     return problems
@@ -200,21 +226,24 @@ def _position_problems(command: int, frame: int, p: list[float], home: Mapping[s
     lat, lon, z = p[4], p[5], p[6]
     located = math.isfinite(lat) and math.isfinite(lon) and (lat, lon) != (0.0, 0.0)
     if command == NAV_WAYPOINT and not located:
-        return [Problem(file, f"{where}/params/4", "a waypoint needs a latitude and longitude")]
+        return [Problem(file, f"{where}/params/4", f"a waypoint needs a latitude and longitude{SIMULATOR_LIMIT}: "
+                                                    "PX4 would fly to 0, 0, outside the simulated world")]
     problems = []
     if located:
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-            return [Problem(file, f"{where}/params/4", f"latitude {lat} / longitude {lon} out of range")]
+            return [Problem(file, f"{where}/params/4", f"latitude {lat} / longitude {lon} out of range{SIMULATOR_LIMIT}")]
         distance = math.hypot(*local_from_geodetic(home["lat_deg"], home["lon_deg"], lat, lon))
         if distance > MAX_DISTANCE_FROM_HOME_M:
             problems.append(Problem(file, f"{where}/params/4", f"{distance / 1000:.1f} km from home: the simulated world reaches "
-                                                                f"{MAX_DISTANCE_FROM_HOME_M / 1000:.0f} km; is plannedHomePosition right?"))
+                                                                f"{MAX_DISTANCE_FROM_HOME_M / 1000:.0f} km; is plannedHomePosition right?{SIMULATOR_LIMIT}"))
     if command != NAV_LAND:
         if not math.isfinite(z):
-            problems.append(Problem(file, f"{where}/params/6", "an altitude is needed"))
+            problems.append(Problem(file, f"{where}/params/6", f"an altitude is needed{SIMULATOR_LIMIT}"))
         elif _altitude_above_home(frame, z, home) <= 0.0:
+            # PX4's feasibility checker refuses a takeoff below home; a waypoint there is in the simulated ground.
+            whose = PX4_REFUSES if command == NAV_TAKEOFF else f"{SIMULATOR_LIMIT}: its ground is at home's altitude"
             problems.append(Problem(file, f"{where}/params/6", f"altitude {z:g} m ({FRAME_NAMES[frame]}) is not above home "
-                                                                f"({home['alt_m']:g} m AMSL)"))
+                                                                f"({home['alt_m']:g} m AMSL){whose}"))
     return problems
 
 
@@ -241,12 +270,24 @@ def plan_problems(document: Any, file: str, at: str = "") -> list[Problem]:
     if problems:
         return problems
     commands = [item["command"] for item in items]
-    if NAV_WAYPOINT not in commands:
-        problems.append(Problem(file, f"{at}/mission/items", "no waypoint: the UAV has nowhere to fly"))
+    positioned = [i for i, c in enumerate(commands) if c in (*POSITION_COMMANDS, NAV_RETURN_TO_LAUNCH)]
+    if positioned and commands[positioned[0]] == NAV_LAND:
+        whose = PX4_REFUSES if positioned[0] == 0 else f"{SIMULATOR_LIMIT}: it needs an altitude to fly to the land item at"
+        problems.append(Problem(file, f"{at}/mission/items/{positioned[0]}", f"the plan starts with landing: add a takeoff item before it{whose}"))
+    late_takeoff = next((i for i in positioned[1:] if commands[i] == NAV_TAKEOFF), None)
+    if late_takeoff is not None:
+        problems.append(Problem(file, f"{at}/mission/items/{late_takeoff}", f"a takeoff that is not the first item with a position "
+                                                                            f"(item {positioned[0]} is): remove it or move it first{PX4_REFUSES}"))
     ending = next((i for i, c in enumerate(commands) if c in ENDING_COMMANDS), None)
     if ending is not None and ending != len(items) - 1:
         problems.append(Problem(file, f"{at}/mission/items/{ending + 1}", f"comes after the {COMMANDS[commands[ending]]} item "
-                                                                          f"{ending}, so it would never be flown: remove it or move it before"))
+                                                                          f"{ending}, so it would never be flown: remove it or move it before"
+                                                                          f"{SIMULATOR_LIMIT}"))
+    # Within a metre of home it lands where it took off.
+    if not problems and NAV_WAYPOINT not in commands and math.hypot(*plan_from_document(document, file).landing_point) < 1.0:
+        problems.append(Problem(file, f"{at}/mission/items", "no waypoint, and the plan lands where it took off: the UAV has nowhere to "
+                                                             "fly; add a waypoint or give the land item a position"
+                                                             f"{SIMULATOR_LIMIT}: a scenario needs a goal away from home"))
     return problems
 
 

@@ -91,7 +91,7 @@ def mission_for(logical: LogicalScenario, profile: Profile) -> Mission:
     plan = logical.plan
     if plan is not None:
         return Mission(
-            waypoints=tuple((w.north_m, w.east_m, w.altitude_m) for w in plan.waypoints),
+            waypoints=tuple(point[:3] for point in plan.route),
             cruise_speed_m_s=cruise_speed_m_s,
             land=plan.lands,
             drive=logical.drive,

@@ -168,8 +168,8 @@ def _mission(mission: Mission) -> MissionSpec:
     landing_north, landing_east = plan.landing_point
     return MissionSpec(
         takeoff_altitude_m=plan.takeoff_altitude_m,
-        waypoints=tuple(Waypoint(north_m=w.north_m, east_m=w.east_m, altitude_m=w.altitude_m,
-                                 acceptance_radius_m=w.params[1] if w.params[1] > 0 else None) for w in plan.waypoints),
+        waypoints=tuple(Waypoint(north_m=north, east_m=east, altitude_m=altitude, acceptance_radius_m=radius)
+                        for north, east, altitude, radius in plan.route),
         cruise_speed_m_s=mission.cruise_speed_m_s,
         land=plan.lands,
         landing=Landing(north_m=landing_north, east_m=landing_east),

@@ -193,6 +193,9 @@ def _result_text(result: dict[str, Any]) -> str:
     lines.append(f"simulated {result['sim_time_s']:.1f} s in {result['wall_time_s']:.1f} s wall" + (f" (flight at {result['real_time_factor']:.1f}x real time)" if result.get("real_time_factor") else ""))
     if result.get("log_path"):
         lines.append(f"log: {result['log_path']}")
+    for refused in result.get("failures_refused") or []:
+        lines.append(f"warning: the SUT refused the {refused['unit']} {refused['type']} failure at t={refused['t']:.1f} s ({refused['result']}): "
+                     "it flew on without it")
     return "\n".join(lines)
 
 
@@ -522,7 +525,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         executor.close()
     text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
                      + (f"{r['revealing']} revealing, " if "revealing" in r else "")
-                     + f"{r['flown']} flown, {r['replayed']} from the store" for r in summary.runs) or "every run was already finished"
+                     + f"{r['flown']} flown, {r['replayed']} from the store"
+                     + (f"; warning: the SUT refused a failure injection in {r['failures_refused']} flights, which flew without it"
+                        if r["failures_refused"] else "") for r in summary.runs) or "every run was already finished"
     emit(args, {"store": str(store_path), "runs": summary.runs}, text)
     return 0
 

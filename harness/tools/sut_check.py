@@ -2,10 +2,12 @@
 
 The stages are the ones an evaluation goes through before its flight: the SUT's process
 starts, connects to the simulator, the lockstep runs, its API heartbeat reaches MAVSDK, every
-health check passes, it is armable, and it accepts a mission (mission drive) or, on the
-ground, switches to Position mode when the simulated pilot's mode switch says so over the RC
-link (pilot drive). The first stage that fails ends the check and says why; nothing is armed
-or flown.
+health check passes, it arms, and it accepts a mission (mission drive) or, on the ground,
+switches to Position mode when the simulated pilot's mode switch says so over the RC link
+(pilot drive). Armability is judged as a flight judges it: by arming, asked again while the SUT
+denies it for as long as a flight asks (evaluation.arm_retry_for: PX4's arming checks flicker
+just after MAVSDK first reports it healthy), then disarmed at once; the check says how long
+arming took. The first stage that fails ends the check and says why; nothing flies.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from mavsdk.plugins.telemetry import FlightMode
 
 from harness.errors import InfrastructureError
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import RunOptions, Stack, simulation_stack
+from harness.flight.evaluation import RunOptions, Stack, arm_retry_for, simulation_stack
 from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
@@ -49,7 +51,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     start = time.monotonic()
     try:
         with simulation_stack(world, options, system, workdir) as stack:
-            _run_stages(stack, world, stages, start, timeout_s)
+            _run_stages(stack, world, stages, start, timeout_s, arm_retry_for(system))
     except (InfrastructureError, sut_adapter.SutError) as error:
         failed = next((stage for stage in stages if stage.ok is None), stages[0])
         failed.ok, failed.after_s, failed.detail = False, time.monotonic() - start, str(error)
@@ -58,7 +60,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     return stages
 
 
-def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float) -> None:
+def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float) -> None:
     sut, session = stack.sut, stack.session
     alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
 
@@ -84,16 +86,16 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
         steps: list[tuple[int, str, Callable[[], Any]]] = [
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
-            (5, "armable", lambda: _armable(session)),
+            (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
             (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s)),
         ]
         for index, _name, action in steps:
             try:
-                action()
+                outcome = action()
             except Exception as error:  # MAVSDK raises its own error type per plugin
                 return failed(index, str(error))
-            passed(index, _details(index, session, sut, world.drive))
+            passed(index, outcome if index == 5 else _details(index, session, sut, world.drive))
     finally:
         control.send({"op": "stop"})
         control.close()
@@ -115,9 +117,18 @@ def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float) -
         mode = session.telemetry.flight_mode()
 
 
-def _armable(session) -> None:
-    if not session.telemetry.health().is_armable:
-        raise InfrastructureError(f"MAVSDK reports the vehicle not armable: {vars(session.telemetry.health())}; status texts: {session.status_texts[-5:]}")
+def _arm_and_disarm(session, retry_s: float) -> str:
+    """Arm as a flight does, then disarm; what it took."""
+    asked = time.monotonic()
+    try:
+        session.arm(retry_s)
+    except Exception as error:  # MAVSDK's ActionError: denied for longer than a flight asks, or no answer
+        raise InfrastructureError(f"arming refused ({error}) after {time.monotonic() - asked:.2f} s of asking, as long as a flight asks; "
+                                  f"MAVSDK's health: {vars(session.telemetry.health())}; status texts: {session.status_texts[-5:]}") from None
+    took_s = time.monotonic() - asked
+    session.action.disarm()
+    asks = f"a flight asks again for up to {retry_s:g} s" if retry_s else "held frozen, a flight asks once"
+    return f"armed {took_s:.2f} s after asking ({asks}), then disarmed"
 
 
 def _details(index: int, session, sut, drive: str) -> str:
