@@ -54,10 +54,14 @@ def test_the_difference_objective_is_lowest_where_the_subject_comes_closer():
     closer, same = objective_value("difference", flight(Status.OK, 1.1), flight(Status.OK, 2.0)), \
         objective_value("difference", flight(Status.OK, 2.0), flight(Status.OK, 2.0))
     assert closer == pytest.approx(-0.9) and same == 0.0
-    # A reference that did not fly its mission leaves nothing to be worse than: the penalty.
-    assert objective_value("difference", flight(Status.OK, 1.1), flight(Status.MISSION_FAILED, 5.0)) == PENALTY
-    # The subject's own penalty stays: a search is not drawn to where the subject fails to fly.
-    assert objective_value("difference", flight(Status.MISSION_FAILED, 5.0), flight(Status.OK, 2.0)) > PENALTY / 2
+    # Blocked by collision prevention (the pilot drive's safe end at a wall) compares by clearance,
+    # on either side: a subject that flies into the wall where the reference holds it back scores lowest.
+    assert objective_value("difference", flight(Status.VIOLATION, 0.3), flight(Status.MISSION_FAILED, 1.6)) == pytest.approx(-1.3)
+    assert objective_value("difference", flight(Status.MISSION_FAILED, 5.0), flight(Status.OK, 2.0)) == pytest.approx(3.0)
+    # A side that could not finish its flight leaves nothing to compare: the penalty.
+    crashed = Outcome(Status.SUT_CRASHED, PENALTY, None, 0.0, "px4 exited")
+    assert objective_value("difference", flight(Status.OK, 1.1), crashed) == PENALTY
+    assert objective_value("difference", crashed, flight(Status.OK, 1.1)) == PENALTY
     assert objective_value("subject", flight(Status.OK, 1.1), flight(Status.OK, 2.0)) == pytest.approx(0.1)
 
 

@@ -16,9 +16,10 @@ by up to 40 cm on one wall, a revealing pair is flown again (`--confirm N`) on b
 judged on all flights, so the spread used is the one measured.
 
 The pair's fitness (what a search minimises) is chosen by the objective: `subject`, the
-subject's own f; or `difference`, f_subject - f_reference, which is lowest where the subject
-comes closer than the reference. A reference that did not fly its mission to the end leaves
-nothing to be worse than: the pair then gets the penalty.
+subject's own f; or `difference`, the subject's minimum clearance less the reference's (f_subject
+- f_reference without the mission penalty), lowest where the subject comes closer than the
+reference. Where either side could not finish its flight (crash, timeout: nothing recorded to
+compare) the pair gets the penalty.
 """
 
 from __future__ import annotations
@@ -124,9 +125,11 @@ def objective_value(objective: str, subject: Outcome, reference: Outcome) -> flo
         return subject.fitness
     if objective != "difference":
         raise ValueError(f"objective {objective!r} is not one of {', '.join(OBJECTIVES)}")
-    if reference.status not in FLOWN_TO_THE_END:
+    # Clearance against clearance: a mission the pilot could not finish because collision
+    # prevention held it back (blocked) is a flight like any other here, and on either side.
+    if any(side.status in COULD_NOT_FINISH or side.min_clearance_m is None for side in (subject, reference)):
         return PENALTY
-    return subject.fitness - reference.fitness
+    return subject.min_clearance_m - reference.min_clearance_m
 
 
 def record(objective: str, subject: Sequence[Outcome], reference: Sequence[Outcome]) -> dict[str, Any]:
