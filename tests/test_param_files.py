@@ -48,7 +48,7 @@ COMPETITION = "NAV_ACC_RAD, 1.5\nNAV_MC_ALT_RAD, 0.5\nNAV_RCL_ACT, 3\nNAV_DLL_AC
 
 def spec_args(path, **more) -> argparse.Namespace:
     return argparse.Namespace(**{"sut": "bundled", "px4_bin": None, "sut_command": None, "sut_hold": None, "sut_param": None,
-                                 "sut_params_file": str(path), "sut_fault": None, **more})
+                                 "sut_params_file": str(path), "sut_fault": None, "autopilot_dir": None, **more})
 
 
 def test_the_bundled_autopilot_takes_the_competitions_px4_parameters_and_says_once_which_have_no_effect(tmp_path, caplog):
