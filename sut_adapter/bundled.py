@@ -81,14 +81,7 @@ class BundledAutopilot:
     def inline_arguments(self, *, api_port: int, workdir: Path, params: Mapping[str, float]) -> list[str]:
         """`python -m autopilot`'s arguments but the simulator's, for running it inside the bridge's
         process (`python -m sut_adapter.inline`, --transport memory)."""
-        argv = ["--api", f"udp:127.0.0.1:{api_port}"]
-        if params:
-            params_file = workdir / "autopilot_params.json"
-            params_file.write_text(json.dumps(dict(params)))
-            argv += ["--params", str(params_file)]
-        if self.fault is not None:
-            argv += ["--fault", self.fault]
-        return argv
+        return self._arguments(api_port=api_port, workdir=workdir, params=params)
 
 
 def seeded_faults() -> dict[str, Any]:
