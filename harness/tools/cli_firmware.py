@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from harness.errors import InputError, Problem
-from harness.tools.cli import command, emit
+from harness.tools.cli import command, emit, non_negative_int, positive_int
 
 
 def add_build_parser(actions: argparse._SubParsersAction, json_flag: Callable[[argparse.ArgumentParser], None]) -> None:
@@ -23,7 +23,7 @@ def add_build_parser(actions: argparse._SubParsersAction, json_flag: Callable[[a
     p.add_argument("--commit", help="build this commit (default: the tree's HEAD)")
     p.add_argument("--patch", action="append", default=[], metavar="FILE", help="apply this unified diff first; repeatable, applied in order")
     p.add_argument("--out", required=True, help="the build cache: one folder per variant, worktrees/ for PX4's commits")
-    p.add_argument("--jobs", type=int, help="parallel compile jobs (default: cores)")
+    p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
     worktree_option(p)
 
 
@@ -60,15 +60,15 @@ def add_mutants_parser(sub: argparse._SubParsersAction, json_flag: Callable[[arg
     p.add_argument("--source", required=True, help="the source tree: PX4-Autopilot, or a checkout of this project")
     p.add_argument("--file", required=True, help="the file to mutate, relative to --source (e.g. src/lib/collision_prevention/CollisionPrevention.cpp)")
     p.add_argument("--function", help="only lines of this function's definition")
-    p.add_argument("--limit", type=int, help="a seeded random sample of this many of the mutants (default: all)")
-    p.add_argument("--seed", type=int, default=0, help="the sample's seed (default 0)")
+    p.add_argument("--limit", type=positive_int, help="a seeded random sample of this many of the mutants (default: all)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="the sample's seed (default 0)")
     p.add_argument("--out", required=True, help="the mutation run's folder")
 
     p = actions.add_parser("build", help="build the original and every mutant; sort out stillborn, equivalent and duplicate ones")
     json_flag(p)
     p.add_argument("folder", help="the folder `stella mutants generate --out` wrote")
     p.add_argument("--cache", help="the build cache (default: FOLDER/builds)")
-    p.add_argument("--jobs", type=int, help="parallel compile jobs (default: cores)")
+    p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
     worktree_option(p)
 
@@ -79,13 +79,13 @@ def add_mutants_parser(sub: argparse._SubParsersAction, json_flag: Callable[[arg
                    help="a regression case or concrete scenario every mutant is flown in (repeatable; a folder adds its *.regression.json and *.json)")
     p.add_argument("--scenario", action="append", default=[], help="a logical scenario the suite's survivors are searched in (repeatable; none: suite only)")
     p.add_argument("--algorithm", action="append", help="search algorithms (default NSGAII and RANDOM)")
-    p.add_argument("--evaluations", type=int, default=40, help="candidates per search (scenario x algorithm; default 40)")
-    p.add_argument("--population", type=int, default=10, help="population of NSGA-II and SMPSO, BO's initial set (default 10)")
-    p.add_argument("--confirm", type=int, default=0, help="fly a revealing pair N more times on both sides before it kills (PX4: 2 or more)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--evaluations", type=positive_int, default=40, help="candidates per search (scenario x algorithm; default 40)")
+    p.add_argument("--population", type=positive_int, default=10, help="population of NSGA-II and SMPSO, BO's initial set (default 10)")
+    p.add_argument("--confirm", type=non_negative_int, default=0, help="fly a revealing pair N more times on both sides before it kills (PX4: 2 or more)")
+    p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--drive", choices=["mission", "pilot"], help="fly every case and scenario with this drive (PX4's CP acts in pilot only)")
     p.add_argument("--objective", choices=["subject", "difference"], default="difference", help="what the searches minimise (default difference)")
-    p.add_argument("--workers", type=int, help="flights at once (default: cores)")
+    p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
     add_sut_params(p)
 
