@@ -20,6 +20,7 @@ Control channel (newline-delimited JSON over TCP, one client, the harness):
       since "run"); without it the change applies at the next step.
       {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
       slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
+      A harness that hangs up before "finished" is gone: the run ends ("harness_gone").
   Serving (`--serve`, a SUT inside the bridge's process): each harness connection starts with
       {"op": "load", "world": PATH, "mcap": PATH} and ends after {"event": "finished"}, which
       then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
@@ -134,6 +135,8 @@ class ControlChannel:
         self._conn: socket.socket | None = None
         self._buffer = b""
         self._backlog: list[Mapping[str, Any]] = []
+        # The harness keeps its connection for the whole flight: losing it means the harness died.
+        self.hung_up = False
         if listener is not None:
             listener.setblocking(False)
 
@@ -166,6 +169,7 @@ class ControlChannel:
                 continue
             if not data:
                 self._conn = None
+                self.hung_up = True
                 continue
             self._buffer += data
             *lines, self._buffer = self._buffer.split(b"\n")
@@ -187,6 +191,7 @@ class ControlChannel:
             self._conn.sendall(json.dumps(message).encode() + b"\n")
         except OSError:
             self._conn = None
+            self.hung_up = True
         else:
             self._conn.setblocking(False)
 
@@ -414,6 +419,14 @@ class Bridge:
 
     # -- the control channel -----------------------------------------------------------------
 
+    def _serve_control(self, control: ControlChannel, time_s: float, timeout_s: float = 0.0, wake: socket.socket | None = None) -> None:
+        """Carry out the harness's ops. A harness that hung up mid-flight is dead (its death
+        signal normally stops us first, but may never come: killed while starting us); flying on,
+        or holding for it up to the hold timeout, would keep a campaign's ports and core."""
+        self._handle_ops(control.poll(timeout_s, wake=wake), time_s)
+        if control.hung_up:
+            self.world.end("harness_gone")
+
     def _handle_ops(self, ops: list[dict[str, Any]], time_s: float) -> None:
         for op in ops:
             kind = op.get("op")
@@ -571,7 +584,7 @@ class Bridge:
             t2 = perf()
             summary.physics_s += t2 - t1
             if world.steps % self._every["control"] == 0 or self._awaiting_injection is not None:
-                self._handle_ops(control.poll(), world.time_s)
+                self._serve_control(control, world.time_s)
             world.check_end()
             unobserved_step = world.steps
             summary.world_s += perf() - t2
@@ -642,7 +655,7 @@ class Bridge:
             if data:
                 self._link_in += data
                 splitter.feed(data)
-            self._handle_ops(control.poll(0.01, wake=sut.waitable()), time_s)
+            self._serve_control(control, time_s, 0.01, sut.waitable())
 
 
 WEDGE_SECTORS = 4

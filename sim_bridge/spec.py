@@ -18,7 +18,7 @@ from typing import Any, Mapping, Union
 
 WORLD_FORMAT = "stella.world/1"
 # How a flight in a world may end on its own (the bridge's summary, "end_reason"), as opposed to
-# the simulator's or the SUT's failure (sut_disconnected, sut_stalled, hold_timeout, ...).
+# the simulator's or the SUT's failure (sut_disconnected, sut_stalled, hold_timeout, harness_gone, ...).
 NORMAL_ENDS = frozenset({"landed", "time_limit", "stopped", "crashed", "blocked"})
 
 

@@ -209,6 +209,29 @@ def test_after_its_flight_the_bridge_keeps_the_link_open_until_the_sut_hangs_up(
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("moment", ["holding", "flying"])
+def test_a_harness_that_hangs_up_mid_flight_ends_the_run_at_once(tmp_path, moment):
+    """A harness killed before its death signal could be armed never stops us: holding for it
+    until the hold timeout (two minutes), or flying on to the time limit, would keep its port
+    block and a core from the rest of the campaign (seen in CI: a warm server left behind)."""
+    from harness.flight.bridge_control import BridgeControl
+
+    with bridge_and_hovering_sut(tmp_path, world(time_limit_s=120.0), "--hold-after-s", "0.5") as (bridge, _sut, ports, _log):
+        control = BridgeControl(ports.control)
+        assert control.wait_for("holding", 20.0) is not None
+        if moment == "flying":
+            control.send({"op": "run"})
+            time.sleep(0.5)
+        hung_up_at = time.monotonic()
+        control.close()
+        out, _err = bridge.communicate(timeout=30)
+        ended_after_s = time.monotonic() - hung_up_at
+    assert bridge.returncode == 3
+    assert json.loads(out.decode().strip().splitlines()[-1])["end_reason"] == "harness_gone"
+    assert ended_after_s < 10.0
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("pace", [1.0, 4.0])
 def test_a_paced_hold_runs_simulated_time_at_its_pace(tmp_path, pace):
     """--hold-mode paced --hold-pace P: while the harness sets up, simulated time runs on at
