@@ -212,24 +212,6 @@ def test_a_parameter_file_the_sut_refuses_is_refused_on_its_field_as_the_command
 QGC_PARAMS = b"# QGroundControl's export\n1\t1\tCP_DIST\t1.5\t9\n1\t1\tMPC_XY_CRUISE\t4\t9\n"
 
 
-@pytest.mark.slow
-def test_a_campaign_launched_with_a_fault_a_parameter_file_and_the_pilot_drive_flies_with_them(client, tmp_path):
-    assert upload(client, "/api/params-files", "cp.params", QGC_PARAMS).json() == {"params": "uploads/cp.params"}
-    spec = launch_spec(sut_fault="cp_ignores_delay", sut_params_file="uploads/cp.params", sut_params=["CP_DELAY=0.2"], drive="pilot")
-    assert client.post("/api/campaigns", json=spec).status_code == 200
-    assert client.app.state.campaigns._processes["c1"].wait(timeout=300) == 0
-    flown = {"name": "bundled", "params": {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4.0, "CP_DELAY": 0.2}, "fault": "cp_ignores_delay"}
-    with Store(tmp_path / "store" / "c1.db") as store:
-        assert store.campaign_sut() == flown
-        assert json.loads(store.db.execute("SELECT config FROM campaigns").fetchone()[0])["drive"] == "pilot"
-        flights = store.db.execute("SELECT log_path, concrete FROM evaluations").fetchall()
-    assert len(flights) == 2
-    for log_path, concrete in flights:
-        assert logs.json_metadata(Path(log_path), "sut") == flown
-        assert json.loads(concrete)["logical_scenario"]["mission"]["drive"] == "pilot"
-    assert "--sut-fault=cp_ignores_delay" in client.get("/api/campaigns/c1").json()["command"]
-
-
 # -- campaigns outlive the request's thread, not the server -----------------------------------------
 
 
@@ -451,7 +433,7 @@ def upload_params_file(page, path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a_fault_and_a_parameter_file(server, page, tmp_path):
+def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a_fault_a_parameter_file_and_the_pilot_drive(server, page, tmp_path):
     errors = []
     page.on("pageerror", lambda error: errors.append(str(error)))
     params = tmp_path / "cp.params"
@@ -464,6 +446,7 @@ def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a
     page.select_option("#sut", "bundled")
     assert page.is_visible("#sut-fault") and not page.is_visible("#px4-bin")
     page.select_option("#sut-fault", "cp_ignores_delay")
+    page.select_option("#drive", "pilot")
     upload_params_file(page, params)
     page.fill("#sut-params", "CP_DELAY=0.2\nCP_DISTANCE=2")
     page.click("#launch")
@@ -476,10 +459,18 @@ def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a
     page.click("#launch")
     page.wait_for_selector("#campaign-state.finished", timeout=300_000)
     assert page.locator("#sut-params.invalid").count() == 0
-    assert "--sut-fault=cp_ignores_delay --sut-params-file=" in page.locator("#command").text_content()
+    command = page.locator("#command").text_content()
+    assert "--sut-fault=cp_ignores_delay --drive=pilot --sut-params-file=" in command and command.endswith(" --sut-param=CP_DELAY=0.2")
     page.screenshot(path=str(ARTIFACTS / "8-sut-campaign.png"), full_page=True)
+    flown = {"name": "bundled", "params": {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4.0, "CP_DELAY": 0.2}, "fault": "cp_ignores_delay"}
     with Store(tmp_path / "store" / "faulty.db") as store:
-        assert store.campaign_sut() == {"name": "bundled", "params": {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4.0, "CP_DELAY": 0.2}, "fault": "cp_ignores_delay"}
+        assert store.campaign_sut() == flown
+        assert json.loads(store.db.execute("SELECT config FROM campaigns").fetchone()[0])["drive"] == "pilot"
+        flights = store.db.execute("SELECT log_path, concrete FROM evaluations").fetchall()
+    assert len(flights) == 2
+    for log_path, concrete in flights:  # what each flight's log says it flew
+        assert logs.json_metadata(Path(log_path), "sut") == flown
+        assert json.loads(concrete)["logical_scenario"]["mission"]["drive"] == "pilot"
     assert errors == []
 
 
