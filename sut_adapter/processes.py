@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import ctypes
 import functools
 import logging
 import os
+import queue
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -105,8 +108,52 @@ def dies_with_this_process(sig: int = signal.SIGTERM) -> Callable[[], None]:
     """A Popen preexec_fn: the child gets `sig` when this process dies. Even a preexec_fn runs
     after the fork, so this process may die first (a campaign killed while a worker starts its
     simulator: the child, not yet in a session of its own, is stopped and continued with the
-    campaign's group); the child then kills itself instead of running on as an orphan."""
+    campaign's group); the child then kills itself instead of running on as an orphan.
+
+    Linux sends the signal when the *thread* that forked the child ends, not the process: fork
+    from a thread that outlives the child (the caller's, while it waits for it), or through a
+    Launcher."""
     return functools.partial(die_with_parent, sig, os.getpid())
+
+
+class Launcher:
+    """Starts children that die with this process but outlive the thread that asked for them
+    (a web server's request thread, which its pool retires when idle): every fork happens on one
+    thread of the launcher's own, which lives until `close`. Close it once its children are gone:
+    they get the signal then."""
+
+    def __init__(self, name: str = "launcher", start_timeout_s: float = 60.0):
+        self._requests: queue.SimpleQueue = queue.SimpleQueue()
+        self._start_timeout_s = start_timeout_s
+        self._closed = False
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
+        self._thread.start()
+
+    def popen(self, argv: Sequence[str], sig: int = signal.SIGTERM, **popen_arguments) -> subprocess.Popen:
+        """subprocess.Popen(argv, **popen_arguments) forked on the launcher's thread; the child gets `sig` when this process dies."""
+        started: concurrent.futures.Future = concurrent.futures.Future()
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the launcher is closed")
+            self._requests.put((list(argv), sig, popen_arguments, started))
+        return started.result(timeout=self._start_timeout_s)
+
+    def _serve(self) -> None:
+        while (request := self._requests.get()) is not None:
+            argv, sig, popen_arguments, started = request
+            try:
+                started.set_result(subprocess.Popen(argv, preexec_fn=dies_with_this_process(sig), **popen_arguments))
+            except Exception as error:  # raised in the asking thread
+                started.set_exception(error)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._requests.put(None)
+        self._thread.join(timeout_s)
 
 
 def _signal_group(group: int, sig: int) -> None:

@@ -79,6 +79,16 @@ def test_sut_param_wins_over_the_file(tmp_path):
     assert _sut_spec(args).params == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
 
 
+@pytest.mark.parametrize("in_file, given, blamed", [("CP_DIST,3\n", ["CP_DISTANCE=2"], "--sut-param"), ("CP_DISTANCE,3\n", ["CP_DIST=2"], "--sut-params-file"),
+                                                    ("CP_DIST,3\n", ["CP_DIST=99"], "--sut-param")])
+def test_a_refused_parameter_is_put_on_the_option_it_came_from(tmp_path, in_file, given, blamed):
+    path = tmp_path / "params.csv"
+    path.write_text(in_file)
+    with pytest.raises(InputError) as refused:
+        _sut_spec(spec_args(path, sut_param=given))
+    assert [problem.file for problem in refused.value.problems] == [blamed]
+
+
 @pytest.mark.parametrize("text, line, message", [
     ("CP_DIST\n", "line 1", "expected NAME,VALUE"),
     ("CP_DIST,near\n", "line 1", "not a finite number"),

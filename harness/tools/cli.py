@@ -30,6 +30,7 @@ from harness.scenario.profile import is_profile_document, load_profile, profile_
 from harness.scenario.space import CONCRETE_FORMAT
 
 if TYPE_CHECKING:
+    from harness.campaigns.campaign import CampaignConfig
     from sut_adapter import SutConfig
 from harness.scenario.world import space_from_concrete
 from sim_bridge.sut_link import TRANSPORTS
@@ -219,17 +220,19 @@ def _sut_spec(args: argparse.Namespace) -> SutConfig:
 
     if args.sut_fault is not None and args.sut != "bundled":
         raise InputError([Problem("--sut-fault", "", f"seeded faults live in the bundled autopilot, not in --sut {args.sut}")])
-    params: dict[str, float] = {}
+    from_file: dict[str, float] = {}
     if args.sut_params_file:
         from harness.interop.param_files import load_params_file
 
-        params.update(load_params_file(Path(args.sut_params_file)))
-    params.update(_sut_param_values(args.sut_param))
+        from_file = load_params_file(Path(args.sut_params_file))
+    params = {**from_file, **_sut_param_values(args.sut_param)}
     config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold, args.autopilot_dir)
-    return _checked_sut(config, "--sut", "--sut-params-file" if args.sut_params_file else "--sut-param")
+    return _checked_sut(config, "--sut", "--sut-param", from_file)
 
 
-def _checked_sut(config: SutConfig, option: str, params_option: str) -> SutConfig:
+def _checked_sut(config: SutConfig, option: str, params_option: str, from_file: dict[str, float] | None = None) -> SutConfig:
+    """The configuration, if its SUT takes it; else InputError naming the option at fault (the
+    parameter file's where the file's own parameters are refused)."""
     import sut_adapter
 
     try:
@@ -239,8 +242,21 @@ def _checked_sut(config: SutConfig, option: str, params_option: str) -> SutConfi
     try:
         system.check_params(config.params)
     except sut_adapter.SutError as error:
-        raise InputError([Problem(params_option, "", str(error))]) from None
+        raise InputError([Problem(_refused_params_option(system, params_option, from_file), "", str(error))]) from None
     return config
+
+
+def _refused_params_option(system, params_option: str, from_file: dict[str, float] | None) -> str:
+    """The option refused parameters came from: the parameter file where its own are refused."""
+    import sut_adapter
+
+    if not from_file:
+        return params_option
+    try:
+        system.check_params(from_file)
+    except sut_adapter.SutError:
+        return "--sut-params-file"
+    return params_option
 
 
 def _reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | None:
@@ -474,14 +490,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-@command("campaign")
-def cmd_campaign(args: argparse.Namespace) -> int:
-    from harness.campaigns.campaign import CampaignConfig, run_campaign
-    from harness.flight.evaluation import EvaluationResult, RunOptions
-    from harness.execution.registry import make_executor
+def campaign_config(args: argparse.Namespace) -> CampaignConfig:
+    """The campaign a `stella campaign` command line asks for, every option checked before anything
+    starts: what the command runs, and how the campaign page checks a campaign set up on it."""
+    from harness.campaigns.campaign import CampaignConfig
     from harness.search.optimizers import parse_algorithm
-    from harness.campaigns.store import Store
-    from tqdm import tqdm
 
     for algorithm in args.algorithm:
         try:
@@ -497,6 +510,24 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                             args.mission_plan, _reference_spec(args, sut), args.objective, args.stop_at_reveal)
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
+    return config
+
+
+def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
+    """`stella campaign ARGV`'s campaign, checked as the command checks it, with InputError naming
+    the option for whatever argparse refuses too (it would print usage and exit)."""
+    return campaign_config(parser(RefusingParser).parse_args(["campaign", *argv]))
+
+
+@command("campaign")
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from harness.campaigns.campaign import run_campaign
+    from harness.flight.evaluation import EvaluationResult, RunOptions
+    from harness.execution.registry import make_executor
+    from harness.campaigns.store import Store
+    from tqdm import tqdm
+
+    config = campaign_config(args)
     settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
     try:
         executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
@@ -753,8 +784,18 @@ positive_float = _bounded("positive_float", float, lambda v: 0 < v < math.inf, "
 non_negative_float = _bounded("non_negative_float", float, lambda v: 0 <= v < math.inf, "a number of zero or more")
 
 
-def parser() -> argparse.ArgumentParser:
-    root = argparse.ArgumentParser(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
+class RefusingParser(argparse.ArgumentParser):
+    """An argument parser that raises InputError where argparse would print usage and exit."""
+
+    def error(self, message: str):
+        option, separator, text = message.partition(": ")
+        if separator and option.startswith("argument "):
+            raise InputError([Problem(option.removeprefix("argument "), "", text)])
+        raise InputError([Problem(self.prog, "", message)])
+
+
+def parser(kind: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> argparse.ArgumentParser:
+    root = kind(prog="stella", description="Scenario-based safety testing of UAV autopilots over MAVLink.")
     root.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
     sub = root.add_subparsers(dest="command", required=True)
 

@@ -2,16 +2,24 @@
 
 A campaign launched from the page is the same command a user would type, run as a process of
 its own with its store in the store directory (`NAME.db`, logs in `NAME-logs/`, its console in
-`NAME.log`, the command in `NAME.json` so that Resume runs it again). Cancel sends it SIGINT, as
-Ctrl-C in a terminal would; the store keeps every finished evaluation. Progress is read from
-the store, which a running campaign commits to after every evaluation.
+`NAME.log`, the command in `NAME.json` so that Resume runs it again). Its SUT, drive, plan,
+seeded fault and parameters are the command's options, and the command line is checked by the
+CLI's own code before it starts (harness.tools.cli.checked_campaign), so the page refuses what
+the command would refuse, with the same message. Cancel sends it SIGINT, as Ctrl-C in a
+terminal would; the store keeps every finished evaluation. Progress is read from the store,
+which a running campaign commits to after every evaluation.
+
+Campaigns die with the server (PR_SET_PDEATHSIG) but not with the request's thread that asked
+for them: they are started from a launcher thread that lives as long as the server.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -22,75 +30,62 @@ from typing import Any
 
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
-from harness.paths import scenarios_dir
-from harness.scenario.documents import load_json
-from harness.scenario.logical import load_logical, logical_problems
+from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search.optimizers import parse_algorithm
-from sut_adapter.processes import dies_with_this_process
+from harness.tools.cli import checked_campaign, positive_int, seed_int
+from harness.tools.ui.uploads import KINDS, Uploads
+from sut_adapter.processes import Launcher
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
-UPLOADS = "uploads"
-MAX_UPLOAD_BYTES = 256 * 1024
+NUMBERS = {"evaluations": positive_int, "population": positive_int, "runs": positive_int, "seed": seed_int, "workers": positive_int}
+# The page's fields for `stella campaign`'s options: text as typed, and files chosen by kind.
+TEXT_OPTIONS = {"sut": "--sut", "px4_bin": "--px4-bin", "sut_command": "--sut-command", "sut_hold": "--sut-hold", "sut_fault": "--sut-fault",
+                "autopilot_dir": "--autopilot-dir", "drive": "--drive"}
+FILE_OPTIONS = {"mission_plan": ("plan", "--mission-plan"), "sut_params_file": ("params", "--sut-params-file")}
+FIELDS = {"--algorithm": "algorithms", "--sut-param": "sut_params", "--profile": "profile", "--executor": "executor", "--workers": "workers",
+          **{f"--{field}": field for field in NUMBERS}, **{option: field for field, option in TEXT_OPTIONS.items()},
+          **{option: field for field, (_kind, option) in FILE_OPTIONS.items()}}
 
 
-def inside(base: Path, relative: str) -> Path | None:
-    """base/relative if it stays inside base (no `..`, no absolute path, no symlink out), else None."""
-    if not relative or relative.startswith("/") or "\\" in relative:
-        return None
-    candidate = (base / relative).resolve()
-    return candidate if candidate.is_relative_to(base.resolve()) else None
+class SetupError(InputError):
+    """A campaign set up on the page that cannot start: each problem with the field it is about."""
+
+    def __init__(self, problems: list[tuple[str, Problem]]):
+        self.fields = tuple(field for field, _problem in problems)
+        super().__init__([problem for _field, problem in problems])
+
+
+def _numbers(spec: dict[str, Any]) -> tuple[dict[str, int], list[tuple[str, Problem]]]:
+    """The number fields, each checked as its command-line option is."""
+    numbers, problems = {}, []
+    for field, convert in NUMBERS.items():
+        value = spec.get(field)
+        if field == "workers" and value in (None, ""):
+            continue
+        try:
+            numbers[field] = convert(str(value))
+        except (argparse.ArgumentTypeError, ValueError) as error:
+            why = str(error) if isinstance(error, argparse.ArgumentTypeError) else f"{value!r} is not a whole number"
+            problems.append((field, Problem(field, "", why)))
+    return numbers, problems
 
 
 class Campaigns:
     def __init__(self, store_dir: Path):
         self.store_dir = store_dir.resolve()
         self.store_dir.mkdir(parents=True, exist_ok=True)
-        (self.store_dir / UPLOADS).mkdir(exist_ok=True)
+        self.uploads = Uploads(self.store_dir)
         self._processes: dict[str, subprocess.Popen] = {}
         self._lock = threading.Lock()
-
-    # -- scenarios ----------------------------------------------------------------------------
-
-    def scenario_choices(self) -> list[str]:
-        """Logical scenarios the page offers: `scenarios/...` files and `uploads/...` files."""
-        bundled = sorted(f"scenarios/{p.relative_to(scenarios_dir()).as_posix()}" for p in scenarios_dir().rglob("*.json")
-                         if "schema" not in p.parts and "profiles" not in p.parts)
-        uploaded = sorted(f"{UPLOADS}/{p.name}" for p in (self.store_dir / UPLOADS).glob("*.json"))
-        return bundled + uploaded
-
-    def resolve_scenario(self, choice: str) -> Path | None:
-        prefix, _, rest = choice.partition("/")
-        if prefix == "scenarios":
-            return inside(scenarios_dir(), rest)
-        if prefix == UPLOADS:
-            return inside(self.store_dir / UPLOADS, rest)
-        return None
-
-    def upload(self, filename: str, data: bytes, profile: str = "default") -> tuple[str | None, list[Problem]]:
-        """Validate an uploaded logical scenario and keep it if it is valid: (its choice, problems)."""
-        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(filename).stem).strip("_")[:60] or "scenario"
-        target = self.store_dir / UPLOADS / f"{stem}.json"
-        pending = target.with_suffix(".pending")
-        pending.write_bytes(data)
-        try:
-            try:
-                document = load_json(pending)
-            except InputError as error:
-                return None, [Problem(filename, p.pointer, p.message) for p in error.problems]
-            problems = logical_problems(document, load_profile(profile), filename)
-            if problems:
-                return None, problems
-            pending.replace(target)
-            return f"{UPLOADS}/{target.name}", []
-        finally:
-            pending.unlink(missing_ok=True)
+        self._launcher = Launcher("campaign-launcher")
 
     # -- launching ----------------------------------------------------------------------------
 
-    def command(self, name: str) -> list[str]:
-        spec = json.loads((self.store_dir / f"{name}.json").read_text())
-        argv = [sys.executable, "-m", "harness.tools.cli", "campaign", *spec["scenario_paths"]]
+    def arguments(self, name: str, spec: dict[str, Any] | None = None) -> list[str]:
+        """`stella campaign`'s arguments for the campaign called name (as stored, or as spec)."""
+        spec = spec or json.loads((self.store_dir / f"{name}.json").read_text())
+        argv = list(spec["scenario_paths"])
         for algorithm in spec["algorithms"]:
             argv += ["--algorithm", algorithm]
         argv += ["--evaluations", str(spec["evaluations"]), "--runs", str(spec["runs"]), "--seed", str(spec["seed"]),
@@ -98,57 +93,106 @@ class Campaigns:
                  "--store", str(self.store_dir / f"{name}.db")]
         if spec.get("workers"):
             argv += ["--workers", str(spec["workers"])]
-        return argv
+        return argv + spec.get("options", [])
+
+    def command(self, name: str) -> list[str]:
+        return [sys.executable, "-m", "harness.tools.cli", "campaign", *self.arguments(name)]
+
+    def command_text(self, name: str) -> str:
+        """The command as a user would type it in the checkout."""
+        return shlex.join(["stella", "campaign", *self.arguments(name)])
 
     def launch(self, spec: dict[str, Any]) -> str:
-        """Check a campaign set up on the page and start it; InputError names every bad field."""
-        problems = []
+        """Check a campaign set up on the page and start it; SetupError names every bad field."""
+        if not isinstance(spec, dict):
+            raise SetupError([("", Problem("campaign", "", "send the set-up as a JSON object"))])
+        problems: list[tuple[str, Problem]] = []
         name = str(spec.get("name", ""))
         if not NAME.match(name):
-            problems.append(Problem("name", "", "use 1-64 letters, digits, _ or -, starting with a letter or digit"))
+            problems.append(("name", Problem("name", "", "use 1-64 letters, digits, _ or -, starting with a letter or digit")))
         elif (self.store_dir / f"{name}.json").exists():
-            problems.append(Problem("name", "", f"a campaign called {name} exists; resume it or choose another name"))
-        paths = []
-        for choice in spec.get("scenarios") or []:
-            path = self.resolve_scenario(str(choice))
-            if path is None or not path.is_file():
-                problems.append(Problem("scenarios", "", f"{choice} is not a scenario of scenarios/ or an upload"))
-                continue
-            try:
-                load_logical(path, load_profile(spec.get("profile", "default")))
-            except InputError as error:
-                problems.extend(Problem("scenarios", p.pointer, f"{choice}: {p.message}") for p in error.problems)
-            paths.append(str(path))
-        if not spec.get("scenarios"):
-            problems.append(Problem("scenarios", "", "choose at least one logical scenario"))
-        algorithms = [a.strip().upper() for a in spec.get("algorithms") or [] if a.strip()]
+            problems.append(("name", Problem("name", "", f"a campaign called {name} exists; resume it or choose another name")))
+        profile = str(spec.get("profile", "default"))
+        paths: dict[str, tuple[str, str]] = {}  # file -> (field, choice), to put problems of the command's files on the page's fields
+        problems += self._scenario_problems(spec.get("scenarios"), profile, paths)
+        scenario_paths = list(paths)
+        algorithms = [a.strip().upper() for a in spec.get("algorithms") or [] if isinstance(a, str) and a.strip()]
         if not algorithms:
-            problems.append(Problem("algorithms", "", "give at least one algorithm: NSGAII, SMPSO, BO, RANDOM or a string of N, P, B, R"))
+            problems.append(("algorithms", Problem("algorithms", "", "give at least one algorithm: NSGAII, SMPSO, BO, RANDOM or a string of N, P, B, R")))
         for algorithm in algorithms:
             try:
                 parse_algorithm(algorithm)
             except ValueError as error:
-                problems.append(Problem("algorithms", "", str(error)))
-        numbers = {}
-        for field, low in (("evaluations", 1), ("population", 1), ("runs", 1), ("seed", 0), ("workers", 1)):
-            value = spec.get(field)
-            if field == "workers" and value in (None, ""):
-                continue
-            try:
-                numbers[field] = int(value)
-                if numbers[field] < low:
-                    raise ValueError
-            except (TypeError, ValueError):
-                problems.append(Problem(field, "", f"must be a whole number of at least {low}, got {value!r}"))
-        if spec.get("executor", "local") not in ("local", "sequential", "dask", "docker"):
-            problems.append(Problem("executor", "", "choose local, sequential, dask or docker"))
+                problems.append(("algorithms", Problem("algorithms", "", str(error))))
+        numbers, number_problems = _numbers(spec)
+        options, option_problems = self._options(spec, paths)
+        problems += number_problems + option_problems
+        document = {"scenarios": spec.get("scenarios"), "scenario_paths": scenario_paths, "algorithms": algorithms, "profile": profile,
+                    "executor": spec.get("executor", "local"), **numbers, "options": options}
+        if not problems:  # the command is whole: the CLI's own checks
+            problems = self._command_problems(name, document, paths)
         if problems:
-            raise InputError(problems)
-        document = {"scenarios": spec["scenarios"], "scenario_paths": paths, "algorithms": algorithms, "profile": spec.get("profile", "default"),
-                    "executor": spec.get("executor", "local"), **numbers}
+            raise SetupError(problems)
         (self.store_dir / f"{name}.json").write_text(json.dumps(document, indent=2))
         self._start(name)
         return name
+
+    def _scenario_problems(self, choices: Any, profile: str, paths: dict[str, tuple[str, str]]) -> list[tuple[str, Problem]]:
+        if not choices or not isinstance(choices, list):
+            return [("scenarios", Problem("scenarios", "", "choose at least one logical scenario"))]
+        problems = []
+        for choice in choices:
+            path = self.uploads.resolve("scenario", choice)
+            if path is None:
+                problems.append(("scenarios", Problem("scenarios", "", f"{choice} is not a scenario of scenarios/ or an upload")))
+                continue
+            try:
+                load_logical(path, load_profile(profile))
+            except InputError as error:
+                problems.extend(("scenarios", Problem("scenarios", p.pointer, f"{choice}: {p.message}")) for p in error.problems)
+            paths[str(path)] = ("scenarios", choice)
+        return problems
+
+    def _options(self, spec: dict[str, Any], paths: dict[str, tuple[str, str]]) -> tuple[list[str], list[tuple[str, Problem]]]:
+        """The SUT, drive and plan fields as the command's options (--option=VALUE, so that a value
+        that starts with - is not taken for an option), and what is wrong with their shapes."""
+        options, problems = [], []
+        for field, option in TEXT_OPTIONS.items():
+            value = spec.get(field)
+            if value in (None, ""):
+                continue
+            if isinstance(value, str):
+                options.append(f"{option}={value}")
+            else:
+                problems.append((field, Problem(option, "", f"give text, not {value!r}")))
+        for field, (kind, option) in FILE_OPTIONS.items():
+            choice = spec.get(field)
+            if choice in (None, ""):
+                continue
+            path = self.uploads.resolve(kind, choice)
+            if path is None:
+                problems.append((field, Problem(option, "", f"{choice} is not {KINDS[kind].what} of scenarios/ or an upload: upload it first")))
+                continue
+            options.append(f"{option}={path}")
+            paths[str(path)] = (field, choice)
+        params = spec.get("sut_params") or []
+        if not isinstance(params, list) or not all(isinstance(item, str) for item in params):
+            problems.append(("sut_params", Problem("--sut-param", "", "give a list of NAME=VALUE texts")))
+        else:
+            options += [f"--sut-param={item.strip()}" for item in params if item.strip()]
+        return options, problems
+
+    def _command_problems(self, name: str, document: dict[str, Any], paths: dict[str, tuple[str, str]]) -> list[tuple[str, Problem]]:
+        """What the CLI refuses of the command the page would run, on the page's fields."""
+        try:
+            checked_campaign(self.arguments(name, document))
+        except InputError as error:
+            problems = []
+            for problem in error.problems:
+                field, file = paths.get(problem.file, (FIELDS.get(problem.file, ""), problem.file))
+                problems.append((field, Problem(file, problem.pointer, problem.message)))
+            return problems
+        return []
 
     def _start(self, name: str) -> None:
         with self._lock:
@@ -156,8 +200,8 @@ class Campaigns:
             if running is not None and running.poll() is None:
                 return
             with open(self.store_dir / f"{name}.log", "ab") as console:
-                self._processes[name] = subprocess.Popen(self.command(name), stdout=console, stderr=console, stdin=subprocess.DEVNULL,
-                                                         start_new_session=True, preexec_fn=dies_with_this_process())
+                self._processes[name] = self._launcher.popen(self.command(name), stdout=console, stderr=console, stdin=subprocess.DEVNULL,
+                                                             start_new_session=True)
 
     def resume(self, name: str) -> None:
         self._start(name)
@@ -177,6 +221,7 @@ class Campaigns:
     def close(self) -> None:
         for name in list(self._processes):
             self.cancel(name)
+        self._launcher.close()
 
     # -- watching and browsing ----------------------------------------------------------------
 

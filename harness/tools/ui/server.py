@@ -1,10 +1,13 @@
 """`stella ui`: a web page to set up, launch, watch and browse campaigns (FastAPI + uvicorn).
 
 Everything the page reaches is either under the store directory (stores, logs, plots, reports,
-uploads) or a logical scenario under scenarios/; files are only ever found from a campaign
-name and an evaluation id, never from a path the browser sends. Bound to anything but
-loopback, every request needs the token (`--token`, or one made up and printed at start),
-which the page asks for once and keeps in a cookie.
+uploads) or a file under scenarios/; files are only ever found from a campaign name, an
+evaluation id or a choice the page offered, never from a path the browser sends. The page starts
+whatever `stella campaign` can (a command SUT, a px4 binary given by its path), so whoever reaches
+it can run commands as the user who started it. It refuses requests from other sites' pages;
+without a token it answers at a loopback address only; bound to anything but loopback, every
+request needs the token (`--token`, or one made up and printed at start), which the page asks
+for once and keeps in a cookie. On a machine shared with others, give a --token on loopback too.
 """
 
 from __future__ import annotations
@@ -13,16 +16,20 @@ import asyncio
 import hmac
 import ipaddress
 import json
+import os
 import secrets
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, File, HTTPException, Request, UploadFile
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response, StreamingResponse
 
 from harness.errors import InputError
-from harness.tools.ui.campaigns import MAX_UPLOAD_BYTES, Campaigns
+from harness.scenario.logical import DRIVES
+from harness.tools.ui.campaigns import Campaigns, SetupError
+from harness.tools.ui.uploads import MAX_UPLOAD_BYTES
 
 STATIC = Path(__file__).resolve().parent / "static"
 COOKIE = "stella_token"
@@ -35,6 +42,24 @@ def is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
+def problems_json(error: InputError) -> list[dict[str, str]]:
+    fields = error.fields if isinstance(error, SetupError) else ("",) * len(error.problems)
+    return [p.__dict__ | {"text": str(p), "field": field} for field, p in zip(fields, error.problems)]
+
+
+def setup_choices(campaigns: Campaigns) -> dict[str, Any]:
+    """What the set-up form offers: files, and the choices of `stella campaign`'s options."""
+    import sut_adapter
+    from sut_adapter.base import HOLD_MODES
+    from sut_adapter.bundled import seeded_faults
+
+    return {"scenarios": campaigns.uploads.choices("scenario"), "plans": campaigns.uploads.choices("plan"),
+            "params_files": campaigns.uploads.choices("params"), "profiles": ["default"], "executors": ["local", "sequential", "dask", "docker"],
+            "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES),
+            "faults": [{"name": f.name, "breaks": f.breaks} for f in seeded_faults().values()],
+            "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "max_upload_bytes": MAX_UPLOAD_BYTES}
+
+
 def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
     campaigns = Campaigns(store_dir)
 
@@ -45,6 +70,20 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
     app = FastAPI(title="stella", docs_url=None, redoc_url=None, openapi_url=None, lifespan=lifespan)
     app.state.campaigns = campaigns
+
+    @app.middleware("http")
+    async def same_site_only(request: Request, call_next):
+        # The page starts commands (a command SUT, a px4 binary): another site's page open in the
+        # same browser must not drive it, neither by a cross-site request nor by a host name of
+        # its own that resolves to this address (DNS rebinding).
+        host = request.headers.get("host", "")
+        origin = request.headers.get("origin")
+        if request.method not in ("GET", "HEAD") and origin is not None and urlsplit(origin).netloc != host:
+            return JSONResponse({"detail": f"refused: a request from a page of {origin}"}, status_code=403)
+        if token is None and not is_loopback(urlsplit(f"//{host}").hostname or ""):
+            return JSONResponse({"detail": f"refused: this server answers at a loopback address only, not at {host}; "
+                                           "beyond loopback, start it with --host and a --token"}, status_code=403)
+        return await call_next(request)
 
     @app.middleware("http")
     async def require_token(request: Request, call_next):
@@ -77,25 +116,35 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
     @app.get("/api/setup")
     def setup() -> dict[str, Any]:
-        return {"scenarios": campaigns.scenario_choices(), "profiles": ["default"], "executors": ["local", "sequential", "dask", "docker"],
-                "max_upload_bytes": MAX_UPLOAD_BYTES}
+        return setup_choices(campaigns)
 
-    @app.post("/api/scenarios")
-    async def upload(file: UploadFile = File(...)) -> JSONResponse:
+    async def upload(kind: str, file: UploadFile) -> JSONResponse:
         data = await file.read(MAX_UPLOAD_BYTES + 1)
         if len(data) > MAX_UPLOAD_BYTES:
             raise HTTPException(413, f"{file.filename} is larger than {MAX_UPLOAD_BYTES // 1024} KiB")
-        choice, problems = campaigns.upload(file.filename or "scenario.json", data)
+        choice, problems = await asyncio.to_thread(campaigns.uploads.add, kind, file.filename or kind, data)
         if problems:
-            return JSONResponse({"problems": [p.__dict__ | {"text": str(p)} for p in problems]}, status_code=422)
-        return JSONResponse({"scenario": choice})
+            return JSONResponse({"problems": problems_json(InputError(problems))}, status_code=422)
+        return JSONResponse({kind: choice})
+
+    @app.post("/api/scenarios")
+    async def upload_scenario(file: UploadFile = File(...)) -> JSONResponse:
+        return await upload("scenario", file)
+
+    @app.post("/api/plans")
+    async def upload_plan(file: UploadFile = File(...)) -> JSONResponse:
+        return await upload("plan", file)
+
+    @app.post("/api/params-files")
+    async def upload_params(file: UploadFile = File(...)) -> JSONResponse:
+        return await upload("params", file)
 
     @app.post("/api/campaigns")
     async def launch(request: Request) -> JSONResponse:
         try:
-            name = campaigns.launch(await request.json())
+            name = await asyncio.to_thread(campaigns.launch, await request.json())
         except InputError as error:
-            return JSONResponse({"problems": [p.__dict__ | {"text": str(p)} for p in error.problems]}, status_code=422)
+            return JSONResponse({"problems": problems_json(error)}, status_code=422)
         return JSONResponse({"name": name})
 
     def known(name: str) -> str:
@@ -142,8 +191,9 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
 
         store = campaigns.store(known(name))
         console = campaigns.console_tail(name)
+        command = campaigns.command_text(name)
         if store is None:
-            return {"name": name, "comparison": None, "evaluations": [], "console": console}
+            return {"name": name, "comparison": None, "evaluations": [], "console": console, "command": command}
         with store:
             baseline = next(iter(json.loads((campaigns.store_dir / f"{name}.json").read_text())["algorithms"]))
             comparison = compare(store, baseline)
@@ -151,7 +201,7 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
                 "SELECT e.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.status, e.fitness, e.min_clearance_m, e.concrete, e.log_path IS NOT NULL"
                 " FROM evaluations e JOIN runs r ON r.id = e.run_id ORDER BY e.fitness LIMIT 200").fetchall()
         keys = ("id", "scenario", "algorithm", "run", "ordinal", "status", "fitness", "min_clearance_m", "concrete", "has_log")
-        return {"name": name, "comparison": comparison, "console": console,
+        return {"name": name, "comparison": comparison, "console": console, "command": command,
                 "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
 
     @app.get("/api/campaigns/{name}/triage")

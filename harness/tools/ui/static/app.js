@@ -37,10 +37,27 @@ function showProblems(list, problems) {
   fill(list, problems, (p) => element("li", p.text));
 }
 
-async function loadSetup(select) {
+// The launch's problems, listed and marked on their fields.
+function showLaunchProblems(problems) {
+  showProblems($("launch-problems"), problems);
+  for (const node of document.querySelectorAll("[data-field]")) node.classList.remove("invalid");
+  for (const p of problems) for (const node of document.querySelectorAll(`[data-field="${p.field}"]`)) node.classList.add("invalid");
+}
+
+// A select's options: a blank one (the command's default) unless blank is null, then the values;
+// what was chosen stays chosen, unless chosen says otherwise.
+function fillSelect(select, values, blank, chosen) {
+  const keep = chosen ?? select.value;
+  const options = values.map((v) => (typeof v === "string" ? { value: v, text: v } : v));
+  fill(select, [...(blank === null ? [] : [{ value: "", text: blank }]), ...options],
+    (o) => element("option", o.text, { value: o.value, ...(o.title ? { title: o.title } : {}) }));
+  if ([...select.options].some((o) => o.value === keep)) select.value = keep;
+}
+
+async function loadSetup(chosen = {}) {
   const setup = await (await api("/api/setup")).json();
   const checked = new Set([...document.querySelectorAll("#scenario-list input:checked")].map((i) => i.value));
-  if (select) checked.add(select);
+  if (chosen.scenario) checked.add(chosen.scenario);
   fill($("scenario-list"), setup.scenarios, (choice) => {
     const label = element("label");
     const box = element("input", null, { type: "checkbox", value: choice, name: "scenario" });
@@ -48,21 +65,39 @@ async function loadSetup(select) {
     label.append(box, " " + choice);
     return label;
   });
+  fillSelect($("mission-plan"), setup.plans, "the scenario's route", chosen.plan);
+  fillSelect($("sut-params-file"), setup.params_files, "none", chosen.params);
   if (!$("profile").options.length) {
-    fill($("profile"), setup.profiles, (p) => element("option", p, { value: p }));
-    fill($("executor"), setup.executors, (e) => element("option", e, { value: e }));
+    fillSelect($("profile"), setup.profiles, null);
+    fillSelect($("executor"), setup.executors, null);
+    fillSelect($("sut"), setup.suts, null, "bundled");
+    fillSelect($("sut-hold"), setup.holds, "paced (default)");
+    fillSelect($("sut-fault"), setup.faults.map((f) => ({ value: f.name, text: f.name, title: f.breaks })), "none");
+    fillSelect($("drive"), setup.drives, "the scenario's own");
+    if (setup.px4_bin_default) $("px4-bin").placeholder = `$STELLA_PX4_BIN: ${setup.px4_bin_default}`;
+    showSutFields();
   }
 }
 
-async function upload(event) {
+// Only the chosen SUT's own options are shown, and only shown fields are sent.
+function showSutFields() {
+  for (const label of document.querySelectorAll("[data-sut]")) label.hidden = label.dataset.sut !== $("sut").value;
+}
+
+function shown(id) {
+  const node = $(id);
+  return node.closest("[hidden]") ? "" : node.value.trim();
+}
+
+async function upload(event, path, kind, problems) {
   const file = event.target.files[0];
   if (!file) return;
   const form = new FormData();
   form.append("file", file);
-  const response = await api("/api/scenarios", { method: "POST", body: form });
+  const response = await api(path, { method: "POST", body: form });
   const body = await response.json();
-  if (response.ok) { showProblems($("upload-problems"), []); await loadSetup(body.scenario); }
-  else showProblems($("upload-problems"), body.problems || [{ text: body.detail }]);
+  if (response.ok) { showProblems(problems, []); await loadSetup({ [kind]: body[kind] }); }
+  else showProblems(problems, body.problems || [{ text: body.detail }]);
   event.target.value = "";
 }
 
@@ -75,11 +110,14 @@ async function launch(event) {
     algorithms: $("algorithms").value.split(","),
     evaluations: $("evaluations").value, population: $("population").value, runs: $("runs").value, seed: $("seed").value,
     executor: $("executor").value, workers: $("workers").value || null,
+    sut: $("sut").value, px4_bin: shown("px4-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
+    sut_fault: shown("sut-fault"), autopilot_dir: shown("autopilot-dir"), drive: $("drive").value, mission_plan: $("mission-plan").value,
+    sut_params_file: $("sut-params-file").value, sut_params: $("sut-params").value.split("\n").map((line) => line.trim()).filter(Boolean),
   };
   const response = await api("/api/campaigns", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(spec) });
   const body = await response.json();
-  if (!response.ok) { showProblems($("launch-problems"), body.problems); return; }
-  showProblems($("launch-problems"), []);
+  if (!response.ok) { showLaunchProblems(body.problems || [{ text: body.detail, field: "" }]); return; }
+  showLaunchProblems([]);
   await loadCampaigns();
   open(body.name);
 }
@@ -145,6 +183,7 @@ function showProgress(progress) {
 
 async function loadDetails(name) {
   const details = await (await api(`/api/campaigns/${encodeURIComponent(name)}`)).json();
+  $("command").textContent = details.command;
   $("console").textContent = details.console;
   $("console-box").open = $("campaign-state").textContent === "stopped";
   const rows = details.comparison ? [...details.comparison.scenarios, ...details.comparison.overall.map((r) => ({ ...r, scenario: "overall" }))] : [];
@@ -244,7 +283,10 @@ $("login-button").addEventListener("click", async () => {
   const response = await fetch("/api/login", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ token: $("token").value }) });
   if (response.ok) start(); else $("login-error").textContent = "wrong token";
 });
-$("upload").addEventListener("change", upload);
+$("upload").addEventListener("change", (event) => upload(event, "/api/scenarios", "scenario", $("upload-problems")));
+$("plan-upload").addEventListener("change", (event) => upload(event, "/api/plans", "plan", $("file-problems")));
+$("params-upload").addEventListener("change", (event) => upload(event, "/api/params-files", "params", $("file-problems")));
+$("sut").addEventListener("change", showSutFields);
 $("setup-form").addEventListener("submit", launch);
 $("cancel").addEventListener("click", () => control("cancel"));
 $("resume").addEventListener("click", () => control("resume"));
