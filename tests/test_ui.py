@@ -369,7 +369,6 @@ def test_a_malformed_upload_in_the_browser_shows_the_located_error_and_launches_
     assert page.locator("#campaign-list li").count() == 0
 
 
-@pytest.mark.slow
 def sigint_pending(pid: int) -> bool:
     """Whether pid has a SIGINT waiting; True too once pid is gone, as there is nothing left to gate."""
     try:
@@ -380,6 +379,7 @@ def sigint_pending(pid: int) -> bool:
     return bool(pending & (1 << (signal.SIGINT - 1)))
 
 
+@pytest.mark.slow
 def test_cancel_is_ctrl_c_and_resume_finishes_the_campaign_without_repeating_anything(client, tmp_path):
     import sqlite3
 
