@@ -13,9 +13,11 @@ import pytest
 
 from conftest import FIG4_SEED1_FITNESS, ROOT, SEEDED_CAMPAIGN, campaign_candidates, fig4_job, run_seeded_campaign
 from harness.errors import InfrastructureError
+from harness.execution.executor import run_job
 from harness.flight import logs
 from sut_adapter import SutConfig
 from test_executors import SILENT_SUT
+from test_transport import SIMULATED
 
 pytestmark = pytest.mark.slow
 
@@ -72,6 +74,19 @@ def test_a_container_flies_a_scenario_with_limits_and_its_log_comes_back(engine,
     assert result.log_path == str(tmp_path / "job0.mcap")
     assert sum(len(m["d"]) for _t, _ns, m in logs.messages(result.log_path, ["/clearance"])) > 1000
     assert (seen["NetworkMode"], seen["NanoCpus"], seen["Memory"], seen["PidsLimit"]) == ("none", 1_000_000_000, 2 * 1024**3, 512)
+    # The image's flight is the flight a local worker flies, to the last bit.
+    local = run_job(fig4_job(tmp_path / "local", profile))
+    assert list(logs.messages(result.log_path, SIMULATED)) == list(logs.messages(local.log_path, SIMULATED))
+
+
+def test_the_image_flies_the_compiled_hot_path(engine):
+    """As local workers do (make setup compiles it): the pure-Python sources fly at about half the speed."""
+    from harness.execution.docker_executor import IMAGE
+
+    modules = "autopilot.app", "autopilot.control", "simlink.codec", "sim_bridge.bridge", "sim_bridge.physics"
+    program = f"import importlib; print(' '.join(importlib.import_module(m).__file__ for m in {modules!r}))"
+    files = engine.containers.run(IMAGE, ["python", "-c", program], remove=True, network_mode="none").decode().split()
+    assert len(files) == len(modules) and all(f.endswith(".so") for f in files), files
 
 
 def test_a_killed_container_is_retried(engine, executor, tmp_path, profile):

@@ -67,11 +67,11 @@ def image_exists(tag: str) -> bool:
 
 
 def make_base(tag: str = BASE_IMAGE, mirror: str = DEBIAN_MIRROR) -> str:
-    """A minimal Debian bookworm with python3 and venv, made with debootstrap and imported."""
+    """A minimal Debian bookworm with python3, venv and what compiles the hot path, made with debootstrap and imported."""
     if shutil.which("debootstrap") is None:
         raise InfrastructureError("debootstrap is not installed (apt-get install debootstrap)")
     with tempfile.TemporaryDirectory(prefix="stella-rootfs-") as rootfs:
-        subprocess.run(["debootstrap", "--variant=minbase", "--include=python3,python3-venv,ca-certificates", "bookworm", rootfs, mirror],
+        subprocess.run(["debootstrap", "--variant=minbase", "--include=python3,python3-venv,python3-dev,gcc,libc6-dev,ca-certificates", "bookworm", rootfs, mirror],
                        check=True, stdout=subprocess.DEVNULL)
         tar = subprocess.Popen(["tar", "-C", rootfs, "-c", "."], stdout=subprocess.PIPE)
         subprocess.run(["docker", "import", "-", tag], stdin=tar.stdout, check=True, stdout=subprocess.DEVNULL)
