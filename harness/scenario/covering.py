@@ -144,7 +144,8 @@ class _RowBuilder:
         indices = base[:, None] + np.arange(self.widest)[None, :] * t.strides[ready][open_member][:, None]
         exists = self.value_exists[open_factor]
         completes = t.uncovered[np.where(exists, indices, 0)] & exists
-        np.add.at(self.gains, open_factor, completes.astype(np.int64))
+        self.gains += np.bincount((open_factor[:, None] * self.widest + np.arange(self.widest)).ravel(), weights=completes.ravel(),
+                                  minlength=self.gains.size).astype(np.int64).reshape(self.gains.shape)
 
 
 def covering_array(sizes: Sequence[int], strength: int, extendable: Extendable) -> np.ndarray:

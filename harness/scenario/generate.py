@@ -133,13 +133,10 @@ class FactorModel:
         slots = np.bitwise_and.reduceat(allowed[:, self._slot_starts[0]:], np.subtract(self._slot_starts, self._slot_starts[0]), axis=1)
         possible = (slots != 0).all(axis=1)
         for group, members in zip(self.slot_groups, self._group_slots):
-            fillable = (slots[:, members] & ~1) != 0
-            emptiable = (slots[:, members] & 1) != 0
-            ones = np.ones((len(partial), 1), dtype=bool)
-            # filled_first[:, m]: slots before m can all be filled; empty_after[:, m]: slots from m on can all be empty.
-            filled_first = np.hstack([ones, np.logical_and.accumulate(fillable, axis=1)])
-            empty_after = np.hstack([np.logical_and.accumulate(emptiable[:, ::-1], axis=1)[:, ::-1], ones])
-            possible &= (filled_first & empty_after)[:, group.required:].any(axis=1)
+            # Slots fill from the first: the first m can hold something and the rest nothing, for some m >= required.
+            leading_fillable = np.logical_and.accumulate((slots[:, members] & ~1) != 0, axis=1).sum(axis=1)
+            trailing_emptiable = np.logical_and.accumulate((slots[:, members[::-1]] & 1) != 0, axis=1).sum(axis=1)
+            possible &= np.maximum(group.required, len(members) - trailing_emptiable) <= leading_fillable
         return possible
 
     def fewest_rows(self, strength: int) -> int:
