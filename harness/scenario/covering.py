@@ -22,7 +22,7 @@ UNSET = -1
 # A partial row per line, UNSET where no value is chosen yet -> whether each extends to a valid row.
 Extendable = Callable[[np.ndarray], np.ndarray]
 
-_CHUNK_TUPLES = 1 << 20
+_CHUNK_TUPLES = 1 << 18
 
 
 def tuple_count(sizes: Sequence[int], strength: int) -> int:

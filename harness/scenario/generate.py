@@ -97,32 +97,32 @@ class FactorModel:
         enums = _enums()
         free = ["landform", "surface nature", "wind force", "reduced visibility"] + (["gusts"] if elements == "all" else [])
         self.slot_groups = (PAPER_OBSTACLES,) if elements == "paper" else (ALL_OBSTACLES, FAILURE)
+        self.free = free  # the factors no constraint touches
         self.factors: dict[str, list[str]] = {name: list(enums[name]) for name in free}
-        # Per slot: its factors' columns and, per factor, the states each value allows.
-        self._slots: list[tuple[Slots, list[int], list[np.ndarray]]] = []
+        self._slots: list[tuple[Slots, list[int]]] = []  # per slot: its group and its factors' columns
+        states: dict[int, list[int]] = {}  # per slot factor: the slot's states each value allows
         for group in self.slot_groups:
             for slot in range(1, group.count + 1):
-                columns, states = [], []
+                columns = []
                 for field, _kinds in group.fields:
                     values = group.values(enums, slot, field)
                     columns.append(len(self.factors))
-                    states.append(np.array([group.states(field, value) for value in values] + [-1], dtype=np.int64))
+                    states[len(self.factors)] = [group.states(field, value) for value in values]
                     self.factors[group.factor(slot, field)] = values
-                self._slots.append((group, columns, states))
+                self._slots.append((group, columns))
         self.names = list(self.factors)
         self.sizes = [len(values) for values in self.factors.values()]
         # The factors whose values constrain each other: a free factor alone, a group's slots together.
         self.coupled = [[self.names.index(name)] for name in free]
         for group in self.slot_groups:
-            self.coupled.append([c for g, columns, _s in self._slots if g is group for c in columns])
-        # One table for all factors: the states each value allows (free factors: all), and in the
-        # last column -1 for an open factor, which UNSET (-1) picks.
+            self.coupled.append([c for g, columns in self._slots if g is group for c in columns])
+        # One table for all factors, -1 (every state) where a factor constrains nothing: a free
+        # factor, and the last column, which an open factor (UNSET, -1) picks.
         self._states = np.full((len(self.names), max(self.sizes) + 1), -1, dtype=np.int64)
-        for _group, columns, states in self._slots:
-            for column, table in zip(columns, states):
-                self._states[column, : len(table) - 1] = table[:-1]
-        self._slot_starts = [columns[0] for _g, columns, _s in self._slots]
-        self._group_slots = [[index for index, (g, _c, _s) in enumerate(self._slots) if g is group] for group in self.slot_groups]
+        for column, allowed in states.items():
+            self._states[column, : len(allowed)] = allowed
+        self._slot_starts = [columns[0] for _g, columns in self._slots]
+        self._group_slots = [[index for index, (g, _c) in enumerate(self._slots) if g is group] for group in self.slot_groups]
 
     def extendable(self, partial: np.ndarray) -> np.ndarray:
         """Whether each partial row (UNSET where open) extends to a valid row: every slot can hold
@@ -143,8 +143,8 @@ class FactorModel:
         """A lower bound on the rows of any covering array of this strength: the valid tuples of
         `strength` factors, one from as many coupled groups (free factors, slots) as can be, the
         largest first; each needs a row of its own."""
-        by_slot: list[list[int]] = [[column] for column in range(len(self.names)) if not any(column in c for _g, c, _s in self._slots)]
-        by_slot += [sorted(columns, key=lambda c: -self.sizes[c]) for _g, columns, _s in self._slots]
+        by_slot = [[self.names.index(name)] for name in self.free]
+        by_slot += [sorted(columns, key=lambda c: -self.sizes[c]) for _g, columns in self._slots]
         chosen: list[int] = []
         for depth in range(max(len(columns) for columns in by_slot)):
             layer = sorted((columns[depth] for columns in by_slot if depth < len(columns)), key=lambda c: -self.sizes[c])
@@ -218,10 +218,8 @@ def scenario_to_row(document: Mapping[str, Any], elements: str = "all") -> dict[
     for group in model.slot_groups:
         for slot in range(1, group.count + 1):
             element = lists[group.label][slot - 1] if slot <= len(lists[group.label]) else {}
-            for field, kinds in group.fields:
-                applies = field == "kind" or element.get("kind", group.kinds[0]) in kinds
-                value = element.get(field, _DEFAULTS.get((element.get("kind"), field), EMPTY)) if element and applies else EMPTY
-                row[group.factor(slot, field)] = value
+            for field, _kinds in group.fields:
+                row[group.factor(slot, field)] = element.get(field, _DEFAULTS.get((element.get("kind"), field), EMPTY))
     return row
 
 
