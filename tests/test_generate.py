@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from harness.scenario.documents import load_json
-from harness.scenario.generate import EMPTY, MAX_OBSTACLES, FactorModel, covering_rows, scenario_to_row
+from harness.scenario.generate import EMPTY, MAX_OBSTACLES, FactorModel, covering_rows, row_to_scenario, scenario_to_row
 from harness.scenario.logical import load_logical, logical_problems
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -87,10 +87,11 @@ def test_threewise_covers_every_valid_triple_of_the_papers_value_sets():
 
 
 @pytest.mark.slow
-def test_threewise_covers_every_valid_triple_of_all_elements():
+def test_threewise_covers_every_valid_triple_of_all_elements(profile):
     rows = covering_rows(3, "all")
     assert rows_are_valid(rows, "all")
     assert uncovered(rows, 3, "all") == []
+    assert all(logical_problems(row_to_scenario(row, "3-wise"), profile, "3-wise") == [] for row in rows)
 
 
 def test_the_coverage_check_finds_a_triple_that_is_missing():
