@@ -987,7 +987,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--safety-distance", type=non_negative_float, default=1.5, help="metres (default 1.5: the competition's soft-fail distance)")
 
     p = add("generate", "write logical scenarios covering every T-wise combination of the scenario format's category values")
-    p.add_argument("--strength", type=int, default=2)
+    p.add_argument("--strength", type=int, default=2, help="T: every valid combination of T category values is in some scenario (default 2, pairwise)")
     p.add_argument("--elements", choices=ELEMENTS, default="all",
                    help="all (default): the paper's value sets plus gusts, intruders, dynamic obstacles' motions and one injected failure; "
                         "paper: the paper's value sets only (landform, surface, wind, visibility, up to four static or dynamic obstacles)")
