@@ -29,7 +29,7 @@ from harness.scenario.documents import schema
 EMPTY = "-"
 MAX_OBSTACLES = 4
 ELEMENTS = ("all", "paper")
-# More t-tuples than this would not fit in memory with their indices (a byte each and more).
+# The builder keeps five bytes per t-tuple (covered?, its factor combination): 200 MB at this many.
 MAX_TUPLES = 40_000_000
 _ENUMERATED_AT_MOST = 1_000_000
 
