@@ -94,6 +94,10 @@ def test_threewise_covers_every_valid_triple_of_all_elements(profile):
     assert all(logical_problems(row_to_scenario(row, "3-wise"), profile, "3-wise") == [] for row in rows)
 
 
+def test_the_same_strength_gives_the_same_scenarios_every_time():
+    assert covering_rows(3, "paper") == covering_rows(3, "paper")
+
+
 def test_the_coverage_check_finds_a_triple_that_is_missing():
     rows = covering_rows(3, "paper")
     left_out = rows[len(rows) // 2]
