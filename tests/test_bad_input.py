@@ -46,7 +46,7 @@ CORPUS = [
     (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "5", "--workers", "0", "--store", "OUT"], "--workers: 0 is not a positive whole number"),
     (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "5", "--population", "0", "--store", "OUT"], "--population: 0 is not a positive"),
     (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "5", "--wall-time-s", "-3", "--store", "OUT"], "--wall-time-s: -3 is not a positive number"),
-    (["generate", "--strength", "9", "--out", "OUT"], "strength 9 gives at least 262,144 logical scenarios"),
+    (["generate", "--strength", "9", "--out", "OUT"], "strength 9 gives at least 1,120,000 logical scenarios"),
     (["generate", "--strength", "0", "--out", "OUT"], "0 is not a strength"),
     (["run", FIG4, "--drive", "autopilot"], "--drive: invalid choice"),
     (["bench", "--campaign", "--drive", "pilot"], "leave --drive out"),

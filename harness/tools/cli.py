@@ -24,6 +24,7 @@ import numpy as np
 from harness.errors import InputError, Problem, StellaError
 from harness.paths import scenarios_dir
 from harness.scenario.documents import load_json
+from harness.scenario.generate import ELEMENTS
 from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
 from harness.scenario.plan import plan_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
@@ -164,25 +165,34 @@ def cmd_sample(args: argparse.Namespace) -> int:
 
 @command("generate")
 def cmd_generate(args: argparse.Namespace) -> int:
-    from harness.scenario.generate import fewest_rows, generate, paper_factors
+    from harness.scenario.generate import MAX_TUPLES, FactorModel, generate
 
-    factors = len(paper_factors())
+    model = FactorModel(args.elements)
+    factors = len(model.names)
     if not 1 <= args.strength <= factors:
-        raise InputError([Problem("--strength", "", f"{args.strength} is not a strength for {factors} value sets: choose 1 to {factors} (2, pairwise, is usual)")])
-    bound = fewest_rows(args.strength)
+        raise InputError([Problem("--strength", "", f"{args.strength} is not a strength for the {factors} value sets of --elements {args.elements}: "
+                                                    f"choose 1 to {factors} (2, pairwise, is usual)")])
+    bound = model.fewest_rows(args.strength)
     if bound > args.max_scenarios:
         raise InputError([Problem("--strength", "", f"strength {args.strength} gives at least {bound:,} logical scenarios, more than --max-scenarios "
                                                     f"{args.max_scenarios:,}: choose a lower strength, or raise --max-scenarios")])
-    print(f"strength {args.strength}: at least {bound:,} logical scenarios (the product of the {args.strength} largest value sets); "
-          f"covering arrays of strength 3 and more take minutes", file=sys.stderr)
+    tuples = model.tuples(args.strength)
+    if tuples > MAX_TUPLES:
+        raise InputError([Problem("--strength", "", f"strength {args.strength} over --elements {args.elements} has {tuples:,} combinations of values to cover, "
+                                                    f"more than the {MAX_TUPLES:,} that generation holds in memory: choose a lower strength"
+                                                    + (", or --elements paper" if args.elements != "paper" else ""))])
+    print(f"strength {args.strength}: at least {bound:,} logical scenarios (the valid combinations of the {args.strength} value sets with the most) "
+          f"over the {args.elements} elements' {factors} value sets; strength 3 of all elements takes about 10 s, strength 4 minutes",
+          file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for stem, document in generate(args.strength):
+    for stem, document in generate(args.strength, args.elements):
         path = out / f"{stem}.json"
         path.write_text(json.dumps(document, indent=2) + "\n")
         written.append(str(path))
-    emit(args, {"strength": args.strength, "count": len(written), "files": written}, f"wrote {len(written)} logical scenarios covering every {args.strength}-wise combination to {out}")
+    emit(args, {"strength": args.strength, "elements": args.elements, "count": len(written), "files": written},
+         f"wrote {len(written)} logical scenarios covering every {args.strength}-wise combination of the {args.elements} elements' values to {out}")
     return 0
 
 
@@ -1017,8 +1027,11 @@ def parser(kind: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> arg
     p.add_argument("--out", required=True, help="the concrete scenario JSON to write (its SUT parameters go beside it as NAME.params.csv)")
     p.add_argument("--safety-distance", type=non_negative_float, default=1.5, help="metres (default 1.5: the competition's soft-fail distance)")
 
-    p = add("generate", "write logical scenarios covering every T-wise combination of the paper's value sets")
-    p.add_argument("--strength", type=int, default=2)
+    p = add("generate", "write logical scenarios covering every T-wise combination of the scenario format's category values")
+    p.add_argument("--strength", type=int, default=2, help="T: every valid combination of T category values is in some scenario (default 2, pairwise)")
+    p.add_argument("--elements", choices=ELEMENTS, default="all",
+                   help="all (default): the paper's value sets plus gusts, intruders, dynamic obstacles' motions and one injected failure; "
+                        "paper: the paper's value sets only (landform, surface, wind, visibility, up to four static or dynamic obstacles)")
     p.add_argument("--max-scenarios", type=positive_int, default=10_000, help="refuse a strength that gives more logical scenarios than this (default 10,000)")
     p.add_argument("--out", required=True)
     return root
