@@ -13,16 +13,17 @@ class StellaError(Exception):
 
 @dataclass(frozen=True)
 class Problem:
-    """One located problem in an input file: `file: /json/pointer: message`."""
+    """One located problem in an input file: `file: /json/pointer: message`, or `file: message`
+    for the file as a whole."""
 
     file: str
     pointer: str
     message: str
 
     def __str__(self) -> str:
-        if self.file.startswith("--") and not self.pointer:
-            return f"{self.file}: {self.message}"  # a command-line option: no document to point into
-        return f"{self.file}: {self.pointer or '/'}: {self.message}"
+        if not self.pointer:  # the whole file (or a command-line option): nothing inside to point at
+            return f"{self.file}: {self.message}"
+        return f"{self.file}: {self.pointer}: {self.message}"
 
 
 class InputError(StellaError):

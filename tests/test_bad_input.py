@@ -61,7 +61,7 @@ CORPUS = [
     (["validate", "EMPTY_FOLDER"], "a folder without *.json or *.plan files"),
     (["validate", "MISSING"], "no such file"),
     (["validate", FIG4, "--profile", "BROKEN_JSON"], "invalid JSON"),
-    (["space", FIG4, "--profile", "no_such_profile"], "no_such_profile.json: /: no such file"),
+    (["space", FIG4, "--profile", "no_such_profile"], "no_such_profile.json: no such file"),
     (["space", FIG4, "--drive", "autopilot"], "--drive: invalid choice"),
     (["sample", FIG4, "--seed", "-1"], "-1 is not a seed"),
     (["sample", FIG4, "--seed", "4294967296"], "is not a seed"),

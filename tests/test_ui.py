@@ -52,7 +52,7 @@ def test_a_malformed_upload_gets_located_errors_and_nothing_is_kept(client, tmp_
     assert len(texts) == 1 and texts[0].startswith(WIND_ERROR), texts
     assert "uploads/broken.json" not in client.get("/api/setup").json()["scenarios"]
     response = client.post("/api/scenarios", files={"file": ("syntax.json", b"{\"name\": ", "application/json")})
-    assert response.json()["problems"][0]["text"].startswith("syntax.json: /: invalid JSON at line 1")
+    assert response.json()["problems"][0]["text"].startswith("syntax.json: invalid JSON at line 1")
 
 
 def test_a_valid_upload_is_offered_and_can_be_launched(client):
