@@ -190,11 +190,16 @@ def test_a_case_that_takes_off_and_lands_at_a_position_has_that_position_as_its_
 
 @pytest.mark.slow
 def test_a_takeoff_and_land_at_case_flies_with_the_printed_command_and_the_competition_scores_it(tmp_path, capsys):
+    fly_land_at_case(tmp_path, capsys)
+
+
+def fly_land_at_case(tmp_path, capsys, *sut_options: str) -> None:
+    """The printed command of the imported takeoff + land-at case, with sut_options after it."""
     out = tmp_path / "land_at.json"
     assert main(["import", "aerialist", str(LAND_AT), "--out", str(out), "--json"]) == 0
     command = shlex.split(json.loads(capsys.readouterr().out)["fly"])
     assert command[0] == "stella" and "--sut-params-file" in command
-    assert main([*command[1:], "--out", str(tmp_path), "--json"]) == 0
+    assert main([*command[1:], *sut_options, "--out", str(tmp_path), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["status"] == "ok", result["why"]  # it reached the land position and landed within 3 m of it
     assert main(["inspect", result["log_path"], "--competition", "--json"]) == 0

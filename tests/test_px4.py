@@ -109,6 +109,12 @@ def test_px4_flies_an_imported_competition_case_with_the_clearance_computed_by_h
     check_hover_clearances(fly_hover_case(tmp_path, capsys, "--sut", "px4"))
 
 
+def test_px4_flies_an_imported_takeoff_and_land_at_case_with_the_printed_command_and_the_competition_scores_it(capsys, tmp_path):
+    from test_aerialist import fly_land_at_case
+
+    fly_land_at_case(tmp_path, capsys, "--sut", "px4")
+
+
 def test_an_injected_range_sensor_failure_reaches_px4_and_px4_answers_a_barometer_one(capsys, tmp_path):
     """The range sensor fails in the simulator: PX4's distance_sensor topic, which it relays on
     its API link, falls silent for the failure's span. The barometer's goes to PX4 as
