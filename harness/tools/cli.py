@@ -725,7 +725,7 @@ def _export_aerialist(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     written, skipped = [], []
     for name, case in chosen:
-        path, reasons = export_aerialist(name, json.loads(case["concrete"]), sut["params"], out)
+        path, reasons = export_aerialist(name, case.concrete, sut["params"], out)
         if path:
             written.append(str(path))
         else:
