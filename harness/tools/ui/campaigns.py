@@ -4,7 +4,7 @@ A campaign launched from the page is the same command a user would type, run as 
 its own with its store in the store directory (`NAME.db`, logs in `NAME-logs/`, its console in
 `NAME.log`, the command in `NAME.json` so that Resume runs it again). Its SUT, drive, plan,
 seeded fault and parameters are the command's options, and the command line is checked by the
-CLI's own code before it starts (harness.tools.cli.checked_campaign), so the page refuses what
+CLI's own code before it starts (harness.tools.commands.campaigns.checked_campaign), so the page refuses what
 the command would refuse, with the same message. Cancel sends it SIGINT, as Ctrl-C in a
 terminal would; the store keeps every finished evaluation. Progress is read from the store,
 which a running campaign commits to after every evaluation.
@@ -33,7 +33,8 @@ from harness.errors import InputError, Problem
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search.optimizers import parse_algorithm
-from harness.tools.cli import checked_campaign, positive_int, seed_int
+from harness.tools.commands.campaigns import checked_campaign
+from harness.tools.commands.common import positive_int, seed_int
 from harness.tools.ui.uploads import KINDS, Uploads
 from sut_adapter.processes import Launcher
 
