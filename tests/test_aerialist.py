@@ -253,7 +253,7 @@ def test_export_then_import_gives_back_the_same_flight(tmp_path, profile, capsys
     assert test["drone"]["params"] == {"CP_DIST": 1.5} and (tmp_path / "out" / test["drone"]["mission_file"]).is_file()
 
     with Store.existing(tmp_path / "c.db") as store:
-        original = json.loads(next(c for c in store.worst_cases(0.0, 0) if "wall" in c["scenario_file"])["concrete"])
+        original = next(c for c in store.worst_cases(0.0, 0) if "wall" in c.scenario_file).concrete
     imported, params = import_aerialist(Path(exported))
     assert params == {"CP_DIST": 1.5}
     before, after = world_of(original), world_of(imported)

@@ -379,3 +379,16 @@ def test_a_store_made_when_campaigns_were_known_by_path_keeps_resuming(tmp_path,
     killed_before_its_last_evaluation(moved / "old.db")
     assert main(campaign_command(moved / "sphere.json", moved / "old.db")) == 0
     assert evaluations(moved / "old.db") == uninterrupted
+
+
+def test_an_executor_registered_by_name_is_made_by_that_name_and_listed_when_a_name_is_unknown():
+    from harness.execution import registry
+
+    registry.register("analytic", lambda workers, attempts, timeout_s, settings: AnalyticExecutor())
+    try:
+        assert isinstance(registry.make_executor("analytic", 1), AnalyticExecutor)
+        with pytest.raises(ValueError, match="available: sequential, local, dask, docker, analytic"):
+            registry.make_executor("pigeon", 1)
+    finally:
+        registry._REGISTRY.pop("analytic")
+

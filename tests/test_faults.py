@@ -137,3 +137,16 @@ def test_faults_list_names_each_fault_with_its_documentation_and_witness(capsys)
     listed = json.loads(capsys.readouterr().out)["faults"]
     assert [f["name"] for f in listed] == [f.name for f in FAULTS]
     assert all(f["witness"] == str(witness_path(f["name"])) and f["breaks"] and f["revealed_by"] for f in listed)
+
+
+def test_each_faults_action_shows_and_takes_only_its_own_options(capsys):
+    with pytest.raises(SystemExit) as shown:
+        main(["faults", "check", "--help"])
+    text = capsys.readouterr().out
+    assert shown.value.code == 0
+    assert "--workers" in text and "--tries" not in text and "--algorithm" not in text
+    # an option of another action is refused, not silently ignored
+    with pytest.raises(SystemExit) as refused:
+        main(["faults", "list", "--tries", "3"])
+    assert refused.value.code == 2 and "unrecognized arguments: --tries 3" in capsys.readouterr().err
+

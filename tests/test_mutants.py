@@ -216,8 +216,8 @@ def test_a_revealing_case_fails_on_the_subjects_build_and_passes_on_the_referenc
 
     with Store.existing(store) as opened:
         revealing = opened.revealing_cases()
-        rows = list(opened.run_rows())
-    assert revealing and rows[0]["revealing"] == len(revealing)
+        rows = opened.runs()
+    assert revealing and rows[0].revealing == len(revealing)
     # THEN each revealing case exports as a regression case against the reference's outcome
     assert main(["export-regressions", str(store), "--revealing", "--out", str(tmp_path / "cases")]) == 0
     cases = sorted((tmp_path / "cases").glob("*.regression.json"))

@@ -11,7 +11,8 @@ import pytest
 from autopilot.params import Params
 from harness.errors import InputError
 from harness.interop.param_files import load_params_file
-from harness.tools.cli import _sut_spec, main
+from harness.tools.cli import main
+from harness.tools.commands.sut_options import sut_spec
 
 QGC = """# Onboard parameters for Vehicle 1
 #
@@ -55,7 +56,7 @@ def test_the_bundled_autopilot_takes_the_competitions_px4_parameters_and_says_on
     path = tmp_path / "mission-params.csv"
     path.write_text(COMPETITION)
     with caplog.at_level(logging.WARNING):
-        config = _sut_spec(spec_args(path))
+        config = sut_spec(spec_args(path))
     assert config.params == load_params_file(path)
     assert [r.getMessage() for r in caplog.records] == [
         "bundled: accepted without effect (PX4 parameters it does not model): MIS_YAW_ERR, MPC_YAW_MODE, NAV_DLL_ACT, NAV_MC_ALT_RAD, SDLOG_PROFILE"]
@@ -76,7 +77,7 @@ def test_sut_param_wins_over_the_file(tmp_path):
     path = tmp_path / "params.csv"
     path.write_text("CP_DIST,3\nMPC_XY_CRUISE,4\n")
     args = argparse.Namespace(sut="bundled", px4_bin=None, sut_command=None, sut_hold=None, sut_param=["CP_DIST=1.5"], sut_params_file=str(path), sut_fault=None, autopilot_dir=None)
-    assert _sut_spec(args).params == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
+    assert sut_spec(args).params == {"CP_DIST": 1.5, "MPC_XY_CRUISE": 4}
 
 
 @pytest.mark.parametrize("in_file, given, blamed", [("CP_DIST,3\n", ["CP_DISTANCE=2"], "--sut-param"), ("CP_DISTANCE,3\n", ["CP_DIST=2"], "--sut-params-file"),
@@ -85,7 +86,7 @@ def test_a_refused_parameter_is_put_on_the_option_it_came_from(tmp_path, in_file
     path = tmp_path / "params.csv"
     path.write_text(in_file)
     with pytest.raises(InputError) as refused:
-        _sut_spec(spec_args(path, sut_param=given))
+        sut_spec(spec_args(path, sut_param=given))
     assert [problem.file for problem in refused.value.problems] == [blamed]
 
 

@@ -50,9 +50,9 @@ def test_a_small_campaign_completes_against_px4_with_two_instances(tmp_path):
     store = tmp_path / "px4.db"
     assert main(["campaign", SCENARIO, "--algorithm", "RANDOM", "--evaluations", "4", "--workers", "2", "--sut", "px4", "--store", str(store), "--json"]) == 0
     with Store(store) as opened:
-        [run] = list(opened.run_rows())
+        [run] = opened.runs()
         statuses = [row[0] for row in opened.db.execute("SELECT status FROM evaluations")]
-    assert run["evaluations"] == 4 and run["finished"] is not None
+    assert run.evaluations == 4 and run.finished is not None
     assert not set(statuses) & {"sut_crashed", "sim_crashed", "timeout"}, statuses
 
 

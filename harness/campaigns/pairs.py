@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sqlite3
-import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
 
+from harness.campaigns.store import ReferenceFlightTable
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Outcome, compare, record
 from harness.flight.evaluation import EvaluationResult
@@ -57,15 +56,11 @@ def _file_digest(path: Path) -> str:
 
 
 class ReferenceCache:
-    """Reference flights by (concrete scenario, seed, reference build): a table in an SQLite file
-    (a campaign's store, or one file shared by a mutation run's campaigns), each flight list
-    committed as it is flown."""
+    """Reference flights by (concrete scenario, seed, reference build), kept in the store's
+    table of them (a campaign's store, or one file shared by a mutation run's campaigns)."""
 
     def __init__(self, path: Path):
-        self.db = sqlite3.connect(Path(path), timeout=30.0)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("CREATE TABLE IF NOT EXISTS reference_flights (key TEXT PRIMARY KEY, outcomes TEXT NOT NULL, created REAL NOT NULL)")
-        self.db.commit()
+        self._table = ReferenceFlightTable(path)
 
     @staticmethod
     def key(job: Job, reference: Mapping[str, object]) -> str:
@@ -73,16 +68,13 @@ class ReferenceCache:
         return hashlib.sha256(text.encode()).hexdigest()
 
     def get(self, key: str) -> list[Outcome]:
-        row = self.db.execute("SELECT outcomes FROM reference_flights WHERE key = ?", (key,)).fetchone()
-        return [Outcome.from_dict(o) for o in json.loads(row[0])] if row else []
+        return [Outcome.from_dict(o) for o in self._table.get(key)]
 
     def put(self, key: str, outcomes: list[Outcome]) -> None:
-        with self.db:
-            self.db.execute("INSERT OR REPLACE INTO reference_flights (key, outcomes, created) VALUES (?, ?, ?)",
-                            (key, json.dumps([o.as_dict() for o in outcomes]), time.time()))
+        self._table.put(key, [o.as_dict() for o in outcomes])
 
     def close(self) -> None:
-        self.db.close()
+        self._table.close()
 
 
 class PairedFlights:

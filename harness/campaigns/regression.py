@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from harness.campaigns.store import Store, is_flaky
+from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
 from harness.flight.evaluation import EvaluationResult
 from harness.flight.fitness import Status
@@ -130,19 +130,19 @@ def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: 
     return None
 
 
-def revealing_case(case: Mapping[str, Any]) -> dict[str, Any]:
+def revealing_case(case: StoredEvaluation) -> dict[str, Any]:
     """The `reference` entry of a revealing case (expect as_reference) from its stored pair."""
     from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S
 
-    flights = case["differential"]["reference"]
+    flights = case.differential["reference"]
     clearances = [f["min_clearance_m"] for f in flights]
     times = [f["sim_time_s"] for f in flights]
-    return {"level": case["reveals"], "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
+    return {"level": str(case.reveals), "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
             "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
             "sim_time_s": [min(times), max(times)], "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
 
 
-def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, StoredEvaluation]]]:
     """The campaign's SUT and (name, case) for each distinct concrete scenario with fitness below
     `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes
     once. `per_mode`: only the worst violation of each failure mode (harness/campaigns/triage.py)."""
@@ -153,17 +153,17 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
         from harness.campaigns.triage import triage
 
         wanted = {(m["worst"]["scenario_file"], m["worst"]["algorithm"], m["worst"]["run"], m["worst"]["evaluation"]) for m in triage(store_path)["modes"]}
-        cases = [c for c in cases if (c["scenario_file"], c["algorithm"], c["run_index"], c["ordinal"]) in wanted]
+        cases = [c for c in cases if (c.scenario_file, c.algorithm, c.run_index, c.ordinal) in wanted]
     chosen, seen = [], set()
     for case in cases:
-        if case["concrete"] is None or case["vector_key"] in seen:
+        if case.concrete is None or case.vector_key in seen:
             continue
-        seen.add(case["vector_key"])
-        chosen.append((slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}"), case))
+        seen.add(case.vector_key)
+        chosen.append((slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}"), case))
     return sut, chosen
 
 
-def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]]]:
+def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, StoredEvaluation]]]:
     """The campaign's SUT and (name, case) for each distinct revealing concrete scenario of a
     differential campaign, unsafe ones first."""
     with Store.existing(store_path) as store:
@@ -171,10 +171,10 @@ def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, d
         cases = store.revealing_cases()
     chosen, seen = [], set()
     for case in cases:
-        if case["concrete"] is None or case["vector_key"] in seen:
+        if case.concrete is None or case.vector_key in seen:
             continue
-        seen.add(case["vector_key"])
-        chosen.append((slug(f"{Path(case['scenario_file']).stem}-{case['algorithm']}-run{case['run_index']}-eval{case['ordinal']}-{case['reveals']}"), case))
+        seen.add(case.vector_key)
+        chosen.append((slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}-{case.reveals}"), case))
     return sut, chosen
 
 
@@ -196,22 +196,21 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:
-        concrete = json.loads(case["concrete"])
         document = {
             "format": FORMAT,
             "name": name,
             "expect": expect,
-            "seed": case["seed"],
+            "seed": case.seed,
             "sut": sut,
             "found": {
-                "fitness": case["fitness"], "status": case["status"], "min_clearance_m": case["min_clearance_m"], "store": str(store_path.resolve()),
-                "run": case["run_index"], "algorithm": case["algorithm"], "evaluation": case["ordinal"], "log": case["log_path"],
-                **({"confirmations": json.loads(case["confirmations"]), "flaky": is_flaky(case["confirmations"])} if case.get("confirmations") else {}),
+                "fitness": case.fitness, "status": str(case.status), "min_clearance_m": case.min_clearance_m, "store": str(store_path.resolve()),
+                "run": case.run_index, "algorithm": case.algorithm, "evaluation": case.ordinal, "log": case.log_path,
+                **({"confirmations": case.confirmations, "flaky": case.flaky} if case.confirmations else {}),
             },
-            "note": f"{EXPECTATIONS[expect]}; found by {case['algorithm']} with fitness {case['fitness']:.3f} ({case['status']})"
-                    + ("; FLAKY: it did not violate in every re-flight" if is_flaky(case.get("confirmations")) else "")
-                    + (f"; reveals {case['reveals']}: {case['differential']['why']}" if revealing else ""),
-            "concrete_scenario": concrete,
+            "note": f"{EXPECTATIONS[expect]}; found by {case.algorithm} with fitness {case.fitness:.3f} ({case.status})"
+                    + ("; FLAKY: it did not violate in every re-flight" if case.flaky else "")
+                    + (f"; reveals {case.reveals}: {case.differential['why']}" if revealing else ""),
+            "concrete_scenario": case.concrete,
         }
         if revealing:
             document["reference"] = revealing_case(case)

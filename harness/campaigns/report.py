@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.campaigns.statistics import compare, refused_text
-from harness.campaigns.store import Store, is_flaky
+from harness.campaigns.store import Store
+from harness.flight.fitness import Status
 
 PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
@@ -65,10 +66,10 @@ def _convergence(store: Store) -> list[str]:
     import numpy as np
 
     curves: dict[str, dict[str, list[list[float]]]] = defaultdict(lambda: defaultdict(list))
-    for run in store.run_rows():
-        curve = [best for _ordinal, best in store.best_so_far(run["id"])]
+    for run in store.runs():
+        curve = [best for _ordinal, best in store.best_so_far(run.id)]
         if curve:
-            curves[run["scenario"]][run["algorithm"]].append(curve)
+            curves[run.scenario][run.algorithm].append(curve)
     images = []
     for scenario, by_algorithm in sorted(curves.items()):
         figure, axes = plt.subplots(figsize=(8, 4))
@@ -109,39 +110,33 @@ def _comparison_table(report: dict[str, Any]) -> str:
 def _worst(store: Store, count: int) -> list[str]:
     from harness.flight.inspect_log import plot
 
-    query = (
-        "SELECT r.scenario, r.algorithm, r.run_index, e.ordinal, e.fitness, e.status, e.min_clearance_m, e.log_path, e.concrete"
-        " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.log_path IS NOT NULL ORDER BY e.fitness LIMIT ?"
-    )
     sections = []
     with tempfile.TemporaryDirectory() as folder:
-        for index, (scenario, algorithm, run, ordinal, fitness, status, clearance, log_path, concrete) in enumerate(store.db.execute(query, (count,))):
+        for index, worst in enumerate(store.lowest(count, logged=True)):
             picture = Path(folder) / f"{index}.png"
             try:
-                plot(Path(log_path), picture)
-                image = _img(base64.b64encode(picture.read_bytes()).decode(), f"top view of {log_path}")
+                plot(Path(worst.log_path), picture)
+                image = _img(base64.b64encode(picture.read_bytes()).decode(), f"top view of {worst.log_path}")
             except OSError:
                 image = "<p>(log no longer on disk)</p>"
-            environment = json.loads(concrete)["environment"] if concrete else {}
+            environment = worst.concrete["environment"] if worst.concrete else {}
+            clearance = worst.min_clearance_m
             sections.append(
-                f"<h3>{index + 1}. {html.escape(scenario)}: fitness {fitness:.3f} ({status})</h3>"
-                f"<p>{algorithm} run {run}, evaluation {ordinal}; min clearance {clearance if clearance is None else round(clearance, 3)} m; "
-                f"log <code>{html.escape(log_path)}</code></p><p><code>{html.escape(json.dumps(environment))}</code></p>{image}"
+                f"<h3>{index + 1}. {html.escape(worst.scenario)}: fitness {worst.fitness:.3f} ({worst.status})</h3>"
+                f"<p>{worst.algorithm} run {worst.run_index}, evaluation {worst.ordinal}; min clearance {clearance if clearance is None else round(clearance, 3)} m; "
+                f"log <code>{html.escape(worst.log_path)}</code></p><p><code>{html.escape(json.dumps(environment))}</code></p>{image}"
             )
     return sections
 
 
 def _violations(store: Store) -> str:
-    query = (
-        "SELECT r.id, r.scenario, r.algorithm, r.run_index, e.fitness, e.confirmations FROM evaluations e JOIN runs r ON r.id = e.run_id"
-        " WHERE e.status = 'violation' ORDER BY r.scenario, r.algorithm, r.run_index, e.ordinal"
-    )
+    violations = sorted(store.evaluations_with(Status.VIOLATION), key=lambda e: (e.scenario, e.algorithm, e.run_index, e.ordinal))
     runs: dict[int, list] = {}
-    for run_id, scenario, algorithm, run, fitness, confirmations in store.db.execute(query):
-        entry = runs.setdefault(run_id, [scenario, algorithm, run, 0, math.inf, 0])
+    for violation in violations:
+        entry = runs.setdefault(violation.run_id, [violation.scenario, violation.algorithm, violation.run_index, 0, math.inf, 0])
         entry[3] += 1
-        entry[4] = min(entry[4], fitness)
-        entry[5] += is_flaky(confirmations)
+        entry[4] = min(entry[4], violation.fitness)
+        entry[5] += violation.flaky
     rows = ["<tr><th>scenario</th><th>algorithm</th><th>run</th><th>violations</th><th>flaky (--confirm)</th><th>lowest fitness</th></tr>"]
     for scenario, algorithm, run, count, lowest, flaky in runs.values():
         rows.append(f"<tr><td class='text'>{html.escape(scenario)}</td><td class='text'>{algorithm}</td><td>{run}</td><td>{count}</td><td>{flaky}</td><td>{lowest:.3f}</td></tr>")
@@ -175,11 +170,11 @@ def _revealing(store: Store) -> list[str]:
     rows = ["<tr><th>reveals</th><th>scenario</th><th>algorithm</th><th>run</th><th>evaluation</th><th>subject</th><th>reference</th><th>why</th><th>log</th></tr>"]
     for case in cases:
         sides = [" / ".join(f"{f['status']} {f['min_clearance_m'] if f['min_clearance_m'] is None else round(f['min_clearance_m'], 3)} m"
-                            for f in case["differential"][side]) for side in ("subject", "reference")]
-        rows.append(f"<tr><td class='text'>{case['reveals']}</td><td class='text'>{html.escape(Path(case['scenario_file']).stem)}</td>"
-                    f"<td class='text'>{case['algorithm']}</td><td>{case['run_index']}</td><td>{case['ordinal']}</td>"
+                            for f in case.differential[side]) for side in ("subject", "reference")]
+        rows.append(f"<tr><td class='text'>{case.reveals}</td><td class='text'>{html.escape(Path(case.scenario_file).stem)}</td>"
+                    f"<td class='text'>{case.algorithm}</td><td>{case.run_index}</td><td>{case.ordinal}</td>"
                     f"<td class='text'>{html.escape(sides[0])}</td><td class='text'>{html.escape(sides[1])}</td>"
-                    f"<td class='text'>{html.escape(case['differential']['why'])}</td><td class='text'><code>{html.escape(str(case['log_path']))}</code></td></tr>")
+                    f"<td class='text'>{html.escape(case.differential['why'])}</td><td class='text'><code>{html.escape(str(case.log_path))}</code></td></tr>")
     table = f"<table>{''.join(rows)}</table>" if cases else "<p>No candidate revealed a difference from the reference.</p>"
     return ["<h2>Revealing cases (subject against reference)</h2>", table]
 

@@ -45,14 +45,14 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     revealing: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     refused: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-    for run in store.run_rows():
-        if run["best_fitness"] is None:
+    for run in store.runs():
+        if run.best_fitness is None:
             continue
-        best[run["scenario"]][run["algorithm"]].append(run["best_fitness"])
-        violations[run["scenario"]][run["algorithm"]] += run["violations"] or 0
-        flaky[run["scenario"]][run["algorithm"]] += run["flaky"] or 0
-        revealing[run["scenario"]][run["algorithm"]] += run["revealing"] or 0
-        refused[run["scenario"]][run["algorithm"]] += run["failures_refused"] or 0
+        best[run.scenario][run.algorithm].append(run.best_fitness)
+        violations[run.scenario][run.algorithm] += run.violations
+        flaky[run.scenario][run.algorithm] += run.flaky
+        revealing[run.scenario][run.algorithm] += run.revealing
+        refused[run.scenario][run.algorithm] += run.failures_refused
     baseline = baseline.upper()
     rows = []
     pooled: dict[str, list[float]] = defaultdict(list)

@@ -26,7 +26,7 @@ import numpy as np
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.flight import logs
-from harness.flight.fitness import min_clearance
+from harness.flight.fitness import Status, min_clearance
 from harness.scenario.world import space_from_concrete
 from sim_bridge.obstacles import Obstacle
 
@@ -120,24 +120,23 @@ def triage(store_path: Path) -> dict[str, Any]:
     the level they reveal."""
     with Store.existing(store_path) as store:
         differential = store.is_differential()
-        rows = store.db.execute(
-            "SELECT e.id, r.scenario, r.scenario_file, r.algorithm, r.run_index, e.ordinal, e.fitness, e.log_path, e.vector_key, e.reveals"
-            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE " + ("e.reveals IS NOT NULL" if differential else "e.status = 'violation'")
-            + " ORDER BY r.id, e.ordinal").fetchall()
+        found = (sorted(store.revealing_cases(), key=lambda e: (e.run_id, e.ordinal)) if differential
+                 else store.evaluations_with(Status.VIOLATION))
     keys = ("reveals", *MODE_KEYS) if differential else MODE_KEYS
     violations, skipped = [], []
     seen = set()
-    for evaluation_id, scenario, scenario_file, algorithm, run, ordinal, fitness, log_path, vector_key, reveals in rows:
-        if vector_key in seen:
+    for evaluation in found:
+        if evaluation.vector_key in seen:
             continue
-        seen.add(vector_key)
-        where = {"id": evaluation_id, "scenario": scenario, "scenario_file": scenario_file, "algorithm": algorithm, "run": run, "evaluation": ordinal, "fitness": fitness,
-                 "log": log_path, "reveals": reveals}
-        if not log_path or not Path(log_path).is_file():
+        seen.add(evaluation.vector_key)
+        where = {"id": evaluation.id, "scenario": evaluation.scenario, "scenario_file": evaluation.scenario_file, "algorithm": evaluation.algorithm,
+                 "run": evaluation.run_index, "evaluation": evaluation.ordinal, "fitness": evaluation.fitness, "log": evaluation.log_path,
+                 "reveals": evaluation.reveals}
+        if not evaluation.log_path or not Path(evaluation.log_path).is_file():
             skipped.append({**where, "why": "its log is missing"})
             continue
         try:
-            violations.append({**where, **features(Path(log_path))})
+            violations.append({**where, **features(Path(evaluation.log_path))})
         except InputError as error:
             skipped.append({**where, "why": str(error)})
     modes: dict[tuple, list[dict[str, Any]]] = {}

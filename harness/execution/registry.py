@@ -1,30 +1,59 @@
-"""Executors by name, for the command line, the campaign page and the benchmarks."""
+"""Executors by name, for the command line, the campaign page and the benchmarks: the built-in
+ones, and any other a user registers (as SUTs are, sut_adapter/registry.py)."""
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Protocol
 
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor
 from harness.execution.local import LocalExecutor, SequentialExecutor
 
 
-EXECUTORS = ("sequential", "local", "dask", "docker")
+class ExecutorFactory(Protocol):
+    def __call__(self, workers: int | None, attempts: int, timeout_s: float, settings: Mapping[str, str]) -> Executor: ...
+
+
+_REGISTRY: dict[str, ExecutorFactory] = {}
+
+
+def register(name: str, factory: ExecutorFactory) -> None:
+    _REGISTRY[name] = factory
+
+
+def names() -> list[str]:
+    return list(_REGISTRY)
 
 
 def make_executor(name: str, workers: int | None, *, attempts: int = DEFAULT_ATTEMPTS, timeout_s: float = DEFAULT_TIMEOUT_S,
                   settings: Mapping[str, str] | None = None) -> Executor:
     """settings: `scheduler` for dask (an address; none starts a LocalCluster), `image` for docker."""
-    settings = settings or {}
-    if name == "sequential":
-        return SequentialExecutor(attempts, timeout_s)
-    if name == "local":
-        return LocalExecutor(workers, attempts, timeout_s)
-    if name == "dask":
-        from harness.execution.dask_executor import DaskExecutor
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown executor {name!r}; available: {', '.join(names())}")
+    return _REGISTRY[name](workers, attempts, timeout_s, settings or {})
 
-        return DaskExecutor(workers, attempts, timeout_s, scheduler=settings.get("scheduler"))
-    if name == "docker":
-        from harness.execution.docker_executor import DockerExecutor
 
-        return DockerExecutor(workers, attempts, timeout_s, image=settings.get("image"))
-    raise ValueError(f"unknown executor {name!r}; available: {', '.join(EXECUTORS)}")
+def _sequential(workers: int | None, attempts: int, timeout_s: float, settings: Mapping[str, str]) -> Executor:
+    return SequentialExecutor(attempts, timeout_s)
+
+
+def _local(workers: int | None, attempts: int, timeout_s: float, settings: Mapping[str, str]) -> Executor:
+    return LocalExecutor(workers, attempts, timeout_s)
+
+
+def _dask(workers: int | None, attempts: int, timeout_s: float, settings: Mapping[str, str]) -> Executor:
+    # Imported when asked for: dask's import alone takes about a second, and most campaigns run locally.
+    from harness.execution.dask_executor import DaskExecutor
+
+    return DaskExecutor(workers, attempts, timeout_s, scheduler=settings.get("scheduler"))
+
+
+def _docker(workers: int | None, attempts: int, timeout_s: float, settings: Mapping[str, str]) -> Executor:
+    from harness.execution.docker_executor import DockerExecutor
+
+    return DockerExecutor(workers, attempts, timeout_s, image=settings.get("image"))
+
+
+register("sequential", _sequential)
+register("local", _local)
+register("dask", _dask)
+register("docker", _docker)

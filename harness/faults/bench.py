@@ -23,7 +23,7 @@ from scipy.stats import fisher_exact
 
 from harness.campaigns.campaign import CampaignConfig, run_campaign
 from harness.campaigns.statistics import a12, p_value
-from harness.campaigns.store import Store
+from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
@@ -47,6 +47,12 @@ def _key(concrete: str, seed: int, sut_params: Mapping[str, float]) -> str:
     return hashlib.sha256(f"{seed}:{params}{concrete}".encode()).hexdigest()
 
 
+def _violation_key(violation: StoredEvaluation, sut_params: Mapping[str, float]) -> str:
+    # The store wrote the concrete scenario with json.dumps, and json.dumps of what json.loads
+    # read from it gives the same text back: the keys of caches made from the text itself.
+    return _key(json.dumps(violation.concrete), violation.seed, sut_params)
+
+
 def _load_cache(folder: Path) -> dict[str, dict[str, Any]]:
     path = folder / FAULT_FREE_CACHE
     return json.loads(path.read_text()) if path.is_file() else {}
@@ -57,14 +63,6 @@ def _save_cache(folder: Path, cache: dict[str, dict[str, Any]]) -> None:
     temporary = folder / f".{FAULT_FREE_CACHE}.tmp"
     temporary.write_text(json.dumps(cache, indent=1))
     os.replace(temporary, folder / FAULT_FREE_CACHE)
-
-
-def _violations(store_path: Path) -> list[dict[str, Any]]:
-    with Store.existing(store_path) as store:
-        rows = store.db.execute(
-            "SELECT r.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.concrete, e.seed FROM evaluations e JOIN runs r ON r.id = e.run_id"
-            " WHERE e.status = 'violation' ORDER BY r.id, e.ordinal")
-        return [dict(zip(("run_id", "scenario", "algorithm", "run", "ordinal", "concrete", "seed"), row)) for row in rows]
 
 
 def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,
@@ -88,15 +86,15 @@ def _fly_fault_free(store_path: Path, folder: Path, executor: Executor) -> None:
     cache = _load_cache(folder)
     with Store.existing(store_path) as store:
         sut_params = store.campaign_sut()["params"]
+        violations = store.evaluations_with(Status.VIOLATION)
     jobs, keys = [], {}
-    for violation in _violations(store_path):
-        key = _key(violation["concrete"], violation["seed"], sut_params)
+    for violation in violations:
+        key = _violation_key(violation, sut_params)
         if key in cache or key in keys.values():
             continue
         keys[len(jobs)] = key
-        concrete = json.loads(violation["concrete"])
-        space = space_from_concrete(concrete, str(store_path))
-        jobs.append(Job.of(len(jobs), space, space.from_concrete(concrete, str(store_path)), seed=violation["seed"], out_dir=folder / "logs" / "fault_free",
+        space = space_from_concrete(violation.concrete, str(store_path))
+        jobs.append(Job.of(len(jobs), space, space.from_concrete(violation.concrete, str(store_path)), seed=violation.seed, out_dir=folder / "logs" / "fault_free",
                            name=f"fault-free-{key[:12]}", options=options_for(None, sut_params)))
     for job, result in executor.run(jobs):
         cache[keys[job.key]] = {"status": str(result.status), "fitness": result.fitness, "min_clearance_m": result.min_clearance_m}
@@ -114,17 +112,18 @@ def detections(folder: Path) -> list[dict[str, Any]]:
         unflown = 0
         with Store.existing(store_path) as store:
             sut_params = store.campaign_sut()["params"]
-        for violation in _violations(store_path):
-            clean = cache.get(_key(violation["concrete"], violation["seed"], sut_params))
+            violations = store.evaluations_with(Status.VIOLATION)
+            runs = store.runs()
+        for violation in violations:
+            clean = cache.get(_violation_key(violation, sut_params))
             if clean is None:
                 unflown += 1
-            elif clean["status"] != Status.VIOLATION and violation["run_id"] not in found:
-                found[violation["run_id"]] = violation["ordinal"] + 1
-        with Store.existing(store_path) as store:
-            for run in store.run_rows():
-                rows.append({"fault": fault, "scenario": run["scenario"], "algorithm": run["algorithm"], "run": run["run_index"],
-                             "evaluations": run["evaluations"], "finished": run["finished"] is not None, "violations": run["violations"] or 0,
-                             "detected": run["id"] in found, "evaluations_to_detection": found.get(run["id"]), "unflown_violations": unflown})
+            elif Status(clean["status"]) != Status.VIOLATION and violation.run_id not in found:
+                found[violation.run_id] = violation.ordinal + 1
+        for run in runs:
+            rows.append({"fault": fault, "scenario": run.scenario, "algorithm": run.algorithm, "run": run.run_index,
+                         "evaluations": run.evaluations, "finished": run.finished is not None, "violations": run.violations,
+                         "detected": run.id in found, "evaluations_to_detection": found.get(run.id), "unflown_violations": unflown})
     return rows
 
 

@@ -16,6 +16,8 @@ from mavsdk.plugins.failure import Failure, FailureType, FailureUnit
 from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
 from mavsdk.plugins.param import Param
 from mavsdk.plugins.telemetry import Telemetry
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_LAND, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, MAV_FRAME_MISSION)
 
 from harness.errors import InfrastructureError
 from sim_bridge.geo import geodetic_from_local
@@ -23,12 +25,6 @@ from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
 
 log = logging.getLogger(__name__)
 
-MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
-MAV_FRAME_MISSION = 2
-NAV_WAYPOINT = 16
-NAV_LAND = 21
-NAV_TAKEOFF = 22
-DO_CHANGE_SPEED = 178
 ACCEPTANCE_RADIUS_M = 2.0
 # A SUT that denies arming is asked again this often, within the caller's window.
 ARM_RETRY_INTERVAL_S = 0.1
@@ -74,13 +70,13 @@ def mission_items(world: WorldSpec) -> list[MissionItem]:
         items.append(MissionItem(seq=len(items), frame=frame, command=command, current=1 if not items else 0, autocontinue=1,
                                  param1=p[0], param2=p[1], param3=p[2], param4=p[3], x=x, y=y, z=float(z), mission_type=0))
 
-    add(NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, start.north_m, start.east_m, mission.takeoff_altitude_m, 0.0, 0.0, 0.0, float("nan"))
-    add(DO_CHANGE_SPEED, MAV_FRAME_MISSION, None, None, 0.0, 1.0, mission.cruise_speed_m_s, -1.0)
+    add(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, start.north_m, start.east_m, mission.takeoff_altitude_m, 0.0, 0.0, 0.0, float("nan"))
+    add(MAV_CMD_DO_CHANGE_SPEED, MAV_FRAME_MISSION, None, None, 0.0, 1.0, mission.cruise_speed_m_s, -1.0)
     for waypoint in mission.waypoints:
-        add(NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, waypoint.north_m, waypoint.east_m, waypoint.altitude_m, 0.0, ACCEPTANCE_RADIUS_M, 0.0, float("nan"))
+        add(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, waypoint.north_m, waypoint.east_m, waypoint.altitude_m, 0.0, ACCEPTANCE_RADIUS_M, 0.0, float("nan"))
     if mission.land:
         last = mission.waypoints[-1]
-        add(NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, last.north_m, last.east_m, 0.0, 0.0, 0.0, 0.0, float("nan"))
+        add(MAV_CMD_NAV_LAND, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, last.north_m, last.east_m, 0.0, 0.0, 0.0, 0.0, float("nan"))
     return items
 
 

@@ -22,32 +22,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_DELAY, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_BODY_NED, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_GLOBAL_TERRAIN_ALT, MAV_FRAME_LOCAL_NED, MAV_FRAME_MISSION)
+
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
 from sim_bridge.geo import local_from_geodetic
 
-NAV_WAYPOINT = 16
-NAV_RETURN_TO_LAUNCH = 20
-NAV_LAND = 21
-NAV_TAKEOFF = 22
-NAV_DELAY = 93
-DO_CHANGE_SPEED = 178
 COMMANDS = {
-    NAV_TAKEOFF: "takeoff",
-    NAV_WAYPOINT: "waypoint",
-    NAV_LAND: "land",
-    NAV_RETURN_TO_LAUNCH: "return to launch",
-    DO_CHANGE_SPEED: "change speed",
-    NAV_DELAY: "delay",
+    MAV_CMD_NAV_TAKEOFF: "takeoff",
+    MAV_CMD_NAV_WAYPOINT: "waypoint",
+    MAV_CMD_NAV_LAND: "land",
+    MAV_CMD_NAV_RETURN_TO_LAUNCH: "return to launch",
+    MAV_CMD_DO_CHANGE_SPEED: "change speed",
+    MAV_CMD_NAV_DELAY: "delay",
 }
-POSITION_COMMANDS = (NAV_TAKEOFF, NAV_WAYPOINT, NAV_LAND)
-ENDING_COMMANDS = (NAV_LAND, NAV_RETURN_TO_LAUNCH)
-FRAME_GLOBAL = 0  # altitude above mean sea level
-FRAME_MISSION = 2  # no position
-FRAME_GLOBAL_RELATIVE_ALT = 3  # altitude above home
-FRAME_NAMES = {FRAME_GLOBAL: "above mean sea level", FRAME_MISSION: "mission", FRAME_GLOBAL_RELATIVE_ALT: "relative to home",
-               10: "above terrain", 1: "local NED", 8: "body NED"}
-ALTITUDE_FRAMES = (FRAME_GLOBAL, FRAME_GLOBAL_RELATIVE_ALT)
+POSITION_COMMANDS = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LAND)
+ENDING_COMMANDS = (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
+FRAME_NAMES = {MAV_FRAME_GLOBAL: "above mean sea level", MAV_FRAME_MISSION: "mission", MAV_FRAME_GLOBAL_RELATIVE_ALT: "relative to home",
+               MAV_FRAME_GLOBAL_TERRAIN_ALT: "above terrain", MAV_FRAME_LOCAL_NED: "local NED", MAV_FRAME_BODY_NED: "body NED"}
+ALTITUDE_FRAMES = (MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT)
 # The simulated world is a local tangent plane around home, good to centimetres over a few km.
 MAX_DISTANCE_FROM_HOME_M = 5000.0
 # Where obstacles may be placed around a plan's route (the landforms give their 60 m route 20 m
@@ -89,7 +84,7 @@ class Plan:
 
     @property
     def waypoints(self) -> tuple[PlanItem, ...]:
-        return tuple(item for item in self.items if item.command == NAV_WAYPOINT)
+        return tuple(item for item in self.items if item.command == MAV_CMD_NAV_WAYPOINT)
 
     @property
     def lands(self) -> bool:
@@ -99,7 +94,7 @@ class Plan:
     def landing_point(self) -> tuple[float, float]:
         """Where the plan ends: home after a return, the land item's position, or the last
         position flown to before a land item without one."""
-        if self.items[-1].command == NAV_RETURN_TO_LAUNCH:
+        if self.items[-1].command == MAV_CMD_NAV_RETURN_TO_LAUNCH:
             return 0.0, 0.0
         positioned = [item for item in self.items if item.has_position]
         return (positioned[-1].north_m, positioned[-1].east_m) if positioned else (0.0, 0.0)
@@ -115,7 +110,7 @@ class Plan:
 
     @property
     def takeoff_altitude_m(self) -> float:
-        altitudes = [item.altitude_m for item in self.items if item.command in (NAV_TAKEOFF, NAV_WAYPOINT)]
+        altitudes = [item.altitude_m for item in self.items if item.command in (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT)]
         return altitudes[0]
 
     def area(self) -> dict[str, float]:
@@ -131,18 +126,18 @@ class Plan:
         speed, slowest, path, waits = cruise_speed_m_s, cruise_speed_m_s, 0.0, 0.0
         here = (0.0, 0.0, 0.0)
         for item in self.items:
-            if item.command == DO_CHANGE_SPEED and item.params[1] > 0:
+            if item.command == MAV_CMD_DO_CHANGE_SPEED and item.params[1] > 0:
                 speed = item.params[1]
                 slowest = min(slowest, speed)
-            elif item.command == NAV_DELAY:
+            elif item.command == MAV_CMD_NAV_DELAY:
                 waits += item.params[0]
             elif item.has_position:
-                there = (item.north_m, item.east_m, item.altitude_m if item.command != NAV_LAND else 0.0)
+                there = (item.north_m, item.east_m, item.altitude_m if item.command != MAV_CMD_NAV_LAND else 0.0)
                 path += math.dist(here, there)
                 here = there
-                if item.command == NAV_WAYPOINT:
+                if item.command == MAV_CMD_NAV_WAYPOINT:
                     waits += item.params[0]
-            elif item.command == NAV_RETURN_TO_LAUNCH:
+            elif item.command == MAV_CMD_NAV_RETURN_TO_LAUNCH:
                 path += math.dist(here, (0.0, 0.0, here[2])) + here[2]
         return path / slowest + waits
 
@@ -192,7 +187,7 @@ def _item_problems(item: Any, index: int, home: Mapping[str, float], file: str, 
                                                    "PX4 flies more commands, the simulator models and scores these")]
     problems = []
     frame = item.get("frame")
-    wanted = ALTITUDE_FRAMES if command in POSITION_COMMANDS else (FRAME_MISSION, *ALTITUDE_FRAMES)
+    wanted = ALTITUDE_FRAMES if command in POSITION_COMMANDS else (MAV_FRAME_MISSION, *ALTITUDE_FRAMES)
     if frame not in wanted or isinstance(frame, bool):
         name = FRAME_NAMES.get(frame, "unknown") if isinstance(frame, int) else "not a number"
         choices = " or ".join(f"{f} ({FRAME_NAMES[f]})" for f in wanted)
@@ -206,13 +201,13 @@ def _item_problems(item: Any, index: int, home: Mapping[str, float], file: str, 
         problems.append(Problem(file, f"{where}/params", "expected 7 numbers (null for unset): param1-4, latitude, longitude, altitude"))
         return problems
     p = [_param(v) for v in params]
-    if command == DO_CHANGE_SPEED and not (p[1] > 0 or p[1] == -1):
+    if command == MAV_CMD_DO_CHANGE_SPEED and not (p[1] > 0 or p[1] == -1):
         problems.append(Problem(file, f"{where}/params/1", f"speed {params[1]} m/s: give a positive speed (-1 keeps the current one)"
                                                             f"{SIMULATOR_LIMIT}: its time limit follows from the speeds"))
-    if command == NAV_DELAY and not p[0] >= 0:
+    if command == MAV_CMD_NAV_DELAY and not p[0] >= 0:
         problems.append(Problem(file, f"{where}/params/0", f"delay {params[0]}: give the seconds to wait (a time of day is not supported"
                                                             f"{SIMULATOR_LIMIT}: simulated time has no time of day)"))
-    if command == NAV_WAYPOINT:
+    if command == MAV_CMD_NAV_WAYPOINT:
         for number, what in ((0, "hold time (s)"), (1, "acceptance radius (m)")):
             if math.isfinite(p[number]) and p[number] < 0:
                 problems.append(Problem(file, f"{where}/params/{number}", f"{what} {params[number]} must not be negative{SIMULATOR_LIMIT}: "
@@ -225,7 +220,7 @@ def _item_problems(item: Any, index: int, home: Mapping[str, float], file: str, 
 def _position_problems(command: int, frame: int, p: list[float], home: Mapping[str, float], file: str, where: str) -> list[Problem]:
     lat, lon, z = p[4], p[5], p[6]
     located = math.isfinite(lat) and math.isfinite(lon) and (lat, lon) != (0.0, 0.0)
-    if command == NAV_WAYPOINT and not located:
+    if command == MAV_CMD_NAV_WAYPOINT and not located:
         return [Problem(file, f"{where}/params/4", f"a waypoint needs a latitude and longitude{SIMULATOR_LIMIT}: "
                                                     "PX4 would fly to 0, 0, outside the simulated world")]
     problems = []
@@ -236,19 +231,19 @@ def _position_problems(command: int, frame: int, p: list[float], home: Mapping[s
         if distance > MAX_DISTANCE_FROM_HOME_M:
             problems.append(Problem(file, f"{where}/params/4", f"{distance / 1000:.1f} km from home: the simulated world reaches "
                                                                 f"{MAX_DISTANCE_FROM_HOME_M / 1000:.0f} km; is plannedHomePosition right?{SIMULATOR_LIMIT}"))
-    if command != NAV_LAND:
+    if command != MAV_CMD_NAV_LAND:
         if not math.isfinite(z):
             problems.append(Problem(file, f"{where}/params/6", f"an altitude is needed{SIMULATOR_LIMIT}"))
         elif _altitude_above_home(frame, z, home) <= 0.0:
             # PX4's feasibility checker refuses a takeoff below home; a waypoint there is in the simulated ground.
-            whose = PX4_REFUSES if command == NAV_TAKEOFF else f"{SIMULATOR_LIMIT}: its ground is at home's altitude"
+            whose = PX4_REFUSES if command == MAV_CMD_NAV_TAKEOFF else f"{SIMULATOR_LIMIT}: its ground is at home's altitude"
             problems.append(Problem(file, f"{where}/params/6", f"altitude {z:g} m ({FRAME_NAMES[frame]}) is not above home "
                                                                 f"({home['alt_m']:g} m AMSL){whose}"))
     return problems
 
 
 def _altitude_above_home(frame: int, z: float, home: Mapping[str, float]) -> float:
-    return z - home["alt_m"] if frame == FRAME_GLOBAL else z
+    return z - home["alt_m"] if frame == MAV_FRAME_GLOBAL else z
 
 
 def plan_problems(document: Any, file: str, at: str = "") -> list[Problem]:
@@ -270,11 +265,11 @@ def plan_problems(document: Any, file: str, at: str = "") -> list[Problem]:
     if problems:
         return problems
     commands = [item["command"] for item in items]
-    positioned = [i for i, c in enumerate(commands) if c in (*POSITION_COMMANDS, NAV_RETURN_TO_LAUNCH)]
-    if positioned and commands[positioned[0]] == NAV_LAND:
+    positioned = [i for i, c in enumerate(commands) if c in (*POSITION_COMMANDS, MAV_CMD_NAV_RETURN_TO_LAUNCH)]
+    if positioned and commands[positioned[0]] == MAV_CMD_NAV_LAND:
         whose = PX4_REFUSES if positioned[0] == 0 else f"{SIMULATOR_LIMIT}: it needs an altitude to fly to the land item at"
         problems.append(Problem(file, f"{at}/mission/items/{positioned[0]}", f"the plan starts with landing: add a takeoff item before it{whose}"))
-    late_takeoff = next((i for i in positioned[1:] if commands[i] == NAV_TAKEOFF), None)
+    late_takeoff = next((i for i in positioned[1:] if commands[i] == MAV_CMD_NAV_TAKEOFF), None)
     if late_takeoff is not None:
         problems.append(Problem(file, f"{at}/mission/items/{late_takeoff}", f"a takeoff that is not the first item with a position "
                                                                             f"(item {positioned[0]} is): remove it or move it first{PX4_REFUSES}"))
@@ -284,7 +279,7 @@ def plan_problems(document: Any, file: str, at: str = "") -> list[Problem]:
                                                                           f"{ending}, so it would never be flown: remove it or move it before"
                                                                           f"{SIMULATOR_LIMIT}"))
     # Within a metre of home it lands where it took off.
-    if not problems and NAV_WAYPOINT not in commands and math.hypot(*plan_from_document(document, file).landing_point) < 1.0:
+    if not problems and MAV_CMD_NAV_WAYPOINT not in commands and math.hypot(*plan_from_document(document, file).landing_point) < 1.0:
         problems.append(Problem(file, f"{at}/mission/items", "no waypoint, and the plan lands where it took off: the UAV has nowhere to "
                                                              "fly; add a waypoint or give the land item a position"
                                                              f"{SIMULATOR_LIMIT}: a scenario needs a goal away from home"))
@@ -303,9 +298,9 @@ def plan_from_document(document: Mapping[str, Any], file: str) -> Plan:
         position: dict[str, float] = {}
         if located:
             north, east = local_from_geodetic(origin["lat_deg"], origin["lon_deg"], p[4], p[5])
-            altitude = 0.0 if command == NAV_LAND else _altitude_above_home(frame, p[6], origin)
+            altitude = 0.0 if command == MAV_CMD_NAV_LAND else _altitude_above_home(frame, p[6], origin)
             position = {"north_m": north, "east_m": east, "altitude_m": altitude}
-        elif command == NAV_TAKEOFF:
+        elif command == MAV_CMD_NAV_TAKEOFF:
             position = {"north_m": 0.0, "east_m": 0.0, "altitude_m": _altitude_above_home(frame, p[6], origin)}
         items.append(PlanItem(index, command, frame, (p[0], p[1], p[2], p[3]), p[4] if located else None, p[5] if located else None,
                               0.0 if math.isnan(p[6]) else p[6], **position))

@@ -214,9 +214,9 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
             finally:
                 executor.close()
             wall = time.monotonic() - started
-            rows = store.db.execute("SELECT status, wall_time_s, sim_time_s FROM evaluations").fetchall()
-    flown = [r for r in rows if r[0] != Status.INFEASIBLE]
-    busy = sum(r[1] or 0.0 for r in flown)
+            rows = store.all_evaluations()
+    flown = [r for r in rows if r.status != Status.INFEASIBLE]
+    busy = sum(r.wall_time_s or 0.0 for r in flown)
     return {
         "scenario": str(path),
         "evaluations": len(rows),
@@ -227,9 +227,9 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         "wall_time_s": wall,
         "evaluations_per_hour": 3600.0 * len(rows) / wall,
         "mean_evaluation_wall_s": busy / len(flown) if flown else None,
-        "simulated_s": sum(r[2] or 0.0 for r in flown),
+        "simulated_s": sum(r.sim_time_s or 0.0 for r in flown),
         "outside_evaluations_share": 1.0 - busy / (wall * executor.workers),
-        "violations": sum(1 for r in rows if r[0] == Status.VIOLATION),
+        "violations": sum(1 for r in rows if r.status == Status.VIOLATION),
     }
 
 

@@ -4,7 +4,7 @@ A campaign launched from the page is the same command a user would type, run as 
 its own with its store in the store directory (`NAME.db`, logs in `NAME-logs/`, its console in
 `NAME.log`, the command in `NAME.json` so that Resume runs it again). Its SUT, drive, plan,
 seeded fault and parameters are the command's options, and the command line is checked by the
-CLI's own code before it starts (harness.tools.cli.checked_campaign), so the page refuses what
+CLI's own code before it starts (harness.tools.commands.campaigns.checked_campaign), so the page refuses what
 the command would refuse, with the same message. Cancel sends it SIGINT, as Ctrl-C in a
 terminal would; the store keeps every finished evaluation. Progress is read from the store,
 which a running campaign commits to after every evaluation.
@@ -33,7 +33,8 @@ from harness.errors import InputError, Problem
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search.optimizers import parse_algorithm
-from harness.tools.cli import checked_campaign, positive_int, seed_int
+from harness.tools.commands.campaigns import checked_campaign
+from harness.tools.commands.common import positive_int, seed_int
 from harness.tools.ui.uploads import KINDS, Uploads
 from sut_adapter.processes import Launcher
 
@@ -261,13 +262,13 @@ class Campaigns:
         store = self.store(name)
         if store is not None:
             with store:
-                for row in store.run_rows():
-                    times = [t for (t,) in store.db.execute("SELECT created FROM evaluations WHERE run_id = ? ORDER BY created", (row["id"],))]
-                    rate = 3600.0 * (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else None
-                    remaining = per_run_total - row["evaluations"]
-                    runs.append({"id": row["id"], "scenario": row["scenario"], "algorithm": row["algorithm"], "run": row["run_index"],
-                                 "done": row["evaluations"], "total": per_run_total, "best_fitness": row["best_fitness"],
-                                 "violations": row["violations"] or 0, "evaluations_per_hour": rate, "finished": row["finished"] is not None,
-                                 "eta_s": 3600.0 * remaining / rate if rate and row["finished"] is None else None})
-                    curves[str(row["id"])] = store.best_so_far(row["id"])
+                for run in store.runs():
+                    span_s = (run.last_created - run.first_created) if run.evaluations > 1 else 0.0
+                    rate = 3600.0 * (run.evaluations - 1) / span_s if span_s > 0 else None
+                    remaining = per_run_total - run.evaluations
+                    runs.append({"id": run.id, "scenario": run.scenario, "algorithm": run.algorithm, "run": run.run_index,
+                                 "done": run.evaluations, "total": per_run_total, "best_fitness": run.best_fitness,
+                                 "violations": run.violations, "evaluations_per_hour": rate, "finished": run.finished is not None,
+                                 "eta_s": 3600.0 * remaining / rate if rate and run.finished is None else None})
+                    curves[str(run.id)] = store.best_so_far(run.id)
         return {"name": name, "done": sum(r["done"] for r in runs), "total": total, "runs": runs, "curves": curves, "time": time.time()}

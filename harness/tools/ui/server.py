@@ -197,12 +197,11 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
         with store:
             baseline = next(iter(json.loads((campaigns.store_dir / f"{name}.json").read_text())["algorithms"]))
             comparison = compare(store, baseline)
-            rows = store.db.execute(
-                "SELECT e.id, r.scenario, r.algorithm, r.run_index, e.ordinal, e.status, e.fitness, e.min_clearance_m, e.concrete, e.log_path IS NOT NULL"
-                " FROM evaluations e JOIN runs r ON r.id = e.run_id ORDER BY e.fitness LIMIT 200").fetchall()
-        keys = ("id", "scenario", "algorithm", "run", "ordinal", "status", "fitness", "min_clearance_m", "concrete", "has_log")
+            lowest = store.lowest(200)
         return {"name": name, "comparison": comparison, "console": console, "command": command,
-                "evaluations": [dict(zip(keys, row)) | {"concrete": json.loads(row[8]) if row[8] else None} for row in rows]}
+                "evaluations": [{"id": e.id, "scenario": e.scenario, "algorithm": e.algorithm, "run": e.run_index, "ordinal": e.ordinal,
+                                 "status": str(e.status), "fitness": e.fitness, "min_clearance_m": e.min_clearance_m, "concrete": e.concrete,
+                                 "has_log": e.log_path is not None} for e in lowest]}
 
     @app.get("/api/campaigns/{name}/triage")
     def triage(name: str) -> dict[str, Any]:
@@ -216,10 +215,9 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
         with store:
             report = group(store.path)
             examples = [mode[which] for mode in report["modes"] for which in ("worst", "typical")]
-            concretes = dict(store.db.execute(f"SELECT id, concrete FROM evaluations WHERE id IN ({','.join('?' * len(examples))})",
-                                              [example["id"] for example in examples]).fetchall())
+            stored = {example["id"]: store.evaluation(example["id"]) for example in examples}
         for example in examples:
-            example.update(ordinal=example["evaluation"], status="violation", concrete=json.loads(concretes[example["id"]] or "null"))
+            example.update(ordinal=example["evaluation"], status=str(stored[example["id"]].status), concrete=stored[example["id"]].concrete)
         return report
 
     def log_of(name: str, evaluation: int) -> Path:
@@ -227,10 +225,10 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
         if store is None:
             raise HTTPException(404, "no store yet")
         with store:
-            row = store.db.execute("SELECT log_path FROM evaluations WHERE id = ?", (evaluation,)).fetchone()
-        if row is None or row[0] is None:
+            stored = store.evaluation(evaluation)
+        if stored is None or stored.log_path is None:
             raise HTTPException(404, f"evaluation {evaluation} has no log")
-        path = Path(row[0]).resolve()
+        path = Path(stored.log_path).resolve()
         if not path.is_relative_to(campaigns.store_dir) or not path.is_file():
             raise HTTPException(404, f"evaluation {evaluation}'s log is not in the store directory")
         return path

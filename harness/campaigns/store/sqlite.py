@@ -11,13 +11,15 @@ import json
 import sqlite3
 import time
 from contextlib import closing
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
+from harness.campaigns.store.rows import StoredEvaluation, StoredRun, vector_key
 from harness.errors import InputError, Problem
+from harness.flight.differential import Reveal
+from harness.flight.fitness import Status
 
 if TYPE_CHECKING:
     from harness.flight.evaluation import EvaluationResult
@@ -77,19 +79,24 @@ CREATE TABLE IF NOT EXISTS checkpoints (
 """
 
 
-def vector_key(x: np.ndarray) -> str:
-    """Exact identity of a candidate: the bytes of its float64 values."""
-    return np.ascontiguousarray(np.asarray(x, dtype=np.float64)).tobytes().hex()
+# An evaluation with its run's scenario, algorithm and index: what every reader of evaluations
+# selects (the order of _evaluation's arguments), each with its own WHERE and ORDER BY.
+EVALUATIONS = (
+    "SELECT e.id, e.run_id, e.ordinal, e.vector, e.vector_key, e.fitness, e.status, e.log_path, e.seed, e.why, e.min_clearance_m, e.sim_time_s,"
+    " e.wall_time_s, e.created, e.concrete, e.confirmations, e.reveals, e.differential, r.scenario, r.scenario_file, r.algorithm, r.run_index"
+    " FROM evaluations e JOIN runs r ON r.id = e.run_id"
+)
 
 
-@dataclass(frozen=True)
-class StoredEvaluation:
-    ordinal: int
-    vector: np.ndarray
-    fitness: float
-    status: str
-    log_path: str | None
-    reveals: str | None = None
+def _json(text: str | None) -> Any:
+    return json.loads(text) if text is not None else None
+
+
+def _evaluation(id, run_id, ordinal, vector, key, fitness, status, log_path, seed, why, min_clearance_m, sim_time_s, wall_time_s, created,
+                concrete, confirmations, reveals, differential, scenario, scenario_file, algorithm, run_index) -> StoredEvaluation:
+    return StoredEvaluation(id, run_id, ordinal, np.array(json.loads(vector)), key, fitness, Status(status), log_path, seed, why, min_clearance_m,
+                            sim_time_s, wall_time_s, created, _json(concrete), _json(confirmations), Reveal(reveals) if reveals else None,
+                            _json(differential), scenario, scenario_file, algorithm, run_index)
 
 
 class Store:
@@ -215,9 +222,8 @@ class Store:
     # -- evaluations ---------------------------------------------------------------------------
 
     def evaluations(self, run_id: int) -> dict[str, StoredEvaluation]:
-        rows = self.db.execute("SELECT ordinal, vector, vector_key, fitness, status, log_path, reveals FROM evaluations WHERE run_id = ?", (run_id,))
-        return {key: StoredEvaluation(ordinal, np.array(json.loads(vector)), fitness, status, log, reveals)
-                for ordinal, vector, key, fitness, status, log, reveals in rows}
+        """A run's evaluations by their vector's key: what a resumed run answers from."""
+        return {row.vector_key: row for row in self._evaluations("WHERE e.run_id = ?", (run_id,))}
 
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult, concrete: Mapping[str, Any] | None) -> None:
         with self.db:
@@ -242,19 +248,34 @@ class Store:
 
     # -- reading -------------------------------------------------------------------------------
 
-    def run_rows(self) -> Iterator[dict[str, Any]]:
+    def _evaluations(self, where: str, parameters: Iterable[Any] = ()) -> list[StoredEvaluation]:
+        return [_evaluation(*row) for row in self.db.execute(f"{EVALUATIONS} {where}", tuple(parameters))]
+
+    def all_evaluations(self) -> list[StoredEvaluation]:
+        return self._evaluations("ORDER BY r.id, e.ordinal")
+
+    def evaluations_with(self, status: Status) -> list[StoredEvaluation]:
+        """Every evaluation that ended so, by run and ordinal."""
+        return self._evaluations("WHERE e.status = ? ORDER BY r.id, e.ordinal", (str(status),))
+
+    def lowest(self, count: int, *, logged: bool = False) -> list[StoredEvaluation]:
+        """The count lowest-fitness evaluations (logged: of those whose log was kept)."""
+        return self._evaluations(f"{'WHERE e.log_path IS NOT NULL' if logged else ''} ORDER BY e.fitness LIMIT ?", (count,))
+
+    def evaluation(self, evaluation_id: int) -> StoredEvaluation | None:
+        found = self._evaluations("WHERE e.id = ?", (evaluation_id,))
+        return found[0] if found else None
+
+    def runs(self) -> list[StoredRun]:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
-            " MIN(e.fitness), SUM(e.status = 'violation'), COUNT(e.id),"
-            " SUM(e.status = 'violation' AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')),"
-            " SUM(e.failures_refused IS NOT NULL), SUM(e.reveals IS NOT NULL), SUM(e.reveals = 'unsafe'), MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END)"
+            " MIN(e.fitness), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0),"
+            " COALESCE(SUM(e.status = :violation AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')), 0),"
+            " COALESCE(SUM(e.failures_refused IS NOT NULL), 0), COALESCE(SUM(e.reveals IS NOT NULL), 0), COALESCE(SUM(e.reveals = :unsafe), 0),"
+            " MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END), MIN(e.created), MAX(e.created)"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
-        names = ("id", "scenario_file", "scenario", "algorithm", "run_index", "seed", "finished", "best_fitness", "violations", "evaluations", "flaky",
-                 "failures_refused",  # flights in which the SUT refused a failure injection
-                 "revealing", "revealing_unsafe", "first_revealing")  # a differential campaign's candidates that reveal a difference
-        for row in self.db.execute(query):
-            yield dict(zip(names, row))
+        return [StoredRun(*row) for row in self.db.execute(query, {"violation": str(Status.VIOLATION), "unsafe": str(Reveal.UNSAFE)})]
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""
@@ -268,35 +289,27 @@ class Store:
         row = self.db.execute("SELECT config FROM campaigns").fetchone()
         return bool(row) and "reference" in json.loads(row[0])
 
-    def worst_cases(self, threshold: float, worst_per_run: int) -> list[dict[str, Any]]:
+    def worst_cases(self, threshold: float, worst_per_run: int) -> list[StoredEvaluation]:
         """Flown evaluations with fitness below threshold, plus each run's worst_per_run lowest, lowest first."""
-        query = (
-            "SELECT * FROM (SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed, e.confirmations,"
-            " r.scenario_file, r.algorithm, r.run_index,"
-            " ROW_NUMBER() OVER (PARTITION BY e.run_id ORDER BY e.fitness, e.ordinal) AS rank"
-            " FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.status != 'infeasible')"
-            " WHERE fitness < ? OR rank <= ? ORDER BY fitness, scenario_file, algorithm, run_index, ordinal"
+        ranked = (
+            "SELECT id, fitness, ROW_NUMBER() OVER (PARTITION BY run_id ORDER BY fitness, ordinal) AS rank FROM evaluations WHERE status != ?"
         )
-        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "confirmations", "scenario_file", "algorithm", "run_index")
-        return [dict(zip(names, row)) for row in self.db.execute(query, (threshold, worst_per_run))]
+        return self._evaluations(f"JOIN ({ranked}) ranked ON ranked.id = e.id WHERE ranked.fitness < ? OR ranked.rank <= ?"
+                                 " ORDER BY e.fitness, r.scenario_file, r.algorithm, r.run_index, e.ordinal",
+                                 (str(Status.INFEASIBLE), threshold, worst_per_run))
 
     def first_reveals(self) -> dict[str, Any]:
         """A differential campaign's single run: the evaluations (1-based) to its first revealing
         candidate and to its first unsafe one, that first one's level, and the evaluations spent."""
         first = self.db.execute("SELECT ordinal, reveals FROM evaluations WHERE reveals IS NOT NULL ORDER BY ordinal LIMIT 1").fetchone()
-        unsafe = self.db.execute("SELECT MIN(ordinal) FROM evaluations WHERE reveals = 'unsafe'").fetchone()[0]
+        unsafe = self.db.execute("SELECT MIN(ordinal) FROM evaluations WHERE reveals = ?", (str(Reveal.UNSAFE),)).fetchone()[0]
         spent = self.db.execute("SELECT COUNT(*) FROM evaluations").fetchone()[0]
         return {"evaluation": first[0] + 1 if first else None, "level": first[1] if first else None,
                 "first_unsafe": unsafe + 1 if unsafe is not None else None, "budget": spent}
 
-    def revealing_cases(self) -> list[dict[str, Any]]:
+    def revealing_cases(self) -> list[StoredEvaluation]:
         """Every revealing evaluation, unsafe ones first, then by fitness."""
-        query = ("SELECT e.ordinal, e.vector_key, e.concrete, e.fitness, e.status, e.min_clearance_m, e.log_path, e.seed, e.reveals, e.differential,"
-                 " r.scenario_file, r.algorithm, r.run_index FROM evaluations e JOIN runs r ON r.id = e.run_id WHERE e.reveals IS NOT NULL"
-                 " ORDER BY e.reveals != 'unsafe', e.fitness, r.id, e.ordinal")
-        names = ("ordinal", "vector_key", "concrete", "fitness", "status", "min_clearance_m", "log_path", "seed", "reveals", "differential",
-                 "scenario_file", "algorithm", "run_index")
-        return [{**dict(zip(names, row)), "differential": json.loads(row[9])} for row in self.db.execute(query)]
+        return self._evaluations("WHERE e.reveals IS NOT NULL ORDER BY e.reveals != ?, e.fitness, r.id, e.ordinal", (str(Reveal.UNSAFE),))
 
     def failures_refused(self, run_id: int) -> int:
         """How many of a run's flights the SUT refused a failure injection in."""
@@ -309,11 +322,3 @@ class Store:
             best = min(best, fitness)
             curve.append((ordinal, best))
         return curve
-
-
-def is_flaky(confirmations: str | Mapping[str, Any] | None) -> bool:
-    """A violation re-flown with --confirm that did not violate in every re-flight."""
-    if confirmations is None:
-        return False
-    record = json.loads(confirmations) if isinstance(confirmations, str) else confirmations
-    return record["violations"] < record["repeats"]

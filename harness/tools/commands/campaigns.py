@@ -1,0 +1,227 @@
+"""`stella campaign`, `compare`, `report`, `triage` and `export-regressions`: a search campaign,
+and what is read from its store afterwards."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
+
+from harness.errors import InputError, Problem
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
+from harness.search import DEFAULT_BATCH
+from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int
+from harness.tools.commands.sut_options import add_reference_options, add_sut_options, check_transport, mission_plan, reference_spec, sut_spec
+from sim_bridge.sut_link import TRANSPORTS
+
+if TYPE_CHECKING:
+    from harness.campaigns.campaign import CampaignConfig
+
+
+def _campaign_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenarios", nargs="+", help="logical scenario JSON files")
+    p.add_argument("--algorithm", action="append", required=True, help="NSGAII, SMPSO, BO, RANDOM or a combination of N P B R such as NPB; repeatable")
+    p.add_argument("--evaluations", type=positive_int, required=True, help="budget per run (split evenly over a combination's steps)")
+    p.add_argument("--runs", type=positive_int, default=1)
+    p.add_argument("--seed", type=seed_int, default=0, help="run r uses seed + r")
+    p.add_argument("--population", type=positive_int, default=50, help="population, swarm size and BO initial set")
+    p.add_argument("--confirm", type=non_negative_int, default=0,
+                   help="fly each violation N more times with the same seed and store how often it came back; one that did not every "
+                        "time is marked flaky in report and export-regressions")
+    p.add_argument("--batch", type=positive_int, default=DEFAULT_BATCH,
+                   help=f"candidates BO and RANDOM ask for at once (default {DEFAULT_BATCH}); part of the campaign, so a seed flies the same "
+                        "candidates on every executor; raise it to the number of workers on a big machine")
+    p.add_argument("--profile", default="default")
+    add_sut_options(p)
+    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
+                   help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
+    p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
+    p.add_argument("--transport", choices=TRANSPORTS, default="auto",
+                   help="memory: the bundled autopilot steps inside the simulator's process (the same flights); unix: in its own process over a "
+                        "Unix-domain socket; shm: the same socket, the bytes through shared memory (Linux on x86-64); tcp: in its own process over TCP; "
+                        "auto (default): memory where an evaluation gets one core (as many workers as cores), shm where it gets two, for the bundled "
+                        "autopilot; tcp for other SUTs")
+    p.add_argument("--cold-start", action="store_true",
+                   help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
+                        "evaluation (a fresh world and autopilot in the same process: the same flights, about a fifth of a second less each)")
+    p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
+    p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
+    p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")
+    p.add_argument("--docker-image", help="with --executor docker: the worker image (default: stella-worker:latest)")
+    p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
+    p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
+    p.add_argument("--stop-at-reveal", action="store_true", help="with a reference: end each run at its first (confirmed) revealing candidate")
+    add_reference_options(p)
+    p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
+
+
+def campaign_config(args: argparse.Namespace) -> CampaignConfig:
+    """The campaign a `stella campaign` command line asks for, every option checked before anything
+    starts: what the command runs, and how the campaign page checks a campaign set up on it."""
+    from harness.campaigns.campaign import CampaignConfig
+    from harness.search.optimizers import parse_algorithm
+
+    for algorithm in args.algorithm:
+        try:
+            parse_algorithm(algorithm)
+        except ValueError as error:
+            raise InputError([Problem("--algorithm", "", str(error))]) from None
+    for scenario in args.scenarios:
+        load_logical(Path(scenario), load_profile(args.profile), args.drive, mission_plan(args))
+    sut = sut_spec(args)
+    check_transport(args.transport, sut)
+    config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
+                            args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
+                            args.mission_plan, reference_spec(args, sut), args.objective, args.stop_at_reveal)
+    if args.stop_at_reveal and config.reference is None:
+        raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
+    return config
+
+
+def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
+    """`stella campaign ARGV`'s campaign, checked as the command checks it, with InputError naming
+    the option for whatever argparse refuses too (it would print usage and exit)."""
+    parser = RefusingParser(prog="stella campaign")
+    add_options(parser, _campaign_options)
+    return campaign_config(parser.parse_args(argv))
+
+
+@command("campaign", "search logical scenarios for worst cases; resumable from its store", _campaign_options)
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from harness.campaigns.campaign import run_campaign
+    from harness.flight.evaluation import EvaluationResult, RunOptions
+    from harness.execution.registry import make_executor
+    from harness.campaigns.store import Store
+    from tqdm import tqdm
+
+    config = campaign_config(args)
+    settings = {key: value for key, value in (("scheduler", args.dask_scheduler), ("image", args.docker_image)) if value}
+    try:
+        executor = make_executor(args.executor, args.workers, attempts=args.attempts, timeout_s=args.eval_timeout_s, settings=settings)
+    except ValueError as error:
+        raise InputError([Problem("--executor", "", str(error))]) from None
+    store_path = Path(args.store)
+    try:
+        store = Store.for_campaign(store_path)
+    except InputError:
+        executor.close()
+        raise
+    total = len(config.scenarios) * len(config.algorithms) * config.runs * config.evaluations
+    # A bar on stderr for people; nothing with --json, where a script reads stdout.
+    bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
+
+    def progress(result: EvaluationResult) -> None:
+        bar.update(1)
+        bar.set_postfix_str(f"last {result.status} f={result.fitness:.2f}", refresh=False)
+
+    try:
+        with store:
+            summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress,
+                                   options=RunOptions(transport=args.transport, warm=not args.cold_start))
+    finally:
+        bar.close()
+        executor.close()
+    text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
+                     + (f"{r['revealing']} revealing, " if "revealing" in r else "")
+                     + f"{r['flown']} flown, {r['replayed']} from the store"
+                     + (f"; warning: the SUT refused a failure injection in {r['failures_refused']} flights, which flew without it"
+                        if r["failures_refused"] else "") for r in summary.runs) or "every run was already finished"
+    emit(args, {"store": str(store_path), "runs": summary.runs}, text)
+    return 0
+
+
+def _compare_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store")
+    p.add_argument("--baseline", default="NSGAII")
+
+
+@command("compare", "the algorithm comparison table (median best fitness, relative performance, p-value, A12)", _compare_options)
+def cmd_compare(args: argparse.Namespace) -> int:
+    from harness.campaigns.statistics import compare, table
+    from harness.campaigns.store import Store
+
+    with Store.existing(Path(args.store)) as store:
+        report = compare(store, args.baseline)
+    emit(args, report, table(report))
+    return 0
+
+
+def _report_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store")
+    p.add_argument("--out", required=True)
+    p.add_argument("--worst", type=int, default=5)
+    p.add_argument("--baseline", default="NSGAII")
+
+
+@command("report", "a self-contained HTML report: convergence, comparison, violations, worst cases", _report_options)
+def cmd_report(args: argparse.Namespace) -> int:
+    from harness.campaigns.report import write_report
+    from harness.campaigns.store import Store
+
+    with Store.existing(Path(args.store)) as store:
+        write_report(store, Path(args.out), args.worst, args.baseline)
+    emit(args, {"report": args.out}, f"wrote {args.out}")
+    return 0
+
+
+def _triage_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store", help="SQLite campaign store")
+
+
+@command("triage", "group a campaign's violations into failure modes by what happened (obstacle, phase, approach, speed, environment)", _triage_options)
+def cmd_triage(args: argparse.Namespace) -> int:
+    from harness.campaigns.triage import triage, triage_text
+
+    report = triage(Path(args.store))
+    emit(args, report, triage_text(report))
+    return 0
+
+
+def _export_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store", help="SQLite campaign store")
+    p.add_argument("--out", required=True, help="folder for the NAME.regression.json files")
+    p.add_argument("--threshold", type=float, default=0.0, help="export evaluations with fitness below this (default 0: the violations)")
+    p.add_argument("--worst", type=int, default=0, help="also export the N lowest-fitness evaluations of each run")
+    p.add_argument("--expect", choices=["safe", "violation"], default="safe",
+                   help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
+    p.add_argument("--per-mode", action="store_true", help="only the worst violation of each failure mode (`stella triage`) instead of every one")
+    p.add_argument("--revealing", action="store_true",
+                   help="instead: each revealing scenario of a differential campaign, as a case that fails unless the SUT does as well as the "
+                        "reference did (run it with --stella-px4-bin or --stella-autopilot-dir of either build)")
+    p.add_argument("--format", choices=["stella", "aerialist"], default="stella",
+                   help="stella: regression cases for pytest (default); aerialist: the UAV Testing Competition's YAML and .plan (static boxes only)")
+
+
+@command("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies", _export_options)
+def cmd_export_regressions(args: argparse.Namespace) -> int:
+    from harness.campaigns.regression import export_regressions
+
+    if args.format == "aerialist":
+        return _export_aerialist(args)
+    written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect, per_mode=args.per_mode,
+                                 revealing=args.revealing)
+    text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
+    emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
+    return 0
+
+
+def _export_aerialist(args: argparse.Namespace) -> int:
+    from harness.interop.aerialist import export_aerialist
+    from harness.campaigns.regression import chosen_cases
+
+    sut, chosen = chosen_cases(Path(args.store), args.threshold, args.worst, args.per_mode)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written, skipped = [], []
+    for name, case in chosen:
+        path, reasons = export_aerialist(name, case.concrete, sut["params"], out)
+        if path:
+            written.append(str(path))
+        else:
+            skipped.append({"name": name, "reasons": reasons})
+    lines = written + [f"not expressible in the competition's format: {s['name']}: {'; '.join(s['reasons'])}" for s in skipped]
+    lines.append(f"wrote {len(written)} competition test(s) (YAML and .plan) to {out}; {len(skipped)} not expressible")
+    emit(args, {"out": str(out), "files": written, "not_expressible": skipped}, "\n".join(lines))
+    return 0
