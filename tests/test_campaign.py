@@ -76,7 +76,7 @@ def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combina
     assert first == second
     assert [r[1] for r in first] != [r[1] for r in other]
     assert len(first) == 20 and [r[0] for r in first] == list(range(20))
-    assert problem.best[1] == min(r[2] for r in first)
+    assert problem.best.fitness == min(r[2] for r in first)
 
 
 def bowl(x: np.ndarray, space) -> float:
@@ -137,8 +137,8 @@ def test_draws_from_the_global_random_streams_between_generations_do_not_change_
 def test_a_sequence_improves_on_its_seeds_and_reports_the_lowest_fitness(space, tmp_path):
     rows, problem = candidates(space, tmp_path, "RN", seed=1, budget=40)
     first_half = min(r[2] for r in rows[:20])
-    assert problem.best[1] <= first_half
-    assert problem.best[1] == min(r[2] for r in rows)
+    assert problem.best.fitness <= first_half
+    assert problem.best.fitness == min(r[2] for r in rows)
 
 
 def test_termination_objects_combine():

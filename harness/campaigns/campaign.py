@@ -13,8 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -148,27 +147,54 @@ def run_sequence(combination: str, problem: CampaignProblem, *, budget: int, see
         optimizer = OPTIMIZERS[letter]
         initial: list[np.ndarray] = []
         if problem.history:
-            ranked = sorted(problem.history, key=lambda entry: entry[1])
-            initial = [x for x, _ in ranked[: min(SEEDS_FROM_BEST, population)]]
-            initial += least_explored(problem.space, [x for x, _ in problem.history], population - len(initial), rng)
-        problem.step, problem.optimizer = step, optimizer.name
-        problem.step_limit = problem.spent + step_budget
+            ranked = sorted(problem.history, key=lambda trial: trial.fitness)
+            initial = [trial.vector for trial in ranked[: min(SEEDS_FROM_BEST, population)]]
+            initial += least_explored(problem.space, [trial.vector for trial in problem.history], population - len(initial), rng)
+        problem.start_step(step, optimizer.name, step_budget)
         search = optimizer.start(problem.space, seed=seed * 1000 + step, population=population, batch=batch, initial=initial)
         try:
             while True:
                 vectors = search.ask()
                 search.tell(vectors, problem.evaluate(vectors))
         except StopSearch as stop:
-            if stop.campaign_done and problem.spent < problem.step_limit:
+            if stop.campaign_done and problem.step_cut_short:
                 return
-        best = problem.best
-        problem.store.checkpoint(problem.run_id, step, {"optimizer": optimizer.name, "spent": problem.spent, "best_fitness": best[1] if best else None,
-                                                         "best_vector": best[0].tolist() if best else None})
+        problem.checkpoint()
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What one run of a campaign gave, as `stella campaign` reports it."""
+
+    run_id: int
+    scenario: str
+    algorithm: str
+    run: int
+    seed: int
+    evaluations: int
+    flown: int
+    replayed: int
+    violations: int
+    failures_refused: int  # flights in which the SUT refused a failure injection
+    best_fitness: float | None
+    revealing: int | None = None  # a differential campaign's candidates that reveal a difference; None in others
+
+    def as_dict(self) -> dict[str, Any]:
+        document = asdict(self)
+        if self.revealing is None:
+            del document["revealing"]
+        return document
+
+
+def run_line(run: RunSummary) -> str:
+    """One line on a finished run, for a console."""
+    best = run.best_fitness if run.best_fitness is not None else float("nan")
+    return f"{run.scenario} {run.algorithm} run {run.run}: best fitness {best:.3f}, {run.violations} violations in {run.evaluations} evaluations"
 
 
 @dataclass
 class CampaignSummary:
-    runs: list[dict[str, Any]] = field(default_factory=list)
+    runs: list[RunSummary] = field(default_factory=list)
 
 
 def termination_for(config: CampaignConfig) -> Termination:
@@ -183,10 +209,12 @@ def termination_for(config: CampaignConfig) -> Termination:
 
 
 def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_dir: Path, *, options: RunOptions = RunOptions(),
-                 on_result: Callable[[EvaluationResult], None] = lambda r: None, reference_cache=None) -> CampaignSummary:
+                 on_result: Callable[[EvaluationResult], None] = lambda r: None, on_run: Callable[[RunSummary], None] = lambda r: None,
+                 reference_cache=None) -> CampaignSummary:
     """options: how each flight runs; its SUT is always the campaign's (config.sut), and it runs
-    warm only where the executor's processes live on. A differential campaign keeps its reference
-    flights in its store unless given another ReferenceCache (a mutation run's, shared)."""
+    warm only where the executor's processes live on. on_result hears of every evaluation, on_run
+    of every run as it finishes. A differential campaign keeps its reference flights in its store
+    unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     campaign_id = store.campaign(config.identity(), legacy=config.legacy_identity(), sources=config.sources())
@@ -212,10 +240,9 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best
-                summary.runs.append({"run_id": run_id, "scenario": space.logical.name, "algorithm": algorithm.upper(), "run": run_index, "seed": seed,
-                                     "evaluations": problem.spent, "flown": problem.flown, "replayed": problem.replayed, "violations": problem.violations,
-                                     "failures_refused": store.failures_refused(run_id), "best_fitness": best[1] if best else None,
-                                     **({"revealing": problem.revealing} if pairs else {})})
-                print(f"{space.logical.name} {algorithm.upper()} run {run_index}: best fitness {best[1] if best else float('nan'):.3f}, "
-                      f"{problem.violations} violations in {problem.spent} evaluations", file=sys.stderr)
+                run = RunSummary(run_id, space.logical.name, algorithm.upper(), run_index, seed, problem.spent, problem.flown, problem.replayed,
+                                 problem.violations, store.failures_refused(run_id), best.fitness if best else None,
+                                 problem.revealing if pairs else None)
+                summary.runs.append(run)
+                on_run(run)
     return summary

@@ -18,6 +18,7 @@ import numpy as np
 
 from harness.campaigns.store import Store, vector_key
 from harness.execution.executor import Executor, Job
+from harness.flight.differential import Reveal
 from harness.flight.evaluation import EvaluationResult, RunOptions, infeasible
 from harness.flight.fitness import Status
 from harness.scenario.space import SearchSpace
@@ -36,6 +37,37 @@ class StopSearch(Exception):
         super().__init__("campaign termination reached" if campaign_done else "step budget reached")
 
 
+@dataclass(frozen=True)
+class Trial:
+    """One distinct candidate of a run once it has an outcome (flown, refused as infeasible, or
+    replayed from the store): its place in the run, its vector and identity, and its outcome."""
+
+    ordinal: int
+    vector: np.ndarray = field(compare=False)
+    key: str
+    fitness: float
+    status: Status
+    reveals: Reveal | None = None
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A vector an optimizer asked for, clipped into the space, with its identity in the run."""
+
+    index: int  # its place in the batch
+    vector: np.ndarray = field(compare=False)
+    key: str
+
+
+@dataclass(frozen=True)
+class _Step:
+    """Which step of a sequence is asking, for the store, and where its budget ends."""
+
+    index: int = 0
+    optimizer: str = ""
+    limit: int | None = None
+
+
 @dataclass
 class CampaignProblem:
     space: SearchSpace
@@ -47,16 +79,13 @@ class CampaignProblem:
     out_dir: Path
     options: RunOptions = field(default_factory=RunOptions)
     on_result: Callable[[EvaluationResult], None] = lambda result: None
-    step: int = 0
-    optimizer: str = ""
-    step_limit: int | None = None
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
     pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
-        self._memory: dict[str, float] = {}
-        self._history: dict[int, tuple[np.ndarray, float]] = {}
+        self._trials: dict[str, Trial] = {}
+        self._step = _Step()
         self.spent = 0
         self.violations = 0
         self.flown = 0
@@ -69,40 +98,55 @@ class CampaignProblem:
         return Progress(self.spent, time.monotonic() - self._started, self.violations, self.revealing)
 
     @property
-    def history(self) -> list[tuple[np.ndarray, float]]:
-        """Distinct vectors and their fitness in request order, however the executor finished them."""
-        return [self._history[ordinal] for ordinal in sorted(self._history)]
+    def history(self) -> list[Trial]:
+        """Distinct candidates with their outcome in request order, however the executor finished them."""
+        return sorted(self._trials.values(), key=lambda trial: trial.ordinal)
 
     @property
-    def best(self) -> tuple[np.ndarray, float] | None:
-        return min(self.history, key=lambda entry: entry[1]) if self.history else None
+    def best(self) -> Trial | None:
+        return min(self.history, key=lambda trial: trial.fitness, default=None)
+
+    def start_step(self, index: int, optimizer: str, budget: int) -> None:
+        """A sequence's next step asks from now on, with budget evaluations of its own."""
+        self._step = _Step(index, optimizer, self.spent + budget)
+
+    @property
+    def step_cut_short(self) -> bool:
+        """Whether the step ended before its own budget (the run's termination came first)."""
+        return self._step.limit is not None and self.spent < self._step.limit
+
+    def checkpoint(self) -> None:
+        """The step's end in the store: its optimizer, the evaluations spent and the best so far."""
+        best = self.best
+        self.store.checkpoint(self.run_id, self._step.index, {"optimizer": self._step.optimizer, "spent": self.spent,
+                                                              "best_fitness": best.fitness if best else None,
+                                                              "best_vector": best.vector.tolist() if best else None})
 
     def _check_budgets(self) -> None:
         if self.termination.done(self.progress):
             raise StopSearch(campaign_done=True)
-        if self.step_limit is not None and self.spent >= self.step_limit:
+        if self._step.limit is not None and self.spent >= self._step.limit:
             raise StopSearch(campaign_done=False)
 
-    def _record(self, ordinal: int, key: str, x: np.ndarray, fitness: float, status: Status, reveals: str | None) -> None:
-        self._memory[key] = fitness
-        self._history[ordinal] = (x, fitness)
-        if status == Status.VIOLATION:
+    def _record(self, trial: Trial) -> None:
+        self._trials[trial.key] = trial
+        if trial.status == Status.VIOLATION:
             self.violations += 1
-        if reveals:
+        if trial.reveals:
             self.revealing += 1
+
+    def _candidate(self, index: int, raw: np.ndarray) -> _Candidate:
+        x = np.clip(np.asarray(raw, dtype=float), self.space.lower, self.space.upper)
+        return _Candidate(index, x, vector_key(x))
 
     def evaluate(self, vectors: list[np.ndarray]) -> list[float]:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
-        results: list[float | None] = [None] * len(vectors)
-        jobs: list[tuple[int, Job, np.ndarray, str, int]] = []
+        candidates = [self._candidate(index, raw) for index, raw in enumerate(vectors)]
+        to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
         stop: StopSearch | None = None
-        for index, raw in enumerate(vectors):
-            x = np.clip(np.asarray(raw, dtype=float), self.space.lower, self.space.upper)
-            key = vector_key(x)
-            if key in self._memory:
-                results[index] = self._memory[key]
-                continue
-            if any(key == pending[3] for pending in jobs):
+        for candidate in candidates:
+            # Known already, or a duplicate inside this batch: answered from its first one's outcome.
+            if candidate.key in self._trials or any(candidate.key == flying.key for flying, _job in to_fly.values()):
                 continue
             try:
                 self._check_budgets()
@@ -111,39 +155,28 @@ class CampaignProblem:
                 break
             ordinal = self.spent
             self.spent += 1
-            stored = self._stored.get(key)
+            stored = self._stored.get(candidate.key)
             if stored is not None:
                 self.replayed += 1
-                self._record(ordinal, key, x, stored.fitness, stored.status, stored.reveals)
-                results[index] = stored.fitness
+                self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals))
                 continue
-            refused = infeasible(self.space, x, seed=self.seed, sut=self.options.sut.name)
+            refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
             if refused is not None:
-                self._finish(ordinal, x, key, refused, None)
-                results[index] = refused.fitness
+                self._finish(ordinal, candidate, refused, None)
                 continue
             name = f"run{self.run_id}-eval{ordinal:05d}"
-            jobs.append((index, Job.of(ordinal, self.space, x, seed=self.seed, out_dir=self.out_dir, name=name, options=self.options), x, key, ordinal))
-        by_ordinal = {job.key: (index, x, key) for index, job, x, key, _ in jobs}
+            to_fly[ordinal] = (candidate, Job.of(ordinal, self.space, candidate.vector, seed=self.seed, out_dir=self.out_dir, name=name, options=self.options))
         to_confirm: list[tuple[Job, EvaluationResult]] = []
         # A pair is confirmed on both sides where it reveals a difference (PairedFlights), not here.
         flights = self.pairs or self.executor
-        for job, result in flights.run([job for _, job, _, _, _ in jobs]):
-            index, x, key = by_ordinal[job.key]
-            results[index] = result.fitness
+        for job, result in flights.run([job for _candidate, job in to_fly.values()]):
             if result.status == Status.VIOLATION and self.confirm and self.pairs is None:
                 to_confirm.append((job, result))
             else:
-                self._finish(job.key, x, key, result, job.concrete)
+                self._finish(job.key, to_fly[job.key][0], result, job.concrete)
         for job, result in self._confirmed(to_confirm):
-            index, x, key = by_ordinal[job.key]
-            self._finish(job.key, x, key, result, job.concrete)
-        # Duplicates inside one batch share the first one's result.
-        for index, raw in enumerate(vectors):
-            if results[index] is None:
-                key = vector_key(np.clip(np.asarray(raw, dtype=float), self.space.lower, self.space.upper))
-                if key in self._memory:
-                    results[index] = self._memory[key]
+            self._finish(job.key, to_fly[job.key][0], result, job.concrete)
+        results = [self._trials[c.key].fitness if c.key in self._trials else None for c in candidates]
         if stop is not None or any(r is None for r in results):
             raise stop or StopSearch(campaign_done=True)
         return results  # type: ignore[return-value]
@@ -166,8 +199,10 @@ class CampaignProblem:
             confirmed.append((job, replace(result, confirmations=confirmations)))
         return confirmed
 
-    def _finish(self, ordinal: int, x: np.ndarray, key: str, result: EvaluationResult, concrete) -> None:
-        self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self.step, optimizer=self.optimizer, vector=x, result=result, concrete=concrete)
+    def _finish(self, ordinal: int, candidate: _Candidate, result: EvaluationResult, concrete) -> None:
+        self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self._step.index, optimizer=self._step.optimizer, vector=candidate.vector,
+                                  result=result, concrete=concrete)
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
-        self._record(ordinal, key, x, result.fitness, result.status, result.differential["reveals"] if result.differential else None)
+        reveals = result.differential["reveals"] if result.differential else None
+        self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None))
         self.on_result(result)

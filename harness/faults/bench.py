@@ -66,7 +66,8 @@ def _save_cache(folder: Path, cache: dict[str, dict[str, Any]]) -> None:
 
 
 def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,
-              executor: Executor, *, seed: int = 0, population: int = 50, sut_params: Mapping[str, float] | None = None, on_result=lambda r: None) -> None:
+              executor: Executor, *, seed: int = 0, population: int = 50, sut_params: Mapping[str, float] | None = None, on_result=lambda r: None,
+              on_run=lambda r: None) -> None:
     """sut_params (e.g. CP_DIST) apply to the faulty and the fault-free flights alike."""
     if folder.exists() and not folder.is_dir():
         raise InputError([Problem(str(folder), "", "is not a folder: give --store a folder for the benchmark's stores, such as runs/fault-bench")])
@@ -77,7 +78,7 @@ def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tup
         config = CampaignConfig(scenarios, algorithms, evaluations, runs, seed, population,
                                 sut=SutConfig(params=dict(sut_params or {}), fault=None if fault == CONTROL else fault))
         with Store.for_campaign(folder / f"{fault}.db") as store:
-            run_campaign(config, store, executor, folder / "logs" / fault, on_result=on_result, options=RunOptions(warm=True))
+            run_campaign(config, store, executor, folder / "logs" / fault, on_result=on_result, on_run=on_run, options=RunOptions(warm=True))
         _fly_fault_free(folder / f"{fault}.db", folder, executor)
 
 

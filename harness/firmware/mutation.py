@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from scipy.stats import fisher_exact
 
-from harness.campaigns.campaign import CampaignConfig, run_campaign
+from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
 from harness.campaigns.regression import SUFFIX, load_regression
 from harness.campaigns.statistics import a12, p_value
@@ -151,7 +151,8 @@ def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequ
                     done = outcome.setdefault("search", {}).setdefault(algorithm, {})
                     if Path(scenario).stem in done:
                         continue
-                    done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir)
+                    done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir,
+                                                        progress)
                     _save(run_path, document)
                     progress(f"{entry['id']}: {describe(outcome)}")
     finally:
@@ -188,14 +189,15 @@ def _fails_to_start_again(job: Job, times: int, executor: Executor) -> bool:
 
 
 def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, algorithm: str, scenario: str, executor: Executor,
-            cache: ReferenceCache, folder: Path) -> dict[str, Any]:
+            cache: ReferenceCache, folder: Path, progress: Callable[[str], None]) -> dict[str, Any]:
     """One differential campaign of the algorithm on the scenario against the mutant: when it
     first revealed a difference, and at which level."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
                             confirm=plan.confirm, reference=reference, objective=plan.objective)
     store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
     with Store.for_campaign(store_path) as store:
-        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache)
+        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache,
+                     on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
 
 

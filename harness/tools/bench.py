@@ -196,7 +196,7 @@ def bench_text(report: dict[str, Any]) -> str:
 
 
 def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50,
-                       transport: str = "auto", warm: bool = True) -> dict[str, Any]:
+                       transport: str = "auto", warm: bool = True, on_run=lambda run: None) -> dict[str, Any]:
     """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
 
     from harness.campaigns.campaign import CampaignConfig, run_campaign
@@ -210,7 +210,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
             try:
-                run_campaign(config, store, executor, Path(folder) / "logs", options=RunOptions(transport=transport, warm=warm))
+                run_campaign(config, store, executor, Path(folder) / "logs", on_run=on_run, options=RunOptions(transport=transport, warm=warm))
             finally:
                 executor.close()
             wall = time.monotonic() - started

@@ -17,7 +17,7 @@ from harness.tools.commands.sut_options import add_reference_options, add_sut_op
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
-    from harness.campaigns.campaign import CampaignConfig
+    from harness.campaigns.campaign import CampaignConfig, RunSummary
 
 
 def _campaign_options(p: argparse.ArgumentParser) -> None:
@@ -80,6 +80,13 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     return config
 
 
+def print_run_line(run: RunSummary) -> None:
+    """Each finished run on stderr, as a campaign goes (the campaign page shows them in its console)."""
+    from harness.campaigns.campaign import run_line
+
+    print(run_line(run), file=sys.stderr)
+
+
 def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
     """`stella campaign ARGV`'s campaign, checked as the command checks it, with InputError naming
     the option for whatever argparse refuses too (it would print usage and exit)."""
@@ -119,16 +126,16 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         with store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress,
-                                   options=RunOptions(transport=args.transport, warm=not args.cold_start))
+                                   on_run=print_run_line, options=RunOptions(transport=args.transport, warm=not args.cold_start))
     finally:
         bar.close()
         executor.close()
-    text = "\n".join(f"{r['scenario']} {r['algorithm']} run {r['run']}: best {r['best_fitness']:.3f}, {r['violations']} violations, "
-                     + (f"{r['revealing']} revealing, " if "revealing" in r else "")
-                     + f"{r['flown']} flown, {r['replayed']} from the store"
-                     + (f"; warning: the SUT refused a failure injection in {r['failures_refused']} flights, which flew without it"
-                        if r["failures_refused"] else "") for r in summary.runs) or "every run was already finished"
-    emit(args, {"store": str(store_path), "runs": summary.runs}, text)
+    text = "\n".join(f"{r.scenario} {r.algorithm} run {r.run}: best {r.best_fitness:.3f}, {r.violations} violations, "
+                     + (f"{r.revealing} revealing, " if r.revealing is not None else "")
+                     + f"{r.flown} flown, {r.replayed} from the store"
+                     + (f"; warning: the SUT refused a failure injection in {r.failures_refused} flights, which flew without it"
+                        if r.failures_refused else "") for r in summary.runs) or "every run was already finished"
+    emit(args, {"store": str(store_path), "runs": [r.as_dict() for r in summary.runs]}, text)
     return 0
 
 

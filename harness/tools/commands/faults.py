@@ -11,6 +11,7 @@ from pathlib import Path
 from harness.errors import InputError, Problem
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
+from harness.tools.commands.campaigns import print_run_line
 from harness.tools.commands.common import command, command_with_actions, emit, positive_int, seed_int
 from harness.tools.commands.sut_options import sut_param_values
 
@@ -126,7 +127,7 @@ def faults_bench(args: argparse.Namespace) -> int:
         raise InputError([Problem("--executor", "", str(error))]) from None
     try:
         run_bench(args.fault, tuple(a.upper() for a in args.algorithm), tuple(args.scenario), args.runs, args.evaluations, Path(args.store), executor,
-                  seed=args.seed, population=args.population, sut_params=sut_params)
+                  seed=args.seed, population=args.population, sut_params=sut_params, on_run=print_run_line)
     finally:
         executor.close()
     result = report(Path(args.store), args.baseline)

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from harness.errors import InputError, Problem
+from harness.tools.commands.campaigns import print_run_line
 from harness.tools.commands.common import command, emit, port_int, positive_float, positive_int, seed_int
 from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
@@ -49,7 +50,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from harness.tools.bench import campaign_bench_text, run_campaign_bench
 
         report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None,
-                                    transport=args.transport or "auto", warm=not args.cold_start)
+                                    transport=args.transport or "auto", warm=not args.cold_start, on_run=print_run_line)
         emit(args, report, campaign_bench_text(report))
         return 0
     sut = sut_spec(args)
