@@ -264,7 +264,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_for(system))
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_for(system), sut_adapter.mission_home_item(system))
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
@@ -367,12 +367,13 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
             yield serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
         return
     with ExitStack() as contexts:
-        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log)
+        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
 
 
-def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None) -> Stack:
+def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None,
+           world: WorldSpec | None = None) -> Stack:
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
-    run_arguments (a world and its log, or --serve)."""
+    run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
     ports = contexts.enter_context(PortLease())
     transport = placed_transport(options, system)
     inline = transport == "memory"
@@ -383,6 +384,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
                    "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
                    "--hold-pace", str(sut_adapter.hold_pace(system)),
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
+                   "--sim-protocol", sut_adapter.sim_protocol(system),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
                    "--mcap-compression", "none",
                    # stop() stops the SUT before the simulator, with the simulator link still open.
@@ -404,7 +406,9 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     if inline:
         sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
     else:
-        extra = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        if sut_adapter.needs_world(system):
+            extra["world"] = world
         if transport == "shm":
             extra["sim_shared_memory"] = True
         sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
@@ -489,7 +493,7 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
-def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], arm_retry_s: float):
+def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], arm_retry_s: float, home_item: bool = False):
     """Returns (failure or None, bridge summary, MAVSDK observations)."""
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
@@ -533,7 +537,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if world.drive == "pilot":
                 session.arm_and_take_off(world.mission.takeoff_altitude_m, arm_retry_s)
             else:
-                session.upload_and_start(mission_items(world), arm_retry_s)
+                session.upload_and_start(mission_items(world, home_item), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
             return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result

@@ -50,9 +50,22 @@ def _route_mavsdk_log(level, message: str, _file, _line) -> bool:
 log_subscribe(_route_mavsdk_log)
 
 
-def mission_items(world: WorldSpec) -> list[MissionItem]:
+def mission_items(world: WorldSpec, home_item: bool = False) -> list[MissionItem]:
     """MISSION_ITEM_INTs for the world's mission: a plan's items as they are, or take off, set
-    speed, waypoints, land at the last."""
+    speed, waypoints, land at the last. With home_item, item 0 is the start, for a SUT that takes
+    item 0 for home (ArduPilot) and flies from item 1."""
+    items = _mission_items(world)
+    if not home_item:
+        return items
+    lat, lon = geodetic_from_local(world.origin.lat_deg, world.origin.lon_deg, world.uav.start.north_m, world.uav.start.east_m)
+    home = MissionItem(seq=0, frame=0, command=NAV_WAYPOINT, current=0, autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
+                       x=int(round(lat * 1e7)), y=int(round(lon * 1e7)), z=float(world.start_msl_m), mission_type=0)
+    return [home] + [MissionItem(seq=item.seq + 1, frame=item.frame, command=item.command, current=0, autocontinue=item.autocontinue,
+                                 param1=item.param1, param2=item.param2, param3=item.param3, param4=item.param4, x=item.x, y=item.y, z=item.z,
+                                 mission_type=item.mission_type) for item in items]
+
+
+def _mission_items(world: WorldSpec) -> list[MissionItem]:
     origin = world.origin
     mission = world.mission
     if mission.plan_items is not None:

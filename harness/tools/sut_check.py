@@ -51,7 +51,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     start = time.monotonic()
     try:
         with simulation_stack(world, options, system, workdir) as stack:
-            _run_stages(stack, world, stages, start, timeout_s, arm_retry_for(system))
+            _run_stages(stack, world, stages, start, timeout_s, arm_retry_for(system), sut_adapter.mission_home_item(system))
     except (InfrastructureError, sut_adapter.SutError) as error:
         failed = next((stage for stage in stages if stage.ok is None), stages[0])
         failed.ok, failed.after_s, failed.detail = False, time.monotonic() - start, str(error)
@@ -60,7 +60,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     return stages
 
 
-def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float) -> None:
+def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float, home_item: bool = False) -> None:
     sut, session = stack.sut, stack.session
     alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
 
@@ -87,7 +87,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world.drive == "mission" else
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, home_item))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s)),
         ]
         for index, _name, action in steps:
