@@ -112,6 +112,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--sim-protocol", choices=ardupilot_link.PROTOCOLS, default="mavlink",
                         help="mavlink: PX4's HIL messages, the SUT connects over TCP (default); ardupilot-json: ArduPilot's JSON physics backend, "
                              "its servo frames arrive over UDP on the simulator port (ArduPilot's --sim-port-out)")
+    parser.add_argument("--rc-port", type=int, help="with --sim-protocol ardupilot-json and the pilot drive: send the pilot's sticks to this UDP port "
+                                                    "(ArduPilot SITL's --rc-in-port)")
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -156,7 +158,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     signal.signal(signal.SIGTERM, _interrupt)
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, hold_pace=args.hold_pace,
                           stall_timeout_s=args.stall_timeout_s,
-                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol)
+                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
+                          rc_port=args.rc_port)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:
         return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid(), args.mcap_compression)

@@ -21,7 +21,12 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
+
+from sim_bridge.pilot import MODE_SWITCH, PITCH
+
+if TYPE_CHECKING:
+    from sim_bridge.pilot import RcFrame
 
 MAGIC_16 = 18458
 MAGIC_32 = 29569
@@ -143,3 +148,24 @@ def state_line(*, timestamp_s: float, gyro_rad_s: Sequence[float], accel_body_m_
     return (f'\n{{"timestamp":{timestamp_s:.6f},"imu":{{"gyro":[{gx:.6f},{gy:.6f},{gz:.6f}],"accel_body":[{ax:.5f},{ay:.5f},{az:.5f}]}},'
             f'"position":[{pn:.4f},{pe:.4f},{pd:.4f}],"velocity":[{vn:.4f},{ve:.4f},{vd:.4f}],'
             f'"quaternion":[{qw:.7f},{qx:.7f},{qy:.7f},{qz:.7f}]{ranges}}}\n').encode()
+
+
+# ArduPilot's mode switch has six positions (RC_Channel's read of FLTMODE_CH: up to 1230, 1360,
+# 1490, 1620, 1749 us, above): the middle of each, for the pilot's mode slot of that number.
+MODE_SWITCH_US = (1165, 1295, 1425, 1555, 1685, 1875)
+_RC_PACKET = struct.Struct("<8H")
+
+
+def rc_channels(frame: "RcFrame") -> list[int]:
+    """The simulated pilot's transmitter as ArduPilot reads one: its pitch stick gives a low pulse
+    for forward (PX4's the opposite), and its mode switch sits in the middle of ArduPilot's
+    position for the pilot's slot (FLTMODE1..6)."""
+    channels = frame.channels()
+    channels[PITCH - 1] = 3000 - channels[PITCH - 1]
+    channels[MODE_SWITCH - 1] = MODE_SWITCH_US[frame.slot - 1]
+    return channels
+
+
+def rc_packet(channels_us: Sequence[int]) -> bytes:
+    """ArduPilot SITL's RC input datagram (AP_RCProtocol_UDP): 8 (or 16) uint16 pulse widths."""
+    return _RC_PACKET.pack(*channels_us)

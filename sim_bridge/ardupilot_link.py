@@ -14,7 +14,8 @@ import socket
 import time
 from typing import TYPE_CHECKING
 
-from sim_bridge.ardupilot_json import REPEATED, RESTARTED, FrameCounter, FrameError, decode_servo_frame, motor_commands, rangefinder_distances_m, state_line
+from sim_bridge.ardupilot_json import (REPEATED, RESTARTED, FrameCounter, FrameError, decode_servo_frame, motor_commands, rangefinder_distances_m, rc_channels,
+                                       rc_packet, state_line)
 from sim_bridge.sensors import quaternion_from_euler
 from sim_bridge.world import SECTOR_DEG
 
@@ -92,8 +93,11 @@ class UdpLink:
 class JsonSteps:
     """The bridge's per-step exchange in ArduPilot's JSON protocol."""
 
-    def __init__(self, bridge: "Bridge", first_frame: bytes | None = None):
+    def __init__(self, bridge: "Bridge", link, first_frame: bytes | None = None):
         self.bridge = bridge
+        self.link = link
+        rc_port = bridge.config.rc_port
+        self._rc_address = ("127.0.0.1", rc_port) if rc_port is not None and bridge.world.pilot is not None else None
         self.frames = FrameCounter()
         self.bad_frames = 0
         self.skipped_bytes = 0
@@ -106,9 +110,12 @@ class JsonSteps:
     def state(self, step: int, time_us: int) -> bytes:
         """This step's state line: the IMU with the world's sensor noise, the true position and
         velocity (ArduPilot's SITL makes its GPS, barometer and compass from them) and, at the
-        range sensor's rate, its six rangefinders."""
+        range sensor's rate, its six rangefinders. The pilot's sticks go to ArduPilot's RC input
+        first, so that the step this line starts reads them."""
         bridge = self.bridge
         world = bridge.world
+        if self._rc_address is not None and step % bridge._every["rc"] == 0:
+            self.link.sock.sendto(rc_packet(bridge._pilot_frame(time_us, rc_channels)), self._rc_address)
         s = world.state
         imu = world.imu()
         ranges: list[float | None] = []

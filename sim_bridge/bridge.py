@@ -104,6 +104,8 @@ class BridgeConfig:
     # The simulator link's protocol: "mavlink" (PX4's HIL messages over a stream) or
     # "ardupilot-json" (ArduPilot's JSON physics backend over UDP: sim_bridge/ardupilot_link.py).
     protocol: str = "mavlink"
+    # ardupilot-json: the UDP port the SUT takes the pilot's sticks on (ArduPilot SITL's RC input).
+    rc_port: int | None = None
 
 
 @dataclass
@@ -420,14 +422,20 @@ class Bridge:
             ))
         return messages
 
-    def _pilot_rc(self, time_us: int):
+    def _pilot_frame(self, time_us: int, channels_of=None):
+        """The pilot's sticks now, recorded with the channels the SUT gets (channels_of(frame):
+        its transmitter's; PX4's layout by default)."""
         pilot = self.world.pilot
         frame = self.world.pilot_frame(time_us / 1e6)
-        channels = frame.channels()
+        channels = frame.channels() if channels_of is None else channels_of(frame)
         self.recorder.write("/pilot", time_ns=time_us * 1000, message={
             "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
             "mode_slot": frame.slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
         })
+        return channels
+
+    def _pilot_rc(self, time_us: int):
+        channels = self._pilot_frame(time_us)
         unused = [UINT16_MAX] * (18 - CHANNEL_COUNT)
         return self._encode(codec.RC_CHANNELS, time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
 
@@ -532,7 +540,7 @@ class Bridge:
         self._control = control
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         if config.protocol == "ardupilot-json":
-            self._json = JsonSteps(self, getattr(sut, "first", None))
+            self._json = JsonSteps(self, sut, getattr(sut, "first", None))
         json_steps = self._json
         wall_start = time.perf_counter()
         perf = time.perf_counter

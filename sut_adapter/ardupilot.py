@@ -57,6 +57,9 @@ DEFAULT_PARAMS: dict[str, float] = {
     "PRX1_TYPE": 4,
     # Simple avoidance's margin as PX4's CP_DIST: the paper's 1 m safety distance.
     "AVOID_MARGIN": 1.0,
+    # The simulated pilot's mode slots (sim_bridge/pilot.py: 1 hold, 2 position, 3 land) on
+    # ArduPilot's mode switch: Loiter, where simple avoidance acts on the sticks, and Land.
+    "FLTMODE1": 5, "FLTMODE2": 5, "FLTMODE3": 9,
 }
 
 
@@ -90,12 +93,22 @@ class ArduPilotSitl:
     needs_world = True
     # MISSION_ITEM_INT 0 is home to ArduPilot: the harness puts the start there.
     mission_home_item = True
+    # The pilot drive: its RC layout is in the defaults above; its take-off altitude goes with
+    # MAVSDK's take-off command, as ArduPilot has no parameter for it; MAVSDK calls ArduCopter's
+    # Loiter "Hold".
+    pilot_params: dict[str, float] = {}
+    takeoff_altitude_param = None
+    pilot_flight_mode = "HOLD"
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"ardupilot_bin"})
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes ardupilot_bin (--ardupilot-bin)")
         self.binary = resolve_binary(config.get("ardupilot_bin") or os.environ.get("STELLA_ARDUPILOT_BIN"))
+
+    @staticmethod
+    def rc_port_for(instance: int) -> int:
+        return rc_port_for(instance)
 
     def check_params(self, params: Mapping[str, float]) -> None:
         """Its parameters are known only to the running SUT, which reports a bad one when set."""

@@ -32,6 +32,10 @@ how to treat it without knowing which SUT it is:
   so the harness uploads the start there and the mission after it.
 * `rc_port_for(instance)` (optional): the UDP port the SUT takes the pilot's sticks on, as
   ArduPilot SITL's RC input does; without it they go on the simulator link as RC_CHANNELS.
+* `pilot_params` (optional, sim_bridge/pilot.py's SUT_PARAMS): the pilot drive's RC layout as
+  parameters set over MAVLink; `takeoff_altitude_param` (optional, "MIS_TAKEOFF_ALT"; None:
+  MAVSDK's take-off altitude); `pilot_flight_mode` (optional, "POSCTL"): MAVSDK's name of the
+  mode the pilot's Position slot selects.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -132,6 +136,21 @@ def needs_world(system: "SystemUnderTest") -> bool:
 def mission_home_item(system: "SystemUnderTest") -> bool:
     """Whether the SUT takes mission item 0 for home."""
     return getattr(system, "mission_home_item", False) is True
+
+
+def pilot_setup(system: "SystemUnderTest") -> tuple[dict[str, float], str | None, str]:
+    """The pilot drive's set-up for this SUT: its RC layout's parameters, the parameter its
+    take-off altitude goes in (None: MAVSDK's take-off command), MAVSDK's name of its Position mode."""
+    from sim_bridge.pilot import SUT_PARAMS
+
+    return (dict(getattr(system, "pilot_params", SUT_PARAMS)), getattr(system, "takeoff_altitude_param", "MIS_TAKEOFF_ALT"),
+            getattr(system, "pilot_flight_mode", "POSCTL"))
+
+
+def rc_port(system: "SystemUnderTest", instance: int) -> int | None:
+    """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""
+    port_for = getattr(system, "rc_port_for", None)
+    return port_for(instance) if callable(port_for) else None
 
 
 def connects_to_unix_socket(system: "SystemUnderTest") -> bool:
