@@ -99,6 +99,19 @@ def test_rangefinders_read_the_nearest_sector_of_their_wedge_and_nothing_outside
     assert len(ardupilot_json.RANGEFINDER_ORIENTATION) == len(ardupilot_json.RANGEFINDER_YAW_DEG) == 6
 
 
+def test_the_pilots_transmitter_for_ardupilot_mirrors_pitch_and_puts_the_switch_in_ardupilots_positions():
+    from sim_bridge.pilot import SLOT_LAND, SLOT_POSITION, RcFrame
+
+    forward = RcFrame(roll=0.2, pitch=0.5, throttle=0.0, yaw=-0.1, slot=SLOT_POSITION)
+    px4 = forward.channels()
+    channels = ardupilot_json.rc_channels(forward)
+    assert px4[1] > 1500 and channels[1] == 3000 - px4[1]  # ArduPilot: a low pitch pulse flies forward
+    assert channels[0] == px4[0] and channels[2] == px4[2] and channels[3] == px4[3]
+    # ArduPilot's mode switch (RC_Channel): position 2 is 1231..1360 us, position 3 1361..1490 us.
+    assert 1231 <= channels[4] <= 1360 and 1361 <= ardupilot_json.rc_channels(RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND))[4] <= 1490
+    assert struct.unpack("<8H", ardupilot_json.rc_packet(channels)) == tuple(channels)
+
+
 # -- the adapter ------------------------------------------------------------------------------
 
 @pytest.fixture
