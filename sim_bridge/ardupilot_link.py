@@ -103,6 +103,12 @@ class JsonSteps:
         self.skipped_bytes = 0
         self._last_line = b""
         self._ranges: list[float | None] = []
+        # ArduPilot makes its GPS from the true position it is sent (its SITL GPS model): a GPS
+        # failure the simulator would deliver cannot reach it.
+        for spec in bridge.world.spec.failures or ():
+            if spec.delivery == "simulator" and spec.unit != "distance sensor":
+                bridge._event(0.0, "failure_refused", {"unit": spec.unit, "type": spec.type, "delivery": "simulator",
+                                                       "result": "UNSUPPORTED: ArduPilot's JSON backend makes its own GPS from the true position"})
         if first_frame is not None:
             # The frame that opened the link was sent before any state: no step answers it.
             self.frames.classify(decode_servo_frame(first_frame).frame_count)

@@ -99,6 +99,9 @@ class ArduPilotSitl:
     pilot_params: dict[str, float] = {}
     takeoff_altitude_param = None
     pilot_flight_mode = "HOLD"
+    # ArduPilot has no MAV_CMD_INJECT_FAILURE: failures it is to be told of are refused (its SITL
+    # fails sensors through SIM_* parameters instead, which no scenario maps to yet).
+    injects_failures = False
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"ardupilot_bin"})

@@ -36,6 +36,8 @@ how to treat it without knowing which SUT it is:
   parameters set over MAVLink; `takeoff_altitude_param` (optional, "MIS_TAKEOFF_ALT"; None:
   MAVSDK's take-off altitude); `pilot_flight_mode` (optional, "POSCTL"): MAVSDK's name of the
   mode the pilot's Position slot selects.
+* `injects_failures` (optional, True): False for a SUT without MAV_CMD_INJECT_FAILURE
+  (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -145,6 +147,11 @@ def pilot_setup(system: "SystemUnderTest") -> tuple[dict[str, float], str | None
 
     return (dict(getattr(system, "pilot_params", SUT_PARAMS)), getattr(system, "takeoff_altitude_param", "MIS_TAKEOFF_ALT"),
             getattr(system, "pilot_flight_mode", "POSCTL"))
+
+
+def injects_failures(system: "SystemUnderTest") -> bool:
+    """Whether the SUT takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled autopilot do."""
+    return getattr(system, "injects_failures", True) is not False
 
 
 def rc_port(system: "SystemUnderTest", instance: int) -> int | None:

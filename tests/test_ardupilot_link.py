@@ -17,6 +17,7 @@ import pytest
 
 from conftest import ROOT
 from fake_ardupilot import parse_like_ardupilot
+from harness.flight import logs
 from harness.flight.ports import PortLease
 from sim_bridge import ardupilot_json
 from sim_bridge.ardupilot_json import FrameCounter, FrameError, decode_servo_frame, encode_servo_frame, motor_commands, rangefinder_distances_m, state_line
@@ -159,10 +160,10 @@ def test_arducopter_is_started_on_the_port_blocks_ports_at_the_worlds_origin_wit
 
 # -- the bridge against an ArduPilot that obeys the protocol ---------------------------------
 
-def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0):
+def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0, failures=()):
     """The bridge (protocol ardupilot-json) against tests/fake_ardupilot.py: (exit code, bridge summary, what the fake saw)."""
     world_path = tmp_path / "world.json"
-    world_path.write_text(json.dumps(world(time_limit_s=time_limit_s)))
+    world_path.write_text(json.dumps({**world(time_limit_s=time_limit_s), "failures": list(failures)}))
     with PortLease(first_slot=120) as ports:
         bridge = subprocess.Popen(
             [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(tmp_path / "run.mcap"),
@@ -213,3 +214,14 @@ def test_an_ardupilot_that_goes_silent_ends_the_flight_as_stalled(tmp_path):
     code, summary, seen = fly_fake(tmp_path, "--quiet-after-s", "0.5", "--frames", "300", time_limit_s=30.0, stall_timeout_s=1.0)
     # Its last line answered, it sends no frame: the step it would have answered never comes.
     assert code == 3 and summary["end_reason"] == "sut_stalled" and summary["steps"] == seen["parsed"] - 1 == 299
+
+
+@pytest.mark.slow
+def test_a_gps_failure_the_simulator_would_deliver_is_recorded_as_refused_and_a_distance_sensor_failure_silences_the_rangefinders(tmp_path):
+    failures = [{"unit": "gps", "type": "off", "onset_s": 1.0, "duration_s": 1.0, "delivery": "simulator"},
+                {"unit": "distance sensor", "type": "off", "onset_s": 0.0, "duration_s": 10.0, "delivery": "simulator"}]
+    code, summary, seen = fly_fake(tmp_path, failures=failures)
+    assert code == 0 and seen["parsed"] == summary["steps"]
+    assert seen["ranges_seen"] == 0
+    events = [m for _t, _ns, m in logs.messages(tmp_path / "run.mcap", ["/events"])]
+    assert [e["detail"]["unit"] for e in events if e["event"] == "failure_refused"] == ["gps"]

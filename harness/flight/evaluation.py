@@ -537,7 +537,9 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 return failure, control_summary(control), {}
         try:
             session.set_params(sut.mavlink_params)
-            if any(f.delivery == "sut" for f in world.failures or ()):
+            if not sut_adapter.injects_failures(system):
+                session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events
+            elif any(f.delivery == "sut" for f in world.failures or ()):
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":
                 # A parameter the user set (--sut-param) is the user's to decide.

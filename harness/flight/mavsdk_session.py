@@ -113,6 +113,9 @@ class MavsdkSession:
         self._lock = threading.Lock()
         self.system = None
         self.failure: Failure | None = None
+        # The answer to an injection while the failure plugin is off: a SUT without
+        # MAV_CMD_INJECT_FAILURE (ArduPilot) says UNSUPPORTED.
+        self.answer_without_injection = "NOT_ENABLED"
 
     def restart(self) -> None:
         """A new flight with the same connection (a warm stack's next evaluation): forget what the
@@ -224,7 +227,7 @@ class MavsdkSession:
         answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
         failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
         if self.failure is None:
-            return "NOT_ENABLED"
+            return self.answer_without_injection
         try:
             self.failure.inject(FailureUnit(int(UNIT_BY_NAME[unit])), failure_type, 0)
         except Exception as error:  # MAVSDK's FailureError carries the SUT's answer
