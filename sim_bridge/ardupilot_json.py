@@ -83,6 +83,24 @@ def encode_servo_frame(frame_rate_hz: int, frame_count: int, pwm_us: Sequence[in
     raise ValueError(f"a servo frame carries 16 or 32 PWM values, not {len(pwm_us)}")
 
 
+def servo_frames_in(stream: bytes) -> list[ServoFrame]:
+    """The servo frames in a recorded stream of ArduPilot's datagrams (the MCAP's /mavlink/sim,
+    from the SUT), skipping what is none, each frame sent again but once."""
+    frames: list[ServoFrame] = []
+    at = 0
+    while at + _FRAME_16.size <= len(stream):
+        magic = _MAGIC.unpack_from(stream, at)[0]
+        layout = _FRAME_16 if magic == MAGIC_16 else _FRAME_32 if magic == MAGIC_32 else None
+        if layout is None or at + layout.size > len(stream):
+            at += 1
+            continue
+        frame = decode_servo_frame(stream[at:at + layout.size])
+        if not frames or frame.frame_count != frames[-1].frame_count:
+            frames.append(frame)
+        at += layout.size
+    return frames
+
+
 def motor_commands(pwm_us: Sequence[int]) -> tuple[float, float, float, float]:
     """The first four outputs as motor commands 0..1 in our F450's order; 0 (output off) and
     anything outside the PWM range saturate as an ESC takes them."""

@@ -49,6 +49,12 @@ def test_anything_else_is_refused_with_what_is_wrong(datagram):
         decode_servo_frame(datagram)
 
 
+def test_servo_frames_are_found_again_in_a_recorded_stream_with_junk_and_repeats_between_them():
+    frames = [encode_servo_frame(400, count, [1000 + count] * 16) for count in range(5)]
+    stream = b"junk" + frames[0] + frames[1] + frames[1] + b"\x00\x01" + frames[2] + struct.pack("<HHI32H", 29569, 400, 3, *[1500] * 32) + frames[4][:10]
+    assert [f.frame_count for f in ardupilot_json.servo_frames_in(stream)] == [0, 1, 2, 3]
+
+
 def test_pwm_maps_to_motor_commands_in_order_and_saturates_as_an_esc_does():
     assert motor_commands((1000, 1500, 2000, 1250, 1900)) == (0.0, 0.5, 1.0, 0.25)
     assert motor_commands((0, 900, 2100, 65535)) == (0.0, 0.0, 1.0, 1.0)

@@ -150,6 +150,11 @@ def jsbsim_alone(log_path: Path, rate_hz: float, repeats: int = 3) -> dict[str, 
     answers = [codec.decode_hil_actuator_controls(payload)[2][:4]
                for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut"
                for msgid, payload, _frame in splitter.feed(bytes.fromhex(m["hex"])) if msgid == codec.HIL_ACTUATOR_CONTROLS_ID]
+    if not answers:  # ArduPilot's JSON link: servo frames, the first sent before any step
+        from sim_bridge.ardupilot_json import motor_commands, servo_frames_in
+
+        stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut")
+        answers = [motor_commands(frame.pwm_us) for frame in servo_frames_in(stream)[1:]]
     commands = [(0.0, 0.0, 0.0, 0.0)] * max(0, steps - len(answers)) + answers[:steps]
     terrain = world.terrain
     wind = (world.atmosphere.wind_north_m_s, world.atmosphere.wind_east_m_s)
