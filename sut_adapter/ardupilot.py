@@ -38,8 +38,6 @@ RC_PORT_BASE = 34560
 DEFAULT_PARAMS: dict[str, float] = {
     # The F450: a quad in X, motors on outputs 1-4 in ArduCopter's order (sim_bridge/ardupilot_json.py).
     "FRAME_CLASS": 1, "FRAME_TYPE": 1,
-    # ArduPilot's SITL magnetometer carries these offsets (SIM_MAG1_OFS): calibrated as its own test set-up is.
-    **{f"COMPASS_OFS{n}_{axis}": value for n in ("", "2", "3") for axis, value in (("X", 5), ("Y", 13), ("Z", -18))},
     # The transmitter's range as the simulated pilot sends it.
     **{f"RC{n}_{field}": value for n in range(1, 9) for field, value in (("MIN", 1000), ("MAX", 2000), ("TRIM", 1500))},
     # No battery is simulated through the JSON backend.
@@ -47,8 +45,11 @@ DEFAULT_PARAMS: dict[str, float] = {
     # The mission drive arms and then switches to Auto over MAVLink: no disarm in between, and a
     # take-off in Auto without a throttle stick (bit 1; bit 0: arming in Auto).
     "DISARM_DELAY": 0, "AUTO_OPTIONS": 3,
-    # The harness's API link: positions and status often enough for MAVSDK's telemetry and the log.
-    "SR0_POSITION": 10, "SR0_EXT_STAT": 5, "SR0_EXTRA1": 10, "SR0_EXTRA2": 5, "SR0_EXTRA3": 5, "SR0_RAW_SENS": 2,
+    # The harness's API link (SERIAL0): positions and status often enough for MAVSDK's telemetry
+    # and the log. ArduPilot 4.7 calls these MAV1_*, earlier releases SR0_*; a defaults file's
+    # unknown names are ignored (it says so on its console).
+    **{f"{prefix}_{stream}": rate for prefix in ("MAV1", "SR0")
+       for stream, rate in (("POSITION", 10), ("EXT_STAT", 5), ("EXTRA1", 10), ("EXTRA2", 5), ("EXTRA3", 5), ("RAW_SENS", 2))},
     # SITL's other serial ports would listen on TCP ports no evaluation owns.
     "SERIAL1_PROTOCOL": -1, "SERIAL2_PROTOCOL": -1,
     # The range sensor as six SITL rangefinders, one orientation each, read as proximity.
