@@ -23,7 +23,7 @@ import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
-from sim_bridge.pilot import MODE_SWITCH, PITCH
+from sim_bridge.pilot import MODE_SWITCH, PITCH, SLOT_HOLD, THROTTLE
 
 if TYPE_CHECKING:
     from sim_bridge.pilot import RcFrame
@@ -177,9 +177,13 @@ _RC_PACKET = struct.Struct("<8H")
 def rc_channels(frame: "RcFrame") -> list[int]:
     """The simulated pilot's transmitter as ArduPilot reads one: its pitch stick gives a low pulse
     for forward (PX4's the opposite), and its mode switch sits in the middle of ArduPilot's
-    position for the pilot's slot (FLTMODE1..6)."""
+    position for the pilot's slot (FLTMODE1..6). Until the take-off is done (the hold slot) the
+    throttle stick rests at its bottom: ArduCopter refuses to arm in Stabilize, its mode at
+    boot, with the throttle up, and in Guided, where it takes off, the stick does nothing."""
     channels = frame.channels()
     channels[PITCH - 1] = 3000 - channels[PITCH - 1]
+    if frame.slot == SLOT_HOLD:
+        channels[THROTTLE - 1] = int(PWM_MIN_US)
     channels[MODE_SWITCH - 1] = MODE_SWITCH_US[frame.slot - 1]
     return channels
 

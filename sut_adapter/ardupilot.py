@@ -59,8 +59,9 @@ DEFAULT_PARAMS: dict[str, float] = {
     # Simple avoidance's margin as PX4's CP_DIST: the paper's 1 m safety distance.
     "AVOID_MARGIN": 1.0,
     # The simulated pilot's mode slots (sim_bridge/pilot.py: 1 hold, 2 position, 3 land) on
-    # ArduPilot's mode switch: Loiter, where simple avoidance acts on the sticks, and Land.
-    "FLTMODE1": 5, "FLTMODE2": 5, "FLTMODE3": 9,
+    # ArduPilot's mode switch: Stabilize, its mode at boot (the take-off itself is MAVSDK's, in
+    # Guided), Loiter, where simple avoidance acts on the sticks, and Land.
+    "FLTMODE1": 0, "FLTMODE2": 5, "FLTMODE3": 9,
 }
 
 

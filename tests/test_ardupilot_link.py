@@ -107,7 +107,7 @@ def test_rangefinders_read_the_nearest_sector_of_their_wedge_and_nothing_outside
 
 
 def test_the_pilots_transmitter_for_ardupilot_mirrors_pitch_and_puts_the_switch_in_ardupilots_positions():
-    from sim_bridge.pilot import SLOT_LAND, SLOT_POSITION, RcFrame
+    from sim_bridge.pilot import SLOT_HOLD, SLOT_LAND, SLOT_POSITION, RcFrame
 
     forward = RcFrame(roll=0.2, pitch=0.5, throttle=0.0, yaw=-0.1, slot=SLOT_POSITION)
     px4 = forward.channels()
@@ -117,6 +117,8 @@ def test_the_pilots_transmitter_for_ardupilot_mirrors_pitch_and_puts_the_switch_
     # ArduPilot's mode switch (RC_Channel): position 2 is 1231..1360 us, position 3 1361..1490 us.
     assert 1231 <= channels[4] <= 1360 and 1361 <= ardupilot_json.rc_channels(RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_LAND))[4] <= 1490
     assert struct.unpack("<8H", ardupilot_json.rc_packet(channels)) == tuple(channels)
+    # Until the take-off is done the throttle rests at its bottom: ArduCopter arms in Stabilize only so.
+    assert ardupilot_json.rc_channels(RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_HOLD))[2] == 1000 and channels[2] == 1500
 
 
 # -- the adapter ------------------------------------------------------------------------------
