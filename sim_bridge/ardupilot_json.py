@@ -134,6 +134,12 @@ class FrameCounter:
         return NEW
 
 
+def rangefinders_in_view(fov_deg: float) -> list[bool]:
+    """Which rangefinders' wedges the range sensor sees any of (a field of view centred on the nose)."""
+    half_fov = fov_deg / 2.0
+    return [abs((yaw + 180.0) % 360.0 - 180.0) - RANGEFINDER_HALF_WIDTH_DEG <= half_fov + 1e-9 for yaw in RANGEFINDER_YAW_DEG]
+
+
 def rangefinder_distances_m(distances_cm: Sequence[int], visible: Sequence[bool], sector_deg: float, reach_m: float) -> list[float | None]:
     """Each rangefinder's reading from the range sensor's sectors (body FRD, OBSTACLE_DISTANCE's
     convention): the nearest sector within its 45-degree wedge, in metres; reach + 1 cm where

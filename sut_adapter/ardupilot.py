@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping
 
-from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION
+from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
 from sut_adapter.base import SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess, non_empty
 
@@ -91,6 +91,10 @@ class ArduPilotSitl:
     # The range sensor reaches it as rangefinders in the JSON state, not as MAVLink.
     range_messages: tuple[str, ...] = ()
     sim_protocol = "ardupilot-json"
+    # ArduPilot's SITL IMU samples at the physics rate, and its pre-arm check wants the gyro at
+    # 1.8 times ArduCopter's 400 Hz loop at least ("Gyro 0 rate 253Hz < loop ratex1.8 720Hz",
+    # "Main loop slow (250Hz < 400Hz)" at our 250 Hz).
+    rate_hz = 800.0
     # start() takes the world it flies in: ArduPilot starts at its origin, with rangefinders of its sensor's reach.
     needs_world = True
     # MISSION_ITEM_INT 0 is home to ArduPilot: the harness puts the start there.
@@ -140,8 +144,14 @@ class ArduPilotSitl:
 
 def world_params(world: "WorldSpec") -> dict[str, float]:
     """What ArduPilot must know of the world: its rangefinders reach as far as the range sensor
-    (our reading beyond it is "out of range high")."""
-    return {f"RNGFND{n}_MAX": float(world.sensor.range_m) for n in range(1, len(RANGEFINDER_ORIENTATION) + 1)}
+    (our reading beyond it is "out of range high"), and there are none where the sensor sees
+    nothing (one without data fails ArduPilot's pre-arm check)."""
+    params: dict[str, float] = {}
+    for n, in_view in enumerate(rangefinders_in_view(world.sensor.fov_deg), start=1):
+        params[f"RNGFND{n}_MAX"] = float(world.sensor.range_m)
+        if not in_view:
+            params[f"RNGFND{n}_TYPE"] = 0
+    return params
 
 
 def rc_port_for(instance: int) -> int:

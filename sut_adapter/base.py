@@ -36,6 +36,8 @@ how to treat it without knowing which SUT it is:
   parameters set over MAVLink; `takeoff_altitude_param` (optional, "MIS_TAKEOFF_ALT"; None:
   MAVSDK's take-off altitude); `pilot_flight_mode` (optional, "POSCTL"): MAVSDK's name of the
   mode the pilot's Position slot selects.
+* `rate_hz` (optional, 250): the lockstep rate it wants unless the user chose one; ArduPilot's
+  SITL samples its gyros at the physics rate and refuses to arm below 1.8 times its 400 Hz loop.
 * `injects_failures` (optional, True): False for a SUT without MAV_CMD_INJECT_FAILURE
   (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
@@ -147,6 +149,14 @@ def pilot_setup(system: "SystemUnderTest") -> tuple[dict[str, float], str | None
 
     return (dict(getattr(system, "pilot_params", SUT_PARAMS)), getattr(system, "takeoff_altitude_param", "MIS_TAKEOFF_ALT"),
             getattr(system, "pilot_flight_mode", "POSCTL"))
+
+
+DEFAULT_RATE_HZ = 250.0
+
+
+def physics_rate(system: "SystemUnderTest") -> float:
+    """The lockstep rate the SUT wants unless the user chose one (--rate-hz): 250 Hz, PX4's."""
+    return float(getattr(system, "rate_hz", DEFAULT_RATE_HZ))
 
 
 def injects_failures(system: "SystemUnderTest") -> bool:

@@ -162,6 +162,9 @@ def test_arducopter_is_started_on_the_port_blocks_ports_at_the_worlds_origin_wit
     assert params["FRAME_CLASS"] == "1" and params["FRAME_TYPE"] == "1"  # quad X, as the F450
     assert params["OA_TYPE"] == "1" and params["RNGFND1_MAX"] == "20" and params["PRX1_TYPE"] == "4"
     assert [params[f"RNGFND{n}_ORIENT"] for n in range(1, 7)] == ["0", "1", "2", "4", "6", "7"]
+    # The world's sensor sees 100 degrees about the nose: no rangefinder right, back or left (one without data fails pre-arm).
+    assert [params[f"RNGFND{n}_TYPE"] for n in range(1, 7)] == ["100", "100", "0", "0", "0", "100"]
+    assert system.rate_hz >= 1.8 * 400  # its gyros sample at the physics rate
     assert handle.mavlink_params == {"OA_TYPE": 1}
     assert set(DEFAULT_PARAMS) <= set(params)
 

@@ -66,7 +66,7 @@ def arm_retry_for(system: SystemUnderTest) -> float:
 @dataclass(frozen=True)
 class RunOptions:
     sut: SutConfig = field(default_factory=SutConfig)
-    rate_hz: float = 250.0
+    rate_hz: float | None = None  # the lockstep rate; None: the SUT's own (sut_adapter.physics_rate)
     hold_after_s: float = 3.0
     setup_timeout_s: float = 60.0
     min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
@@ -387,7 +387,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     cores = 1 if inline else cores_for(options)
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                   "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
+                   "--rate-hz", str(options.rate_hz or sut_adapter.physics_rate(system)), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
                    "--hold-pace", str(sut_adapter.hold_pace(system)),
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
                    "--sim-protocol", sut_adapter.sim_protocol(system),
