@@ -116,7 +116,7 @@ class JsonSteps:
     def state(self, step: int, time_us: int) -> bytes:
         """This step's state line: the IMU with the world's sensor noise, the true position and
         velocity (ArduPilot's SITL makes its GPS, barometer and compass from them) and, at the
-        range sensor's rate, its six rangefinders. The pilot's sticks go to ArduPilot's RC input
+        range sensor's rate its six rangefinders, held in between. The pilot's sticks go to ArduPilot's RC input
         first, so that the step this line starts reads them."""
         bridge = self.bridge
         world = bridge.world
@@ -124,11 +124,11 @@ class JsonSteps:
             self.link.sock.sendto(rc_packet(bridge._pilot_frame(time_us, rc_channels)), self._rc_address)
         s = world.state
         imu = world.imu()
-        ranges: list[float | None] = []
         if step % bridge._every["sensor"] == 0:
             distances = bridge._range_reading(time_us)
-            if distances is not None:
-                ranges = rangefinder_distances_m(distances, world.sector_visible.tolist(), SECTOR_DEG, world.range_m)
+            # Held until the next reading: ArduPilot prints the fields it got whenever they change.
+            self._ranges = [] if distances is None else rangefinder_distances_m(distances, world.sector_visible.tolist(), SECTOR_DEG, world.range_m)
+        ranges = self._ranges
         line = state_line(timestamp_s=time_us / 1e6, gyro_rad_s=imu[3:6], accel_body_m_s2=imu[0:3], position_ned_m=(s.north_m, s.east_m, -s.up_m),
                           velocity_ned_m_s=(s.v_north_m_s, s.v_east_m_s, s.v_down_m_s), quaternion=quaternion_from_euler(s.roll_rad, s.pitch_rad, s.yaw_rad),
                           ranges_m=ranges)
