@@ -58,3 +58,16 @@ def run_wall(capsys, tmp_path, name: str, *arguments: str) -> dict:
 def test_ardupilot_flies_into_the_wall_on_a_mission_without_its_path_planner(capsys, tmp_path):
     mission = run_wall(capsys, tmp_path, "mission", "--drive", "mission")
     assert mission["min_clearance_m"] <= 0.0 and mission["status"] == "violation", mission["why"]
+
+
+def test_ardupilots_path_planner_and_its_simple_avoidance_keep_it_off_the_wall(capsys, tmp_path):
+    """BendyRuler (OA_TYPE 1) steers the Auto mission around the wall; in Loiter the pilot's
+    sticks are stopped short of it, and ArduPilot's proximity sees what our sensor sees."""
+    planner = run_wall(capsys, tmp_path, "planner", "--drive", "mission", "--sut-param", "OA_TYPE=1")
+    assert planner["min_clearance_m"] > 0.0 and planner["status"] == "ok", planner["why"]
+    pilot = run_wall(capsys, tmp_path, "pilot", "--drive", "pilot")
+    assert pilot["min_clearance_m"] > 0.0, pilot["why"]
+    log_path = Path(pilot["log_path"])
+    relayed_cm = min(m.current_distance for m in api_messages(log_path, "DISTANCE_SENSOR") if m.orientation == 0)
+    sensed_cm = min(m["distances_cm"][0] for _t, _ns, m in logs.messages(log_path, ["/sensor/obstacle_distance"]))
+    assert abs(relayed_cm - sensed_cm) <= 2
