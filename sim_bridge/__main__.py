@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from sim_bridge import ardupilot_link
 from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
@@ -50,6 +51,8 @@ def listen_unix(name: str) -> socket.socket:
 def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], SutLink] | None) -> SutLink:
     if inline_sut is not None:
         return inline_sut()
+    if args.sim_protocol == "ardupilot-json":
+        return ardupilot_link.accept(listener, args.connect_timeout_s, args.stall_timeout_s)
     listener.settimeout(args.connect_timeout_s)
     sock, _ = listener.accept()
     if args.sim_shared_memory:
@@ -106,6 +109,11 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--sim-shared-memory", action="store_true",
                         help="with --sim-socket: hand the SUT shared memory on it and exchange the link's bytes there (simlink/shared_memory.py; "
                              "the bundled autopilot's --sim shm:PATH)")
+    parser.add_argument("--sim-protocol", choices=ardupilot_link.PROTOCOLS, default="mavlink",
+                        help="mavlink: PX4's HIL messages, the SUT connects over TCP (default); ardupilot-json: ArduPilot's JSON physics backend, "
+                             "its servo frames arrive over UDP on the simulator port (ArduPilot's --sim-port-out)")
+    parser.add_argument("--rc-port", type=int, help="with --sim-protocol ardupilot-json and the pilot drive: send the pilot's sticks to this UDP port "
+                                                    "(ArduPilot SITL's --rc-in-port)")
     parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -141,6 +149,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             parser.error(f"--sim-socket: {error}")
     if args.sim_shared_memory and (args.sim_socket is None or inline_sut is not None):
         parser.error("--sim-shared-memory needs a --sim-socket to hand the shared memory over on (and a SUT in a process of its own)")
+    if args.sim_protocol != "mavlink" and (args.sim_socket is not None or inline_sut is not None):
+        parser.error("--sim-protocol ardupilot-json takes its SUT over UDP on --sim-port: no --sim-socket, no SUT inside this process")
     if args.sim_shared_memory and not shared_memory.AVAILABLE:
         parser.error("--sim-shared-memory: the link through shared memory needs Linux on x86-64; leave it out to use the Unix-domain socket alone")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
@@ -148,7 +158,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     signal.signal(signal.SIGTERM, _interrupt)
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, hold_pace=args.hold_pace,
                           stall_timeout_s=args.stall_timeout_s,
-                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6)
+                          range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
+                          rc_port=args.rc_port)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:
         return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid(), args.mcap_compression)
@@ -165,7 +176,12 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     sim_listener = None
     if inline_sut is None:
         try:
-            sim_listener = listen_unix(args.sim_socket) if args.sim_socket is not None else listen(args.sim_port, args.host)
+            if args.sim_socket is not None:
+                sim_listener = listen_unix(args.sim_socket)
+            elif args.sim_protocol == "ardupilot-json":
+                sim_listener = ardupilot_link.listen_udp(args.sim_port, args.host)
+            else:
+                sim_listener = listen(args.sim_port, args.host)
         except OSError as error:
             where = f"--sim-socket {args.sim_socket}" if args.sim_socket is not None else f"--sim-port {args.sim_port}"
             print(f"{where}: cannot listen: {error}", file=sys.stderr)
@@ -222,7 +238,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
         control.send({"event": "finished", **summary})
-        if sut is not None and summary["end_reason"] != "interrupted":
+        if sut is not None and summary["end_reason"] != "interrupted" and getattr(sut, "can_hang_up", True):
             _wait_for_hang_up(sut, linger_s)
     finally:
         if sut is not None:

@@ -5,7 +5,7 @@ from sim_bridge.physics cimport VehicleState
 from sim_bridge.world cimport World
 
 cdef class Bridge:
-    cdef public object config, recorder, summary, _control, _wedges, _hold_deadline, failures, _awaiting_injection
+    cdef public object config, recorder, summary, _control, _wedges, _hold_deadline, failures, _awaiting_injection, _json
     cdef public World world
     cdef public dict _every
     cdef public int _seq

@@ -54,6 +54,7 @@ from typing import Any, Mapping
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from sim_bridge.ardupilot_link import JsonSteps
 from sim_bridge.failures import FailureSchedule
 from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
@@ -100,6 +101,11 @@ class BridgeConfig:
     spin_s: float = 0.0
     gps_rate_hz: float = 10.0
     ground_truth_rate_hz: float = 50.0
+    # The simulator link's protocol: "mavlink" (PX4's HIL messages over a stream) or
+    # "ardupilot-json" (ArduPilot's JSON physics backend over UDP: sim_bridge/ardupilot_link.py).
+    protocol: str = "mavlink"
+    # ardupilot-json: the UDP port the SUT takes the pilot's sticks on (ArduPilot SITL's RC input).
+    rc_port: int | None = None
 
 
 @dataclass
@@ -231,6 +237,7 @@ class Bridge:
         self._hold_announced = False
         self.failures = FailureSchedule(world.failures or (), lambda event, detail: self._event(self.world.time_s, event, detail))
         self._awaiting_injection: dict[str, Any] | None = None
+        self._json: JsonSteps | None = None  # the exchange with an ArduPilot (protocol "ardupilot-json")
 
     # -- recording ---------------------------------------------------------------------------
 
@@ -380,16 +387,25 @@ class Bridge:
         world = self.world
         return None if world.run_start_s is None else world.run_time(world.time_s)
 
-    def _obstacle_distance(self, time_us: int):
+    def _range_reading(self, time_us: int) -> list[int] | None:
+        """The range sensor's sectors as the SUT gets them (a failure's, None: nothing), recorded."""
         world = self.world
         distances = world.range_cm()
-        reach_cm = int(world.range_m * 100)
         if self.failures.owns("distance sensor"):
+            reach_cm = int(world.range_m * 100)
             distances = self.failures.reading("distance sensor", self._run_time(), distances,
                                               lambda sectors: wrong_distances(sectors, max_distance_cm=reach_cm))
             if distances is None:
-                return []
+                return None
         self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": world.range_m, "distances_cm": distances})
+        return distances
+
+    def _obstacle_distance(self, time_us: int):
+        world = self.world
+        distances = self._range_reading(time_us)
+        if distances is None:
+            return []
+        reach_cm = int(world.range_m * 100)
         min_cm = int(world.min_range_m * 100)
         messages = []
         if "OBSTACLE_DISTANCE" in self.config.range_messages:
@@ -406,14 +422,20 @@ class Bridge:
             ))
         return messages
 
-    def _pilot_rc(self, time_us: int):
+    def _pilot_frame(self, time_us: int, channels_of=None):
+        """The pilot's sticks now, recorded with the channels the SUT gets (channels_of(frame):
+        its transmitter's; PX4's layout by default)."""
         pilot = self.world.pilot
         frame = self.world.pilot_frame(time_us / 1e6)
-        channels = frame.channels()
+        channels = frame.channels() if channels_of is None else channels_of(frame)
         self.recorder.write("/pilot", time_ns=time_us * 1000, message={
             "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
             "mode_slot": frame.slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
         })
+        return channels
+
+    def _pilot_rc(self, time_us: int):
+        channels = self._pilot_frame(time_us)
         unused = [UINT16_MAX] * (18 - CHANNEL_COUNT)
         return self._encode(codec.RC_CHANNELS, time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
 
@@ -517,6 +539,9 @@ class Bridge:
         config = self.config
         self._control = control
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
+        if config.protocol == "ardupilot-json":
+            self._json = JsonSteps(self, sut, getattr(sut, "first", None))
+        json_steps = self._json
         wall_start = time.perf_counter()
         perf = time.perf_counter
         hold_enabled = config.hold_after_s > 0
@@ -555,7 +580,7 @@ class Bridge:
                 # Step timers count the run only: before it the loop runs at real-time pace.
                 setup_timers = {name: getattr(summary, name) for name in STEP_TIMERS}
             ts = perf()
-            frames_out = self._sensor_frames(step, time_us)
+            frames_out = self._sensor_frames(step, time_us) if json_steps is None else json_steps.state(step, time_us)
             t_send = perf()
             summary.sensors_s += t_send - ts
             try:
@@ -572,7 +597,10 @@ class Bridge:
             world.move_obstacles_for_next_step()
             t0 = perf()
             summary.world_s += t0 - t_sent
-            answered = self._receive_answer(sut, splitter, lockstep, t0)
+            if json_steps is None:
+                answered = self._receive_answer(sut, splitter, lockstep, t0)
+            else:
+                answered = json_steps.receive_answer(sut, lockstep, t0)
             if not world.running:
                 break
             if answered and not lockstep:
@@ -598,8 +626,8 @@ class Bridge:
         summary.steps = world.steps
         summary.sim_time_s = world.steps * world.dt
         summary.run_time_s = world.run_time(summary.sim_time_s)
-        summary.bad_frames = splitter.bad_frames
-        summary.skipped_bytes = splitter.skipped_bytes
+        summary.bad_frames = splitter.bad_frames + (json_steps.bad_frames if json_steps is not None else 0)
+        summary.skipped_bytes = splitter.skipped_bytes + (json_steps.skipped_bytes if json_steps is not None else 0)
         summary.wall_time_s = time.perf_counter() - wall_start
         if wall_run_started is not None:
             summary.wall_in_run_s = time.perf_counter() - wall_run_started

@@ -24,6 +24,22 @@ how to treat it without knowing which SUT it is:
 * `connects_to_shared_memory` (optional, True): with `sim_socket`, `start` also takes
   `sim_shared_memory`: the simulator hands shared memory over on that socket and the link's
   bytes go through it (`--transport shm`, simlink/shared_memory.py; the bundled autopilot).
+* `sim_protocol` (optional, "mavlink"): what the simulator link speaks; "ardupilot-json" for
+  ArduPilot's JSON physics backend (sim_bridge/ardupilot_json.py), over UDP on the simulator port.
+* `needs_world` (optional, False): `start` also takes `world`, the WorldSpec it flies in
+  (ArduPilot starts at its origin and sizes its rangefinders by its range sensor).
+* `mission_home_item` (optional, False): the SUT takes MISSION_ITEM_INT 0 for home (ArduPilot),
+  so the harness uploads the start there and the mission after it.
+* `rc_port_for(instance)` (optional): the UDP port the SUT takes the pilot's sticks on, as
+  ArduPilot SITL's RC input does; without it they go on the simulator link as RC_CHANNELS.
+* `pilot_params` (optional, sim_bridge/pilot.py's SUT_PARAMS): the pilot drive's RC layout as
+  parameters set over MAVLink; `takeoff_altitude_param` (optional, "MIS_TAKEOFF_ALT"; None:
+  MAVSDK's take-off altitude); `pilot_flight_mode` (optional, "POSCTL"): MAVSDK's name of the
+  mode the pilot's Position slot selects.
+* `rate_hz` (optional, 250): the lockstep rate it wants unless the user chose one; ArduPilot's
+  SITL samples its gyros at the physics rate and refuses to arm below 1.8 times its 400 Hz loop.
+* `injects_failures` (optional, True): False for a SUT without MAV_CMD_INJECT_FAILURE
+  (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -52,11 +68,13 @@ class SutConfig:
     command: str | None = None  # command: the command line template
     hold: str | None = None  # command: one of HOLD_MODES
     autopilot_dir: str | None = None  # bundled: a folder whose `autopilot` package flies instead (a mutant, an edit)
+    ardupilot_bin: str | None = None  # ardupilot: the arducopter binary or its build folder
 
     def adapter_options(self) -> dict[str, str]:
         """What the named adapter is configured with (its factory's mapping)."""
         return {key: value for key, value in (("px4_bin", self.px4_bin), ("command", self.command), ("hold", self.hold),
-                                              ("fault", self.fault), ("autopilot_dir", self.autopilot_dir)) if value is not None}
+                                              ("fault", self.fault), ("autopilot_dir", self.autopilot_dir), ("ardupilot_bin", self.ardupilot_bin))
+                if value is not None}
 
     def identity(self) -> dict[str, object]:
         """What makes two flights' SUTs the same, wherever they run (no machine's paths)."""
@@ -107,6 +125,49 @@ def hold_pace(system: "SystemUnderTest") -> float:
     if not (isinstance(pace, (int, float)) and math.isfinite(pace) and pace > 0):
         raise SutError(system.name, f"its hold_pace {pace!r} is not a positive number of simulated seconds per wall-clock second")
     return float(pace)
+
+
+def sim_protocol(system: "SystemUnderTest") -> str:
+    """What the SUT's simulator link speaks: "mavlink" unless it says otherwise."""
+    return getattr(system, "sim_protocol", "mavlink")
+
+
+def needs_world(system: "SystemUnderTest") -> bool:
+    """Whether the SUT's start takes `world`, the WorldSpec it flies in."""
+    return getattr(system, "needs_world", False) is True
+
+
+def mission_home_item(system: "SystemUnderTest") -> bool:
+    """Whether the SUT takes mission item 0 for home."""
+    return getattr(system, "mission_home_item", False) is True
+
+
+def pilot_setup(system: "SystemUnderTest") -> tuple[dict[str, float], str | None, str]:
+    """The pilot drive's set-up for this SUT: its RC layout's parameters, the parameter its
+    take-off altitude goes in (None: MAVSDK's take-off command), MAVSDK's name of its Position mode."""
+    from sim_bridge.pilot import SUT_PARAMS
+
+    return (dict(getattr(system, "pilot_params", SUT_PARAMS)), getattr(system, "takeoff_altitude_param", "MIS_TAKEOFF_ALT"),
+            getattr(system, "pilot_flight_mode", "POSCTL"))
+
+
+DEFAULT_RATE_HZ = 250.0
+
+
+def physics_rate(system: "SystemUnderTest") -> float:
+    """The lockstep rate the SUT wants unless the user chose one (--rate-hz): 250 Hz, PX4's."""
+    return float(getattr(system, "rate_hz", DEFAULT_RATE_HZ))
+
+
+def injects_failures(system: "SystemUnderTest") -> bool:
+    """Whether the SUT takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled autopilot do."""
+    return getattr(system, "injects_failures", True) is not False
+
+
+def rc_port(system: "SystemUnderTest", instance: int) -> int | None:
+    """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""
+    port_for = getattr(system, "rc_port_for", None)
+    return port_for(instance) if callable(port_for) else None
 
 
 def connects_to_unix_socket(system: "SystemUnderTest") -> bool:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Callable, Mapping
 
+from sut_adapter.ardupilot import ArduPilotSitl
 from sut_adapter.base import SutConfig, SutError, SystemUnderTest
 from sut_adapter.bundled import BundledAutopilot
 from sut_adapter.command import CommandSut
@@ -35,3 +36,4 @@ def system_for(config: SutConfig) -> SystemUnderTest:
 register("bundled", BundledAutopilot)
 register("command", CommandSut)
 register("px4", Px4Sitl)
+register("ardupilot", ArduPilotSitl)

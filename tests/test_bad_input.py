@@ -67,7 +67,7 @@ CORPUS = [
     (["sample", FIG4, "--seed", "4294967296"], "is not a seed"),
     (["sample", FIG4, "--out", "UNDER_A_FILE_JSON"], "Not a directory: give a path in a writable folder"),
     (["run", "BROKEN_JSON"], "invalid JSON"),
-    (["run", FIG4, "--sut", "no_such_sut"], "unknown SUT; available: bundled, command, px4"),
+    (["run", FIG4, "--sut", "no_such_sut"], "unknown SUT; available: ardupilot, bundled, command, px4"),
     (["run", FIG4, "--sut-param", "CP_DIST"], "is not NAME=NUMBER"),
     (["run", FIG4, "--sut-param", "CP_DIST=nan"], "must be a finite number"),
     (["run", FIG4, "--sut-param", "CP_DISTANCE=2"], "unknown parameter 'CP_DISTANCE' (`python -m autopilot.params` lists its parameters)"),

@@ -69,7 +69,7 @@ def test_the_cli_refuses_a_bad_sut_before_flying(capsys):
     assert main(["run", str(FIG4), "--sut", "command", "--sut-command", "ap {sim_port}"]) == 2
     assert "--sut: command: --sut-command must use {api_port}" in capsys.readouterr().err
     assert main(["run", str(FIG4), "--sut", "nope"]) == 2
-    assert "unknown SUT; available: bundled, command, px4" in capsys.readouterr().err
+    assert "unknown SUT; available: ardupilot, bundled, command, px4" in capsys.readouterr().err
 
 
 # -- PX4 SITL, without PX4 -----------------------------------------------------------------------

@@ -34,7 +34,6 @@ from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.spec import NORMAL_ENDS, WorldSpec
-from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 from sim_bridge.sut_link import TRANSPORTS
 from simlink import shared_memory
 import sut_adapter
@@ -44,6 +43,8 @@ from sut_adapter.processes import ManagedProcess
 log = logging.getLogger(__name__)
 
 PX4_MAIN_MODE_POSCTL = 3
+# ArduCopter's custom modes where the pilot's sticks steer the position and simple avoidance acts: Loiter, PosHold.
+ARDUCOPTER_POSITION_MODES = (5, 16)
 CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
 # With a core each, the simulator and the SUT poll this long for each other's next message
 # before sleeping: far longer than a lockstep turn, short enough to idle during setup.
@@ -65,7 +66,7 @@ def arm_retry_for(system: SystemUnderTest) -> float:
 @dataclass(frozen=True)
 class RunOptions:
     sut: SutConfig = field(default_factory=SutConfig)
-    rate_hz: float = 250.0
+    rate_hz: float | None = None  # the lockstep rate; None: the SUT's own (sut_adapter.physics_rate)
     hold_after_s: float = 3.0
     setup_timeout_s: float = 60.0
     min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
@@ -141,12 +142,17 @@ class EvaluationResult:
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
     """Whether the SUT's heartbeats on the API link (its datagrams) ever said Position mode (PX4
-    custom main mode 3)."""
+    custom main mode 3; ArduCopter's Loiter or PosHold)."""
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
     for datagram in from_sut:
         for message in parser.parse_buffer(datagram) or []:
-            if message.get_type() == "HEARTBEAT" and (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
+            if message.get_type() != "HEARTBEAT" or message.type == mavlink.MAV_TYPE_GCS:
+                continue
+            if message.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+                if message.custom_mode in ARDUCOPTER_POSITION_MODES:
+                    return True
+            elif (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
                 return True
     return False
 
@@ -264,7 +270,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings, arm_retry_for(system))
+            failure, summary, mavsdk_info = _fly(world, options, stack, timings, system)
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
@@ -367,12 +373,13 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
             yield serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
         return
     with ExitStack() as contexts:
-        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log)
+        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
 
 
-def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None) -> Stack:
+def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None,
+           world: WorldSpec | None = None) -> Stack:
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
-    run_arguments (a world and its log, or --serve)."""
+    run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
     ports = contexts.enter_context(PortLease())
     transport = placed_transport(options, system)
     inline = transport == "memory"
@@ -380,9 +387,11 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     cores = 1 if inline else cores_for(options)
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                   "--rate-hz", str(options.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
+                   "--rate-hz", str(options.rate_hz or sut_adapter.physics_rate(system)), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
                    "--hold-pace", str(sut_adapter.hold_pace(system)),
                    "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
+                   "--sim-protocol", sut_adapter.sim_protocol(system),
+                   *(["--rc-port", str(sut_adapter.rc_port(system, ports.slot))] if sut_adapter.rc_port(system, ports.slot) is not None else []),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
                    "--mcap-compression", "none",
                    # stop() stops the SUT before the simulator, with the simulator link still open.
@@ -404,7 +413,9 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     if inline:
         sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
     else:
-        extra = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        if sut_adapter.needs_world(system):
+            extra["world"] = world
         if transport == "shm":
             extra["sim_shared_memory"] = True
         sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
@@ -489,8 +500,10 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
-def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], arm_retry_s: float):
+def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest):
     """Returns (failure or None, bridge summary, MAVSDK observations)."""
+    arm_retry_s = arm_retry_for(system)
+    pilot_params, takeoff_altitude_param, _mode = sut_adapter.pilot_setup(system)
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
     control = BridgeControl(stack.ports.control)
@@ -524,16 +537,18 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 return failure, control_summary(control), {}
         try:
             session.set_params(sut.mavlink_params)
-            if any(f.delivery == "sut" for f in world.failures or ()):
+            if not sut_adapter.injects_failures(system):
+                session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events
+            elif any(f.delivery == "sut" for f in world.failures or ()):
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":
                 # A parameter the user set (--sut-param) is the user's to decide.
-                session.set_params({name: value for name, value in PILOT_SUT_PARAMS.items() if name not in options.sut.params})
+                session.set_params({name: value for name, value in pilot_params.items() if name not in options.sut.params})
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
             if world.drive == "pilot":
-                session.arm_and_take_off(world.mission.takeoff_altitude_m, arm_retry_s)
+                session.arm_and_take_off(world.mission.takeoff_altitude_m, arm_retry_s, takeoff_altitude_param)
             else:
-                session.upload_and_start(mission_items(world), arm_retry_s)
+                session.upload_and_start(mission_items(world, sut_adapter.mission_home_item(system)), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
             return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result

@@ -46,9 +46,22 @@ def _route_mavsdk_log(level, message: str, _file, _line) -> bool:
 log_subscribe(_route_mavsdk_log)
 
 
-def mission_items(world: WorldSpec) -> list[MissionItem]:
+def mission_items(world: WorldSpec, home_item: bool = False) -> list[MissionItem]:
     """MISSION_ITEM_INTs for the world's mission: a plan's items as they are, or take off, set
-    speed, waypoints, land at the last."""
+    speed, waypoints, land at the last. With home_item, item 0 is the start, for a SUT that takes
+    item 0 for home (ArduPilot) and flies from item 1."""
+    items = _mission_items(world)
+    if not home_item:
+        return items
+    lat, lon = geodetic_from_local(world.origin.lat_deg, world.origin.lon_deg, world.uav.start.north_m, world.uav.start.east_m)
+    home = MissionItem(seq=0, frame=0, command=NAV_WAYPOINT, current=1, autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
+                       x=int(round(lat * 1e7)), y=int(round(lon * 1e7)), z=float(world.start_msl_m), mission_type=0)
+    return [home] + [MissionItem(seq=item.seq + 1, frame=item.frame, command=item.command, current=0, autocontinue=item.autocontinue,
+                                 param1=item.param1, param2=item.param2, param3=item.param3, param4=item.param4, x=item.x, y=item.y, z=item.z,
+                                 mission_type=item.mission_type) for item in items]
+
+
+def _mission_items(world: WorldSpec) -> list[MissionItem]:
     origin = world.origin
     mission = world.mission
     if mission.plan_items is not None:
@@ -96,6 +109,9 @@ class MavsdkSession:
         self._lock = threading.Lock()
         self.system = None
         self.failure: Failure | None = None
+        # The answer to an injection while the failure plugin is off: a SUT without
+        # MAV_CMD_INJECT_FAILURE (ArduPilot) says UNSUPPORTED.
+        self.answer_without_injection = "NOT_ENABLED"
 
     def restart(self) -> None:
         """A new flight with the same connection (a warm stack's next evaluation): forget what the
@@ -166,11 +182,15 @@ class MavsdkSession:
         self.arm(arm_retry_s)
         self.mission.start_mission()
 
-    def arm_and_take_off(self, altitude_m: float, arm_retry_s: float) -> None:
+    def arm_and_take_off(self, altitude_m: float, arm_retry_s: float, altitude_param: str | None = "MIS_TAKEOFF_ALT") -> None:
         """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock.
-        The altitude goes in MIS_TAKEOFF_ALT, which both SUTs read for a takeoff without one
-        (MAVSDK's set_takeoff_altitude did not reach PX4 v1.16 here)."""
-        self.set_params({"MIS_TAKEOFF_ALT": float(altitude_m)})
+        The altitude goes in MIS_TAKEOFF_ALT, which PX4 and the bundled autopilot read for a
+        takeoff without one (MAVSDK's set_takeoff_altitude did not reach PX4 v1.16 here); for a
+        SUT without such a parameter (altitude_param None: ArduPilot) in the take-off command."""
+        if altitude_param is None:
+            self.action.set_takeoff_altitude(float(altitude_m))
+        else:
+            self.set_params({altitude_param: float(altitude_m)})
         self.arm(arm_retry_s)
         self.action.takeoff()
 
@@ -203,7 +223,7 @@ class MavsdkSession:
         answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
         failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
         if self.failure is None:
-            return "NOT_ENABLED"
+            return self.answer_without_injection
         try:
             self.failure.inject(FailureUnit(int(UNIT_BY_NAME[unit])), failure_type, 0)
         except Exception as error:  # MAVSDK's FailureError carries the SUT's answer

@@ -47,7 +47,7 @@ PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT
                    (1, "memory", True): "the same, kept warm between evaluations (a worker's steady state)"}
 
 
-def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float = 250.0, pin_cpu: bool = True,
+def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float | None = None, pin_cpu: bool = True,
               sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str, bool], ...] = PLACEMENTS, drive: str | None = None,
               mission_plan: Path | None = None) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
@@ -64,6 +64,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
         system = sut_adapter.system_for(sut.sut)
+        rate_hz = rate_hz or sut_adapter.physics_rate(system)
         can = {transport: transport_problem(transport, system) is None for transport in TRANSPORTS[1:]}
         for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and can[t]]:
             rows = []
@@ -150,6 +151,11 @@ def jsbsim_alone(log_path: Path, rate_hz: float, repeats: int = 3) -> dict[str, 
     answers = [codec.decode_hil_actuator_controls(payload)[2][:4]
                for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut"
                for msgid, payload, _frame in splitter.feed(bytes.fromhex(m["hex"])) if msgid == codec.HIL_ACTUATOR_CONTROLS_ID]
+    if not answers:  # ArduPilot's JSON link: servo frames, the first sent before any step
+        from sim_bridge.ardupilot_json import motor_commands, servo_frames_in
+
+        stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "from_sut")
+        answers = [motor_commands(frame.pwm_us) for frame in servo_frames_in(stream)[1:]]
     commands = [(0.0, 0.0, 0.0, 0.0)] * max(0, steps - len(answers)) + answers[:steps]
     terrain = world.terrain
     wind = (world.atmosphere.wind_north_m_s, world.atmosphere.wind_east_m_s)

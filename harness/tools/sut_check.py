@@ -28,7 +28,6 @@ from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.pilot import SLOT_POSITION
-from sim_bridge.pilot import SUT_PARAMS as PILOT_SUT_PARAMS
 import sut_adapter
 
 STAGES = ("process started", "simulator connected", "lockstep running", "API heartbeat", "health ok", "armable")
@@ -51,7 +50,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     start = time.monotonic()
     try:
         with simulation_stack(world, options, system, workdir) as stack:
-            _run_stages(stack, world, stages, start, timeout_s, arm_retry_for(system))
+            _run_stages(stack, world, stages, start, timeout_s, arm_retry_for(system), system)
     except (InfrastructureError, sut_adapter.SutError) as error:
         failed = next((stage for stage in stages if stage.ok is None), stages[0])
         failed.ok, failed.after_s, failed.detail = False, time.monotonic() - start, str(error)
@@ -60,7 +59,8 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
     return stages
 
 
-def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float) -> None:
+def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float, system) -> None:
+    pilot_params, _altitude_param, pilot_mode = sut_adapter.pilot_setup(system)
     sut, session = stack.sut, stack.session
     alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
 
@@ -87,29 +87,29 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world))) if world.drive == "mission" else
-            (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s)),
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, sut_adapter.mission_home_item(system)))) if world.drive == "mission" else
+            (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s, pilot_params, pilot_mode)),
         ]
         for index, _name, action in steps:
             try:
                 outcome = action()
             except Exception as error:  # MAVSDK raises its own error type per plugin
                 return failed(index, str(error))
-            passed(index, outcome if index == 5 else _details(index, session, sut, world.drive))
+            passed(index, outcome if index == 5 else _details(index, session, sut, world.drive, pilot_params))
     finally:
         control.send({"op": "stop"})
         control.close()
 
 
-def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float) -> None:
+def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float, pilot_params, pilot_mode: str) -> None:
     """With the pilot's RC layout set, the simulation running and the pilot's mode switch in its
     Position slot, the SUT must report Position mode (nothing is armed)."""
-    session.set_params(PILOT_SUT_PARAMS)
+    session.set_params(pilot_params)
     control.send({"op": "run"})
     control.send({"op": "rc_mode_slot", "slot": SLOT_POSITION})
     deadline = time.monotonic() + timeout_s
     mode = session.telemetry.flight_mode()
-    while mode != FlightMode.POSCTL:
+    while mode != FlightMode[pilot_mode]:
         if time.monotonic() > deadline:
             raise InfrastructureError(f"the SUT stayed in {mode.name} instead of switching to Position mode within {timeout_s:.0f} s; "
                                       f"status texts: {session.status_texts[-5:]}")
@@ -131,12 +131,12 @@ def _arm_and_disarm(session, retry_s: float) -> str:
     return f"armed {took_s:.2f} s after asking ({asks}), then disarmed"
 
 
-def _details(index: int, session, sut, drive: str) -> str:
+def _details(index: int, session, sut, drive: str, pilot_params) -> str:
     if index == 4:
         return f"parameters set over MAVLink: {dict(sut.mavlink_params)}" if sut.mavlink_params else ""
     if index == 6:
         return {"mission": "mission with takeoff, speed, waypoints and land accepted",
-                "pilot": f"RC on the simulator link with {PILOT_SUT_PARAMS}; Position mode reported"}[drive]
+                "pilot": f"the pilot's RC with {pilot_params or 'its defaults'}; Position mode reported"}[drive]
     return ""
 
 

@@ -30,7 +30,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="default")
     add_sut_options(p)
     p.add_argument("--out", default="runs", help="folder for the MCAP log (default: runs/)")
-    p.add_argument("--rate-hz", type=positive_float, default=250.0, help="lockstep rate")
+    p.add_argument("--rate-hz", type=positive_float, help="lockstep rate (default: the SUT's own, 250 Hz; ArduPilot 800 Hz)")
     p.add_argument("--cores", type=int, choices=(1, 2), default=2,
                    help="2: the simulator and the SUT get a core each and poll for each other (faster; the default); 1: they share one core")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",

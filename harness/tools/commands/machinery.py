@@ -18,7 +18,7 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=5)
     p.add_argument("--scenario", help="logical scenario (default: Table III scenario 31)")
     p.add_argument("--seed", type=seed_int, default=4)
-    p.add_argument("--rate-hz", type=positive_float, default=250.0)
+    p.add_argument("--rate-hz", type=positive_float, help="lockstep rate (default: the SUT's own, 250 Hz; ArduPilot 800 Hz)")
     p.add_argument("--no-pin", action="store_true", help="let the OS place the simulator and the SUT on any core")
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only placements with this many cores per evaluation (default: all)")
     p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory, unix and shm: the bundled autopilot only)")

@@ -18,8 +18,9 @@ if TYPE_CHECKING:
 
 
 def add_sut_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sut", default="bundled", help="bundled (default), px4 or command")
+    p.add_argument("--sut", default="bundled", help="bundled (default), px4, ardupilot or command")
     p.add_argument("--px4-bin", help="with --sut px4: the px4 binary or its build folder (default: $STELLA_PX4_BIN)")
+    p.add_argument("--ardupilot-bin", help="with --sut ardupilot: the arducopter binary or its build folder, build/sitl (default: $STELLA_ARDUPILOT_BIN)")
     p.add_argument("--sut-command", help="with --sut command: the SUT's command line with {sim_port}, {api_port}, {instance}, {workdir}")
     p.add_argument("--sut-hold", choices=["paced", "frozen"], help="with --sut command: how the SUT waits during setup (default paced; see README)")
     p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter, e.g. CP_DIST=2.0; repeatable; wins over --sut-params-file")
@@ -83,7 +84,8 @@ def sut_spec(args: argparse.Namespace) -> SutConfig:
 
         from_file = load_params_file(Path(args.sut_params_file))
     params = {**from_file, **sut_param_values(args.sut_param)}
-    config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold, args.autopilot_dir)
+    config = sut_adapter.SutConfig(args.sut, params, args.sut_fault, args.px4_bin, args.sut_command, args.sut_hold, args.autopilot_dir,
+                                   getattr(args, "ardupilot_bin", None))
     return checked_sut(config, "--sut", "--sut-param", from_file)
 
 

@@ -1,0 +1,164 @@
+"""ArduPilot's ArduCopter SITL as a SUT, its physics from our bridge through its JSON backend.
+
+Give the `arducopter` binary or its build folder (`build/sitl`, or the source tree holding it)
+with `--ardupilot-bin` or STELLA_ARDUPILOT_BIN. Each evaluation gets a fresh working directory
+(ArduPilot keeps eeprom.bin, its dataflash logs/*.BIN and terrain there) and instance k = the
+port block's index. Its ports are the block's: it sends its servo frames to the simulator port
+(UDP, `--sim-port-out`), its MAVLink (SERIAL0) goes to the API port as a UDP client, and its
+RC input listens on the RC port (UDP) where the simulated pilot's sticks arrive.
+
+ArduPilot's scheduler and MAVLink run on the simulated clock its physics backend advances, so
+it answers nothing while simulated time stands still: it needs the "paced" hold. It starts at
+the world's origin (`--home`), where the bridge's positions are measured from.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Mapping
+
+from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
+from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.processes import ManagedProcess, non_empty
+
+if TYPE_CHECKING:
+    from sim_bridge.spec import WorldSpec
+
+PARAMS_FILE = "stella.parm"
+# As many times faster than real time as its set-up may run: ArduPilot's own timeouts are in
+# simulated time, MAVSDK's in wall time, and a paced hold this fast still leaves MAVSDK's
+# requests their answers in time (measured: docs/suts.md).
+HOLD_PACE = 20.0
+# Without waiting for the wall clock: lockstep sets its pace.
+SPEEDUP = 10000
+# RC input (ArduPilot's AP_RCProtocol_UDP) on its own port per port block.
+RC_PORT_BASE = 34560
+# Why each: docs/suts.md, "ArduPilot". Keys are ArduPilot's parameter names.
+DEFAULT_PARAMS: dict[str, float] = {
+    # The F450: a quad in X, motors on outputs 1-4 in ArduCopter's order (sim_bridge/ardupilot_json.py).
+    "FRAME_CLASS": 1, "FRAME_TYPE": 1,
+    # The transmitter's range as the simulated pilot sends it.
+    **{f"RC{n}_{field}": value for n in range(1, 9) for field, value in (("MIN", 1000), ("MAX", 2000), ("TRIM", 1500))},
+    # No battery is simulated through the JSON backend.
+    "BATT_MONITOR": 0,
+    # The mission drive arms and then switches to Auto over MAVLink: no disarm in between, and a
+    # take-off in Auto without a throttle stick (bit 1; bit 0: arming in Auto).
+    "DISARM_DELAY": 0, "AUTO_OPTIONS": 3,
+    # The harness's API link (SERIAL0): positions and status often enough for MAVSDK's telemetry
+    # and the log. ArduPilot 4.7 calls these MAV1_*, earlier releases SR0_*; a defaults file's
+    # unknown names are ignored (it says so on its console).
+    **{f"{prefix}_{stream}": rate for prefix in ("MAV1", "SR0")
+       for stream, rate in (("POSITION", 10), ("EXT_STAT", 5), ("EXTRA1", 10), ("EXTRA2", 5), ("EXTRA3", 5), ("RAW_SENS", 2))},
+    # SITL's other serial ports would listen on TCP ports no evaluation owns.
+    "SERIAL1_PROTOCOL": -1, "SERIAL2_PROTOCOL": -1,
+    # The range sensor as six SITL rangefinders, one orientation each, read as proximity.
+    **{key: value for n, orientation in enumerate(RANGEFINDER_ORIENTATION, start=1)
+       for key, value in ((f"RNGFND{n}_TYPE", 100), (f"RNGFND{n}_ORIENT", orientation), (f"RNGFND{n}_MIN", 0.1))},
+    "PRX1_TYPE": 4,
+    # Simple avoidance's margin as PX4's CP_DIST: the paper's 1 m safety distance.
+    "AVOID_MARGIN": 1.0,
+    # The simulated pilot's mode slots (sim_bridge/pilot.py: 1 hold, 2 position, 3 land) on
+    # ArduPilot's mode switch: Stabilize, its mode at boot (the take-off itself is MAVSDK's, in
+    # Guided), Loiter, where simple avoidance acts on the sticks, and Land.
+    "FLTMODE1": 0, "FLTMODE2": 5, "FLTMODE3": 9,
+}
+
+
+def resolve_binary(given: str | None) -> Path:
+    """The arducopter binary from a binary, a build folder (build/sitl) or a source tree."""
+    if not given:
+        raise SutError("ardupilot", "no ArduCopter SITL build given; pass --ardupilot-bin PATH (the arducopter binary or its build folder, "
+                                    "e.g. ardupilot/build/sitl) or set STELLA_ARDUPILOT_BIN")
+    path = Path(given).expanduser().resolve()
+    candidates = [path] if not path.is_dir() else [path / "bin" / "arducopter", path / "build" / "sitl" / "bin" / "arducopter"]
+    for binary in candidates:
+        if binary.is_file() and os.access(binary, os.X_OK):
+            return binary
+    raise SutError("ardupilot", f"no executable arducopter at {' or '.join(map(str, candidates))}; build it with `./waf configure --board sitl && "
+                                "./waf copter` and pass build/sitl (docs/suts.md)")
+
+
+def format_params(params: Mapping[str, float]) -> str:
+    """A .parm file ArduPilot reads with --defaults: NAME VALUE per line."""
+    return "".join(f"{name} {float(value):.9g}\n" for name, value in params.items())
+
+
+class ArduPilotSitl:
+    name = "ardupilot"
+    hold_mode = "paced"
+    hold_pace = HOLD_PACE
+    # The range sensor reaches it as rangefinders in the JSON state, not as MAVLink.
+    range_messages: tuple[str, ...] = ()
+    sim_protocol = "ardupilot-json"
+    # ArduPilot's SITL IMU samples at the physics rate, and its pre-arm check wants the gyro at
+    # 1.8 times ArduCopter's 400 Hz loop at least ("Gyro 0 rate 253Hz < loop ratex1.8 720Hz",
+    # "Main loop slow (250Hz < 400Hz)" at our 250 Hz).
+    rate_hz = 800.0
+    # start() takes the world it flies in: ArduPilot starts at its origin, with rangefinders of its sensor's reach.
+    needs_world = True
+    # MISSION_ITEM_INT 0 is home to ArduPilot: the harness puts the start there.
+    mission_home_item = True
+    # The pilot drive: its RC layout is in the defaults above; its take-off altitude goes with
+    # MAVSDK's take-off command, as ArduPilot has no parameter for it; MAVSDK calls ArduCopter's
+    # Loiter "Hold".
+    pilot_params: dict[str, float] = {}
+    takeoff_altitude_param = None
+    pilot_flight_mode = "HOLD"
+    # ArduPilot has no MAV_CMD_INJECT_FAILURE: failures it is to be told of are refused (its SITL
+    # fails sensors through SIM_* parameters instead, which no scenario maps to yet).
+    injects_failures = False
+
+    def __init__(self, config: Mapping[str, str]):
+        unknown = sorted(set(config) - {"ardupilot_bin"})
+        if unknown:
+            raise SutError(self.name, f"unknown configuration {unknown}; it takes ardupilot_bin (--ardupilot-bin)")
+        self.binary = resolve_binary(config.get("ardupilot_bin") or os.environ.get("STELLA_ARDUPILOT_BIN"))
+
+    @staticmethod
+    def rc_port_for(instance: int) -> int:
+        return rc_port_for(instance)
+
+    def check_params(self, params: Mapping[str, float]) -> None:
+        """Its parameters are known only to the running SUT, which reports a bad one when set."""
+
+    def command(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, origin: tuple[float, float, float]) -> list[str]:
+        lat_deg, lon_deg, ground_msl_m = origin
+        rc_port = rc_port_for(instance)
+        return [str(self.binary), "--model", "JSON:127.0.0.1", "--instance", str(instance), "--sim-port-out", str(sim_port),
+                "--rc-in-port", str(rc_port), "--serial0", f"udpclient:127.0.0.1:{api_port}", "--home", f"{lat_deg:.8f},{lon_deg:.8f},{ground_msl_m:.2f},0",
+                "--speedup", str(SPEEDUP), "--defaults", str(workdir / PARAMS_FILE)]
+
+    def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float], spin_s: float = 0.0,
+              world: "WorldSpec") -> SutHandle:
+        ardupilot_dir = workdir / "ardupilot"
+        ardupilot_dir.mkdir()
+        # The user's parameters go in at boot too: some take effect only then (RNGFNDn_TYPE, OA_TYPE).
+        (ardupilot_dir / PARAMS_FILE).write_text(format_params({**DEFAULT_PARAMS, **world_params(world), **params}))
+        origin = (world.origin.lat_deg, world.origin.lon_deg, world.start_msl_m)
+        argv = self.command(sim_port=sim_port, api_port=api_port, instance=instance, workdir=ardupilot_dir, origin=origin)
+        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir)
+        return start_process(self.name, process, artifacts=lambda: collect_artifacts(ardupilot_dir, [process.stdout_path, process.stderr_path]),
+                             mavlink_params=dict(params))
+
+
+def world_params(world: "WorldSpec") -> dict[str, float]:
+    """What ArduPilot must know of the world: its rangefinders reach as far as the range sensor
+    (our reading beyond it is "out of range high"), and there are none where the sensor sees
+    nothing (one without data fails ArduPilot's pre-arm check)."""
+    params: dict[str, float] = {}
+    for n, in_view in enumerate(rangefinders_in_view(world.sensor.fov_deg), start=1):
+        params[f"RNGFND{n}_MAX"] = float(world.sensor.range_m)
+        if not in_view:
+            params[f"RNGFND{n}_TYPE"] = 0
+    return params
+
+
+def rc_port_for(instance: int) -> int:
+    """The UDP port ArduPilot takes RC input on in this port block."""
+    return RC_PORT_BASE + instance
+
+
+def collect_artifacts(ardupilot_dir: Path, console_logs: list[Path]) -> list[Path]:
+    """ArduPilot's dataflash logs (logs/*.BIN) and its non-empty console output."""
+    return sorted(ardupilot_dir.glob("logs/*.BIN")) + non_empty(console_logs)
