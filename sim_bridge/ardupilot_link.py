@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from sim_bridge.ardupilot_json import (REPEATED, RESTARTED, FrameCounter, FrameError, decode_servo_frame, motor_commands, rangefinder_distances_m, rc_channels,
                                        rc_packet, state_line)
+from sim_bridge.control import EndReason
 from sim_bridge.sensors import quaternion_from_euler
 from sim_bridge.world import SECTOR_DEG
 
@@ -148,10 +149,10 @@ class JsonSteps:
                     return False
                 datagram = sut.receive(bridge.config.spin_s)
             except BlockingIOError:
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
             bridge._link_in += datagram
             try:
@@ -160,7 +161,7 @@ class JsonSteps:
                 self.bad_frames += 1
                 self.skipped_bytes += len(datagram)
                 if time.perf_counter() - waiting_since > bridge.config.stall_timeout_s:
-                    world.end("sut_stalled")
+                    world.end(EndReason.SUT_STALLED)
                     return False
                 continue
             kind = self.frames.classify(frame.frame_count)
@@ -170,7 +171,7 @@ class JsonSteps:
                 try:
                     sut.send(self._last_line)
                 except OSError:
-                    world.end("sut_disconnected")
+                    world.end(EndReason.SUT_DISCONNECTED)
                     return False
                 continue
             if kind == RESTARTED:

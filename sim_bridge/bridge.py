@@ -6,7 +6,8 @@ HIL_GPS, 50 Hz HIL_STATE_QUATERNION (ground truth) and OBSTACLE_DISTANCE at the 
 Until the SUT's first HIL_ACTUATOR_CONTROLS the bridge runs at real-time pace with the vehicle
 resting on the ground; from then on it waits for one actuator answer per step (lockstep).
 
-Control channel (newline-delimited JSON over TCP, one client, the harness):
+Control channel (newline-delimited JSON over TCP, one client, the harness; sim_bridge/control.py
+has its messages, typed):
   bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
       "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
       simulation have passed: the harness can now connect, upload and arm while simulated time
@@ -42,7 +43,6 @@ harness took to set up.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import select
@@ -55,6 +55,8 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.ardupilot_link import JsonSteps
+from sim_bridge.control import (EndReason, Event, FailureInjected, Holding, InjectFailure, LockstepStarted, ObstacleOp, Op, RcModeSlot, Rejected, Run,
+                                Stop, SutConnected, decode_op)
 from sim_bridge.failures import FailureSchedule
 from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
@@ -76,7 +78,7 @@ LINK_FLUSH_EVERY_S = 0.1
 RANGE_MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
-FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
+FORWARDED_EVENTS = {"sut_connected": SutConnected, "lockstep_started": LockstepStarted}
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 
 
@@ -110,7 +112,7 @@ class BridgeConfig:
 
 @dataclass
 class Summary:
-    end_reason: str = "running"
+    end_reason: EndReason = EndReason.RUNNING
     sim_time_s: float = 0.0
     run_time_s: float = 0.0
     steps: int = 0
@@ -140,7 +142,7 @@ class ControlChannel:
         self._own_listener = own_listener
         self._conn: socket.socket | None = None
         self._buffer = b""
-        self._backlog: list[Mapping[str, Any]] = []
+        self._backlog: list[Event] = []
         # The harness keeps its connection for the whole flight: losing it means the harness died.
         self.hung_up = False
         if listener is not None:
@@ -150,7 +152,7 @@ class ControlChannel:
     def connected(self) -> bool:
         return self._conn is not None
 
-    def poll(self, timeout_s: float = 0.0, wake: socket.socket | None = None) -> list[dict[str, Any]]:
+    def poll(self, timeout_s: float = 0.0, wake: socket.socket | None = None) -> list[Op]:
         """The harness's ops, waiting up to timeout_s for one, or for `wake` to turn readable."""
         sockets = [s for s in (self._listener, self._conn) if s is not None]
         if not sockets and wake is None:
@@ -179,22 +181,17 @@ class ControlChannel:
                 continue
             self._buffer += data
             *lines, self._buffer = self._buffer.split(b"\n")
-            for line in lines:
-                if line.strip():
-                    try:
-                        ops.append(json.loads(line))
-                    except json.JSONDecodeError:
-                        log.warning("ignoring malformed control line %r", line[:80])
+            ops += [decode_op(line) for line in lines if line.strip()]
         return ops
 
-    def send(self, message: Mapping[str, Any]) -> None:
+    def send(self, message: Event) -> None:
         """Send now, or as soon as the harness connects."""
         if self._conn is None:
             self._backlog.append(message)
             return
         self._conn.setblocking(True)
         try:
-            self._conn.sendall(json.dumps(message).encode() + b"\n")
+            self._conn.sendall(message.encode())
         except OSError:
             self._conn = None
             self.hung_up = True
@@ -246,7 +243,7 @@ class Bridge:
         log.info("t=%.3f %s %s", time_s, event, detail)
         self.recorder.write("/events", time_ns=int(time_s * 1e9), message={"t": time_s, "event": event, "detail": detail})
         if event in FORWARDED_EVENTS and self._control is not None:
-            self._control.send({"event": event, "t": time_s, **detail})
+            self._control.send(FORWARDED_EVENTS[event](t=time_s, **detail))
 
     def _obstacles_changed(self, time_s: float, removed_id: str | None) -> None:
         time_ns = int(time_s * 1e9)
@@ -447,23 +444,26 @@ class Bridge:
         or holding for it up to the hold timeout, would keep a campaign's ports and core."""
         self._handle_ops(control.poll(timeout_s, wake=wake), time_s)
         if control.hung_up:
-            self.world.end("harness_gone")
+            self.world.end(EndReason.HARNESS_GONE)
 
-    def _handle_ops(self, ops: list[dict[str, Any]], time_s: float) -> None:
+    def _handle_ops(self, ops: list[Op], time_s: float) -> None:
         for op in ops:
-            kind = op.get("op")
-            if kind == "run":
+            if isinstance(op, Run):
                 self.world.start_run(time_s)
-            elif kind == "stop":
-                self.world.end("stopped")
-            elif kind == "rc_mode_slot":
-                self.world.forced_slot = int(op["slot"])
-            elif kind == "failure_injected":
-                self._injected(str(op.get("result", "")), time_s)
-            elif "at_s" in op:
+            elif isinstance(op, Stop):
+                self.world.end(EndReason.STOPPED)
+            elif isinstance(op, RcModeSlot):
+                self.world.forced_slot = int(op.slot)
+            elif isinstance(op, FailureInjected):
+                self._injected(str(op.result), time_s)
+            elif isinstance(op, ObstacleOp) and op.at_s is not None:
                 self.world.schedule(op)
-            else:
+            elif isinstance(op, ObstacleOp):
                 self.world.apply(op, time_s)
+            elif isinstance(op, Rejected) and op.name is not None:
+                self._event(time_s, "injection_rejected", {"reason": op.why})
+            else:  # not JSON, or an op for a serving simulator between flights
+                log.warning("ignoring control message %r", op)
 
     # -- failures told to the SUT -------------------------------------------------------------
 
@@ -480,7 +480,7 @@ class Bridge:
                 self._event(time_s, "failure_undelivered", {**request, "reason": "no harness on the control channel"})
                 continue
             self._awaiting_injection = request
-            control.send({"event": "inject_failure", "t": time_s, "unit": spec.unit, "type": kind})
+            control.send(InjectFailure(t=time_s, unit=spec.unit, type=kind))
             if self.config.hold_mode != "paced":
                 self._frozen_until(lambda: self._awaiting_injection is None, sut, splitter, control, time_s)
 
@@ -509,13 +509,13 @@ class Bridge:
                     return False
                 data = sut.receive(self.config.spin_s if lockstep else 0.0)
             except BlockingIOError:
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
             if not data:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
             self._link_in += data
             answered = False
@@ -530,7 +530,7 @@ class Bridge:
                 return False  # before lockstep the step goes on at real-time pace, answered or not
             if time.perf_counter() - waiting_since > self.config.stall_timeout_s:
                 # Bytes keep coming but no answer among them: a flood stalls a step as silence does.
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
 
     def run(self, sut: SutLink, control: ControlChannel) -> Summary:
@@ -586,7 +586,7 @@ class Bridge:
             try:
                 sut.send(frames_out)
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 break
             self._link_out += frames_out
             t_sent = perf()
@@ -652,18 +652,18 @@ class Bridge:
             self._event(time_s, "holding")
             self._hold_deadline = time.monotonic() + self.config.hold_timeout_s
         if not self._hold_announced and control.connected:
-            control.send({"event": "holding", "t": time_s})
+            control.send(Holding(t=time_s))
             self._hold_announced = True
         if time.monotonic() > self._hold_deadline:
-            self.world.end("hold_timeout")
+            self.world.end(EndReason.HOLD_TIMEOUT)
 
     def _hold(self, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Pause the simulation until the harness says run; keep reading what the SUT sends."""
         self._event(time_s, "holding")
-        self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce={"event": "holding", "t": time_s})
+        self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce=Holding(t=time_s))
 
     def _frozen_until(self, done, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float,
-                      announce: Mapping[str, Any] | None = None) -> None:
+                      announce: Event | None = None) -> None:
         """Simulated time stands still until done() (the harness's ops are handled meanwhile) or
         the hold timeout; the SUT's traffic is read so that it never blocks on a full socket."""
         world = self.world
@@ -673,12 +673,12 @@ class Bridge:
                 control.send(announce)
                 announce = None
             if time.monotonic() > deadline:
-                world.end("hold_timeout")
+                world.end(EndReason.HOLD_TIMEOUT)
                 return
             try:
                 data = sut.idle()
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return
             if data:
                 self._link_in += data

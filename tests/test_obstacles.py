@@ -15,6 +15,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.bridge import UINT16_MAX, Bridge, BridgeConfig
+from sim_bridge.control import AddObstacle, MoveObstacle
 from sim_bridge.obstacles import Obstacle, ObstacleField, ray_distances
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import (Atmosphere, Body, MissionSpec, Origin, Point, RangeSensor, Surface, Uav, Waypoint,
@@ -202,8 +203,8 @@ def test_obstacles_moved_while_the_sut_computes_are_where_the_step_would_have_pu
         world.start_run(0.0)
         ball = {"id": "ball", "form": "sphere", "size": {"diameter_m": 1.0}, "a": {"north_m": 4.0, "east_m": 4.0, "up_m": 5.0},
                 "b": {"north_m": 4.0, "east_m": -4.0, "up_m": 5.0}, "speed_m_s": 3.0}
-        world.schedule({"op": "add_obstacle", "obstacle": ball, "at_s": 0.1})
-        world.schedule({"op": "move_obstacle", "id": "pole", "a": {"north_m": 9.0, "east_m": 0.0, "up_m": 5.0}, "b": None, "at_s": 0.2})
+        world.schedule(AddObstacle(ball, at_s=0.1))
+        world.schedule(MoveObstacle("pole", {"north_m": 9.0, "east_m": 0.0, "up_m": 5.0}, None, at_s=0.2))
         return world
 
     def positions(world):

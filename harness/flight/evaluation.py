@@ -33,7 +33,8 @@ from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mi
 from harness.flight.ports import PortBlock, PortLease
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.spec import NORMAL_ENDS, WorldSpec
+from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Load, LoadRefused, Run, Stop
+from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import TRANSPORTS
 from simlink import shared_memory
 import sut_adapter
@@ -176,7 +177,7 @@ def _score(recorded: Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]], 
     bridge's or the merged log's messages) and what the SUT sent on the API link; of a partial
     (truncated) log, the clearance of what was recorded, as whether the mission was flown cannot
     be told from part of it."""
-    if failure is None and not partial and summary.get("end_reason") == "blocked" and not _reported_position_mode(api_from_sut):
+    if failure is None and not partial and summary.get("end_reason") == EndReason.BLOCKED and not _reported_position_mode(api_from_sut):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
         failure = (Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in recorded(["/clearance"]))
@@ -272,7 +273,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         with simulation_stack(world, options, system, workdir) as stack:
             failure, summary, mavsdk_info = _fly(world, options, stack, timings, system)
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
-        if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
+        if failure is None and summary.get("end_reason") in (EndReason.SUT_DISCONNECTED, EndReason.SUT_STALLED):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
         artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
         api_records = list(stack.tap.records)
@@ -314,7 +315,7 @@ class Stack:
     # Where it runs: {"cores": N, "transport": "memory" | "unix" | "shm" | "tcp"}, as the log records it.
     placement: dict[str, Any]
     # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
-    load: dict[str, str] | None = None
+    load: Load | None = None
     # Set once the flight ended normally: a warm stack may then fly the next evaluation.
     clean: bool = False
 
@@ -370,7 +371,7 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
     bridge_log = workdir / "bridge.mcap"
     if options.warm and in_memory(options, system):
         with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
-            yield serving.begin(bridge_log, {"op": "load", "world": str(world_path), "mcap": str(bridge_log)})
+            yield serving.begin(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)))
         return
     with ExitStack() as contexts:
         yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
@@ -455,7 +456,7 @@ class _ServingStack:
             contexts.close()
             raise
 
-    def begin(self, bridge_log: Path, load: dict[str, str]) -> Stack:
+    def begin(self, bridge_log: Path, load: Load) -> Stack:
         """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
         self._stack.tap.restart()
         self._stack.session.restart()
@@ -521,10 +522,10 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             return None
 
         def held() -> tuple[str, str] | None:
-            if control.wait_for("holding", options.setup_timeout_s, alive) is None:
-                refused = next((e["why"] for e in control.events if e.get("event") == "load_refused"), None)
+            if control.wait_for(Holding, options.setup_timeout_s, alive) is None:
+                refused = control.seen(LoadRefused)
                 if refused is not None:  # as a cold-started simulator exits on a world it cannot load
-                    return Status.SIM_CRASHED, f"the simulator refused the world: {refused}"
+                    return Status.SIM_CRASHED, f"the simulator refused the world: {refused.why}"
                 return _setup_failure(bridge, sut, control, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None
@@ -556,7 +557,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 return _setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {}
             return (Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}"), control_summary(control), {}
         timings["setup_s"] = time.monotonic() - t0
-        control.send({"op": "run"})
+        control.send(Run())
         deadline = world.time_limit_s / options.min_real_time_factor + 30.0
         finished = _fly_until_finished(control, session, deadline, lambda: bridge.poll() is None)
         timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
@@ -566,31 +567,32 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
             if bridge.poll() is not None:
                 return (Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
-            control.send({"op": "stop"})
-            finished = control.wait_for("finished", 10.0, lambda: bridge.poll() is None)
-            return (Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), finished or {}, info
-        return None, finished, info
+            control.send(Stop())
+            finished = control.wait_for(Finished, 10.0, lambda: bridge.poll() is None)
+            return (Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), dict(finished.summary) if finished else {}, info
+        return None, dict(finished.summary), info
     finally:
         control.close()
 
 
-def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_s: float, alive) -> dict[str, Any] | None:
-    """The bridge's "finished" event, injecting each failure it asks for on the way."""
+def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_s: float, alive) -> Finished | None:
+    """The bridge's Finished event, injecting each failure it asks for on the way."""
     deadline = time.monotonic() + timeout_s
     events = list(control.events)
     while True:
         for event in events:
-            if event.get("event") == "finished":
+            if isinstance(event, Finished):
                 return event
-            if event.get("event") == "inject_failure":
-                control.send({"op": "failure_injected", "result": session.inject_failure(event["unit"], event["type"])})
+            if isinstance(event, InjectFailure):
+                control.send(FailureInjected(session.inject_failure(event.unit, event.type)))
         if time.monotonic() > deadline or control.closed or not alive():
             return None
         events = control.poll(0.05)
 
 
 def control_summary(control: BridgeControl) -> dict[str, Any]:
-    return next((e for e in control.events if e.get("event") == "finished"), {})
+    finished = control.seen(Finished)
+    return dict(finished.summary) if finished is not None else {}
 
 
 def _unanswered(error: Exception) -> bool:

@@ -27,6 +27,7 @@ from harness.flight.evaluation import RunOptions, Stack, arm_retry_for, simulati
 from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.control import LockstepStarted, RcModeSlot, Run, Stop, SutConnected
 from sim_bridge.pilot import SLOT_POSITION
 import sut_adapter
 
@@ -77,12 +78,12 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
     passed(0, f"pids {', '.join(map(str, sut.pids))}; simulator TCP {stack.ports.sim}, API UDP {stack.ports.api}")
     control = BridgeControl(stack.ports.control)
     try:
-        for index, event, what in ((1, "sut_connected", "the SUT never connected to the simulator"),
-                                   (2, "lockstep_started", "the SUT never answered a sensor step with HIL_ACTUATOR_CONTROLS")):
+        for index, event, what in ((1, SutConnected, "the SUT never connected to the simulator"),
+                                   (2, LockstepStarted, "the SUT never answered a sensor step with HIL_ACTUATOR_CONTROLS")):
             seen = control.wait_for(event, timeout_s, alive)
             if seen is None:
                 return failed(index, f"{what} on TCP {stack.ports.sim} within {timeout_s:.0f} s")
-            passed(index, f"at simulated t={seen['t']:.3f} s")
+            passed(index, f"at simulated t={seen.t:.3f} s")
         steps: list[tuple[int, str, Callable[[], Any]]] = [
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
@@ -97,7 +98,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
                 return failed(index, str(error))
             passed(index, outcome if index == 5 else _details(index, session, sut, world.drive, pilot_params))
     finally:
-        control.send({"op": "stop"})
+        control.send(Stop())
         control.close()
 
 
@@ -105,8 +106,8 @@ def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float, p
     """With the pilot's RC layout set, the simulation running and the pilot's mode switch in its
     Position slot, the SUT must report Position mode (nothing is armed)."""
     session.set_params(pilot_params)
-    control.send({"op": "run"})
-    control.send({"op": "rc_mode_slot", "slot": SLOT_POSITION})
+    control.send(Run())
+    control.send(RcModeSlot(SLOT_POSITION))
     deadline = time.monotonic() + timeout_s
     mode = session.telemetry.flight_mode()
     while mode != FlightMode[pilot_mode]:
