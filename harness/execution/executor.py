@@ -81,7 +81,9 @@ def run_job(job: Job) -> EvaluationResult:
 
 def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world.scenario, job.options.sut.name)
+    return EvaluationResult(status=status, fitness=PENALTY, why=why, min_clearance_m=None, min_clearance_at_s=None, min_clearance_obstacle=None,
+                            sim_time_s=0.0, wall_time_s=0.0, real_time_factor=None, seed=job.seed, log_path=None, scenario=job.world.scenario,
+                            sut=job.options.sut.name)
 
 
 class _TryTimedOut(BaseException):

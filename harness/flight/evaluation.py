@@ -18,7 +18,7 @@ import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, NamedTuple, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -101,10 +101,11 @@ class RunOptions:
             raise ValueError(f"transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class EvaluationResult:
     """One try's outcome, from the flight to the store, the report and a regression test; JSON
-    (as_dict / from_dict) only where it crosses a process boundary or is written out."""
+    (as_dict / from_dict) only where it crosses a process boundary or is written out. Built by
+    keyword: thirteen fields of a few types, in an order nobody should have to remember."""
 
     status: Status
     fitness: float
@@ -141,6 +142,43 @@ class EvaluationResult:
         return cls(**{**document, "status": Status(document["status"])})
 
 
+class Failure(NamedTuple):
+    """Why a flight's outcome is not what its recording alone would say: the SUT or the simulator
+    failed, the run timed out, or the mission was not performed."""
+
+    status: Status
+    why: str
+
+
+@dataclass(frozen=True)
+class FlightOutcome:
+    """What a flight leaves besides its recording: the failure that ended it early (None: it
+    flew to its end), the simulator's summary (its Finished event; empty when none came) and
+    what MAVSDK observed."""
+
+    failure: Failure | None
+    summary: Mapping[str, Any]
+    mavsdk: Mapping[str, Any]
+
+    @property
+    def end_reason(self) -> EndReason | None:
+        return self.summary.get("end_reason")
+
+
+NOT_FLOWN = FlightOutcome(None, {}, {})
+
+
+@dataclass(frozen=True)
+class Score:
+    """A flight's status and fitness (harness/flight/fitness.py's policy) and the clearance they
+    come from (None: nothing was recorded)."""
+
+    status: Status
+    fitness: float
+    why: str | None
+    clearance: scoring.Clearance | None
+
+
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
     """Whether the SUT's heartbeats on the API link (its datagrams) ever said Position mode (PX4
     custom main mode 3; ArduCopter's Loiter or PosHold)."""
@@ -172,21 +210,21 @@ def refused_failures(events: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]
 
 
 def _score(recorded: Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]], world: WorldSpec, summary: Mapping[str, Any],
-           failure: tuple[str, str] | None, api_from_sut: Iterable[bytes], partial: bool = False) -> tuple[str, float, str | None, scoring.Clearance]:
+           failure: Failure | None, api_from_sut: Iterable[bytes], partial: bool = False) -> Score:
     """Status and fitness of a flight from the simulator's recording (recorded(topics): the
     bridge's or the merged log's messages) and what the SUT sent on the API link; of a partial
     (truncated) log, the clearance of what was recorded, as whether the mission was flown cannot
     be told from part of it."""
     if failure is None and not partial and summary.get("end_reason") == EndReason.BLOCKED and not _reported_position_mode(api_from_sut):
         # Not collision prevention holding the pilot back: the SUT ignored the mode switch.
-        failure = (Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
+        failure = Failure(Status.MISSION_FAILED, "the SUT never reported Position mode after the pilot's mode switch (does it read RC_CHANNELS?)")
     clearance = scoring.min_clearance(message for _t, _ns, message in recorded(["/clearance"]))
     if failure is None and clearance.samples and not partial:
         states = [message for _t, _ns, message in recorded(["/uav/state"])]
         why = scoring.mission_check(states, world.mission, ACCEPTANCE_RADIUS_M, summary, world.drive)
-        failure = (Status.MISSION_FAILED, why) if why else None
+        failure = Failure(Status.MISSION_FAILED, why) if why else None
     status, value, why = scoring.judge(clearance, world.safety_distance_m, failure)
-    return status, value, why, clearance
+    return Score(status, value, why, clearance)
 
 
 def rescore(log_path: Path) -> dict[str, Any]:
@@ -201,10 +239,10 @@ def rescore(log_path: Path) -> dict[str, Any]:
     recorded = logs.json_metadata(log_path, "result") or {}
     failure = None
     if recorded.get("status") in COULD_NOT_FINISH:
-        failure = (recorded["status"], recorded.get("why") or "")
-    status, value, why, clearance = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, _logged_api_traffic(log_path),
-                                           partial=cut is not None)
-    return {"status": status, "fitness": value, "why": why, "clearance": clearance, "world": world, "summary": summary, "recorded": recorded,
+        failure = Failure(Status(recorded["status"]), recorded.get("why") or "")
+    score = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, _logged_api_traffic(log_path), partial=cut is not None)
+    return {"status": score.status, "fitness": score.fitness, "why": score.why, "clearance": score.clearance, "world": world, "summary": summary,
+            "recorded": recorded,
             "truncation": cut, "failures_refused": refused_failures(m for _t, _ns, m in logs.messages(log_path, ["/events"]))}
 
 
@@ -214,8 +252,9 @@ def infeasible(space: SearchSpace, x: np.ndarray, *, seed: int, sut: str) -> Eva
     if not violations:
         return None
     total = -sum(min(0.0, float(m[0])) for m in space.constraint_margins(np.asarray(x)[None, :]).values())
-    return EvaluationResult(Status.INFEASIBLE, scoring.infeasible_fitness(total), "; ".join(violations), None, None, None, 0.0, 0.0, None, seed, None,
-                            space.logical.name, sut, violations)
+    return EvaluationResult(status=Status.INFEASIBLE, fitness=scoring.infeasible_fitness(total), why="; ".join(violations), min_clearance_m=None,
+                            min_clearance_at_s=None, min_clearance_obstacle=None, sim_time_s=0.0, wall_time_s=0.0, real_time_factor=None, seed=seed,
+                            log_path=None, scenario=space.logical.name, sut=sut, violations=violations)
 
 
 def evaluate(space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path, options: RunOptions = RunOptions(), name: str | None = None) -> EvaluationResult:
@@ -238,19 +277,18 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     workdir = Path(tempfile.mkdtemp(prefix=f"stella-{stem}-"))
     log_path = out_dir / f"{stem}.mcap"
     timings: dict[str, float] = {}
-    failure: tuple[str, str] | None = None
-    summary: dict[str, Any] = {}
-    mavsdk_info: dict[str, Any] = {}
+    outcome = NOT_FLOWN
     artifacts: list[str] = []
 
-    def finish(status: Status, value: float, why: str | None, clearance: scoring.Clearance | None, log_path: Path | None,
-               failures_refused: list[dict[str, Any]] | None = None) -> EvaluationResult:
+    def finish(score: Score, log_path: Path | None, failures_refused: list[dict[str, Any]] | None = None) -> EvaluationResult:
+        summary = outcome.summary
         in_run = summary.get("wall_in_run_s") or 0.0
         run_time = summary.get("run_time_s") or 0.0
+        clearance = score.clearance
         return EvaluationResult(
-            status=status,
-            fitness=value,
-            why=why,
+            status=score.status,
+            fitness=score.fitness,
+            why=score.why,
             min_clearance_m=clearance.min_clearance_m if clearance else None,
             min_clearance_at_s=clearance.at_s if clearance else None,
             min_clearance_obstacle=clearance.obstacle if clearance else None,
@@ -264,17 +302,18 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             sut_fault=options.sut.fault,
             artifacts=artifacts,
             timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
-            mavsdk=mavsdk_info,
+            mavsdk=dict(outcome.mavsdk),
             failures_refused=failures_refused or [],
         )
 
     try:
         system = sut_adapter.system_for(options.sut)
         with simulation_stack(world, options, system, workdir) as stack:
-            failure, summary, mavsdk_info = _fly(world, options, stack, timings, system)
-            stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
-        if failure is None and summary.get("end_reason") in (EndReason.SUT_DISCONNECTED, EndReason.SUT_STALLED):
-            failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
+            outcome = _fly(world, options, stack, timings, system)
+            stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
+        failure = outcome.failure
+        if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
+            failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {stack.sut.stderr_tail()[-500:]}")
         artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
         api_records = list(stack.tap.records)
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
@@ -283,9 +322,9 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         # Scored from the simulator's own recording, read once; the log is then written once, result included.
         recording = logs.Recording(stack.bridge_log)
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
-        status, value, why, clearance = _score(recording.messages, world, summary, failure, api_from_sut)
+        score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
-        result = finish(status, value, why, clearance, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
+        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(), "placement": stack.placement,
@@ -293,10 +332,10 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         return result
     except sut_adapter.SutError as error:
         log.warning("evaluation %s: the SUT failed to start: %s", stem, error)
-        return finish(Status.SUT_CRASHED, scoring.PENALTY, str(error), None, None)
+        return finish(Score(Status.SUT_CRASHED, scoring.PENALTY, str(error), None), None)
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
-        return finish(Status.SIM_CRASHED, scoring.PENALTY, str(error), None, None)
+        return finish(Score(Status.SIM_CRASHED, scoring.PENALTY, str(error), None), None)
     finally:
         if not options.keep_workdir:
             shutil.rmtree(workdir, ignore_errors=True)
@@ -501,8 +540,8 @@ def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
-def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest):
-    """Returns (failure or None, bridge summary, MAVSDK observations)."""
+def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:
+    """Set the SUT up while the simulation holds, release it and see the flight to its end."""
     arm_retry_s = arm_retry_for(system)
     pilot_params, takeoff_altitude_param, _mode = sut_adapter.pilot_setup(system)
     bridge, sut, session = stack.bridge, stack.sut, stack.session
@@ -513,7 +552,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             control.send(stack.load)
         alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
 
-        def discovered() -> tuple[str, str] | None:
+        def discovered() -> Failure | None:
             try:
                 session.discover(options.setup_timeout_s, alive)
             except InfrastructureError as error:
@@ -521,11 +560,11 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             timings["discover_s"] = time.monotonic() - t0
             return None
 
-        def held() -> tuple[str, str] | None:
+        def held() -> Failure | None:
             if control.wait_for(Holding, options.setup_timeout_s, alive) is None:
                 refused = control.seen(LoadRefused)
                 if refused is not None:  # as a cold-started simulator exits on a world it cannot load
-                    return Status.SIM_CRASHED, f"the simulator refused the world: {refused.why}"
+                    return Failure(Status.SIM_CRASHED, f"the simulator refused the world: {refused.why}")
                 return _setup_failure(bridge, sut, control, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None
@@ -535,7 +574,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         for stage in (discovered, held) if stack.load is None else (held, discovered):
             failure = stage()
             if failure is not None:
-                return failure, control_summary(control), {}
+                return FlightOutcome(failure, control_summary(control), {})
         try:
             session.set_params(sut.mavlink_params)
             if not sut_adapter.injects_failures(system):
@@ -551,11 +590,12 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             else:
                 session.upload_and_start(mission_items(world, sut_adapter.mission_home_item(system)), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
-            return _setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {}
+            return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {})
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
             if _unanswered(error):
-                return _setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {}
-            return (Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}"), control_summary(control), {}
+                return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
+            refused = Failure(Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}")
+            return FlightOutcome(refused, control_summary(control), {})
         timings["setup_s"] = time.monotonic() - t0
         control.send(Run())
         deadline = world.time_limit_s / options.min_real_time_factor + 30.0
@@ -566,11 +606,11 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if control.closed:
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
             if bridge.poll() is not None:
-                return (Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info
+                return FlightOutcome(Failure(Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info)
             control.send(Stop())
             finished = control.wait_for(Finished, 10.0, lambda: bridge.poll() is None)
-            return (Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), dict(finished.summary) if finished else {}, info
-        return None, dict(finished.summary), info
+            return FlightOutcome(Failure(Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), finished.summary if finished else {}, info)
+        return FlightOutcome(None, finished.summary, info)
     finally:
         control.close()
 
@@ -590,9 +630,9 @@ def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_
         events = control.poll(0.05)
 
 
-def control_summary(control: BridgeControl) -> dict[str, Any]:
+def control_summary(control: BridgeControl) -> Mapping[str, Any]:
     finished = control.seen(Finished)
-    return dict(finished.summary) if finished is not None else {}
+    return finished.summary if finished is not None else {}
 
 
 def _unanswered(error: Exception) -> bool:
@@ -601,9 +641,9 @@ def _unanswered(error: Exception) -> bool:
     return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
-def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> tuple[str, str]:
+def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> Failure:
     if bridge.poll() is not None:
-        return Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"
+        return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}")
     if not sut.alive():
-        return Status.SUT_CRASHED, f"{what}: SUT exited: {sut.stderr_tail()}"
-    return Status.TIMEOUT, what
+        return Failure(Status.SUT_CRASHED, f"{what}: SUT exited: {sut.stderr_tail()}")
+    return Failure(Status.TIMEOUT, what)
