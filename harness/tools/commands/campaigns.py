@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from harness.errors import InputError, Problem
+from harness.execution import registry as executors
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
@@ -35,7 +36,7 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
                         "candidates on every executor; raise it to the number of workers on a big machine")
     p.add_argument("--profile", default="default")
     add_sut_options(p)
-    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
+    p.add_argument("--executor", choices=executors.names(), default="local",
                    help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
     p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",

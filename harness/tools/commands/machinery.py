@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from harness.errors import InputError, Problem
+from harness.execution import registry as executors
 from harness.tools.commands.campaigns import print_run_line
 from harness.tools.commands.common import command, emit, port_int, positive_float, positive_int, seed_int
 from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
@@ -24,7 +25,8 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory, unix and shm: the bundled autopilot only)")
     add_sut_options(p)
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
-    p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
+    # Sequential flies in this process: it has no overhead of its own to measure.
+    p.add_argument("--executor", choices=[name for name in executors.names() if name != "sequential"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
     p.add_argument("--evaluations", type=positive_int, help="with --campaign (default 500) or --executor (default 10)")
     p.add_argument("--workers", type=positive_int, help="with --campaign (default: cores) or --executor (default 1)")
     p.add_argument("--cold-start", action="store_true", help="with --campaign: every evaluation starts its processes afresh (as `stella campaign --cold-start`)")

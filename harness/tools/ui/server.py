@@ -27,6 +27,7 @@ from fastapi import FastAPI, File, HTTPException, Request, UploadFile
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response, StreamingResponse
 
 from harness.errors import InputError
+from harness.execution import registry as executors
 from harness.scenario.logical import DRIVES
 from harness.tools.ui.campaigns import Campaigns, SetupError
 from harness.tools.ui.uploads import MAX_UPLOAD_BYTES
@@ -54,7 +55,8 @@ def setup_choices(campaigns: Campaigns) -> dict[str, Any]:
     from sut_adapter.bundled import seeded_faults
 
     return {"scenarios": campaigns.uploads.choices("scenario"), "plans": campaigns.uploads.choices("plan"),
-            "params_files": campaigns.uploads.choices("params"), "profiles": ["default"], "executors": ["local", "sequential", "dask", "docker"],
+            "params_files": campaigns.uploads.choices("params"), "profiles": ["default"],
+            "executors": sorted(executors.names(), key=lambda name: name != "local"),  # the form's first is its default
             "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES),
             "faults": [{"name": f.name, "breaks": f.breaks} for f in seeded_faults().values()],
             "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "max_upload_bytes": MAX_UPLOAD_BYTES}
