@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.scenario.profile import Profile, load_profile
 
@@ -134,7 +134,7 @@ def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
     """An executor job: Fig. 4 sampled with seed 1, flown with seed 1."""
     import numpy as np
 
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.results import RunOptions
     from harness.execution.executor import Job
     from harness.scenario.logical import load_logical
     from harness.scenario.space import SearchSpace

@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from conftest import ROOT, chunk_compressions
 from harness.flight import logs
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
 from harness.flight.mavsdk_session import MavsdkSession, mission_items

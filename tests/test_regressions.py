@@ -14,7 +14,7 @@ from conftest import ROOT, stored_result
 from harness.campaigns.regression import export_regressions, load_regression, verdict
 from harness.campaigns.store import Store
 from harness.errors import InputError
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace

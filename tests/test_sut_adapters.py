@@ -15,7 +15,8 @@ import pytest
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main

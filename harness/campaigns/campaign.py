@@ -22,7 +22,7 @@ import numpy as np
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
-from harness.flight.evaluation import EvaluationResult, RunOptions
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.scenario.logical import LogicalScenario, load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace

@@ -14,7 +14,7 @@ The contract, the same for every executor:
 
 `sequential` and `local` (local.py) fly in this process or in a pool of worker processes on
 this machine, each evaluation with its own port block, temp dir and core (see
-harness/flight/evaluation.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
+harness/flight/stack.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
 elsewhere; registry.py makes one by name. Jobs carry the world spec the simulator
 loads and the concrete scenario it came from, so a worker needs nothing but the job and
 derives nothing again.
@@ -34,7 +34,8 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 
 from harness.flight import warm
-from harness.flight.evaluation import EvaluationResult, RunOptions, fly
+from harness.flight.evaluation import fly
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec

@@ -8,37 +8,30 @@ the log -> score from the log.
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import shutil
-import sys
 import tempfile
 import time
-from contextlib import ExitStack, contextmanager
-from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, NamedTuple, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight import fitness as scoring
-from harness.flight.fitness import COULD_NOT_FINISH, Status
-from harness.flight import logs, warm
-from harness.flight.api_tap import ApiTap
+from harness.flight import logs
 from harness.flight.bridge_control import BridgeControl
+from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
-from harness.flight.ports import PortBlock, PortLease
+from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightOutcome, RunOptions, Score
+from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Load, LoadRefused, Run, Stop
+from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
-from sim_bridge.sut_link import TRANSPORTS
-from simlink import shared_memory
 import sut_adapter
-from sut_adapter import SutConfig, SutHandle, SystemUnderTest
+from sut_adapter import SystemUnderTest
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -46,13 +39,6 @@ log = logging.getLogger(__name__)
 PX4_MAIN_MODE_POSCTL = 3
 # ArduCopter's custom modes where the pilot's sticks steer the position and simple avoidance acts: Loiter, PosHold.
 ARDUCOPTER_POSITION_MODES = (5, 16)
-CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
-# With a core each, the simulator and the SUT poll this long for each other's next message
-# before sleeping: far longer than a lockstep turn, short enough to idle during setup.
-LOCKSTEP_SPIN_S = 0.002
-# After its flight the simulator keeps the SUT's link open until the SUT has gone, at most this
-# long: longer than stopping the SUT can take (ManagedProcess.stop's two grace periods).
-LINGER_S = 5.0
 # How long a SUT whose simulated time runs on while it is set up (hold "paced": PX4) may deny
 # arming before the denial counts: PX4's arming checks flicker just after its start-up. Held
 # frozen, a SUT cannot change its mind, so its first answer counts.
@@ -62,121 +48,6 @@ ARM_RETRY_S = 10.0
 def arm_retry_for(system: SystemUnderTest) -> float:
     """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
     return ARM_RETRY_S if system.hold_mode == "paced" else 0.0
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    sut: SutConfig = field(default_factory=SutConfig)
-    rate_hz: float | None = None  # the lockstep rate; None: the SUT's own (sut_adapter.physics_rate)
-    hold_after_s: float = 3.0
-    setup_timeout_s: float = 60.0
-    min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
-    keep_workdir: bool = False
-    # Pin the simulator and the SUT to the evaluation's cores (see _pin).
-    pin_cpu: bool = True
-    # Cores one evaluation may keep busy. 1: the simulator and the SUT share a core and sleep
-    # while the other works (a lockstep round trip costs about 20 us there; waking a process on
-    # the other core about 80). 2: each has a core and polls for the other's messages, so a
-    # flight runs about 1.5x faster but keeps two cores busy. Executors choose 2 only when every
-    # concurrent evaluation can have two cores.
-    cores: int = 1
-    # How the simulator's bytes reach the SUT: "tcp" (any SUT, its own process); "unix": the
-    # same over a Unix-domain socket, for a SUT that can connect to one (the bundled autopilot;
-    # half TCP's round trip); "shm": the same bytes through shared memory handed over on that
-    # socket (the same SUTs, Linux on x86-64; no system call per step); or "memory": a SUT that
-    # can (the bundled autopilot) runs inside the bridge's process, the same bytes handed over by
-    # a call. The flight is the same to the last bit whichever carries it. On one core memory is
-    # the fastest, about 1.8x faster than both processes sharing it; on two the polling pair
-    # through shared memory is. "auto": memory where an evaluation has one core, shm (else unix)
-    # where it has two, whichever the SUT can, else tcp.
-    transport: str = "auto"
-    # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
-    # fly this process's next evaluation with the same options in it: a fresh world and a fresh
-    # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
-    # is kept (warm.close_all); executors do when they close.
-    warm: bool = False
-
-    def __post_init__(self) -> None:
-        if self.transport not in TRANSPORTS:
-            raise ValueError(f"transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}")
-
-
-@dataclass(frozen=True, kw_only=True)
-class EvaluationResult:
-    """One try's outcome, from the flight to the store, the report and a regression test; JSON
-    (as_dict / from_dict) only where it crosses a process boundary or is written out. Built by
-    keyword: thirteen fields of a few types, in an order nobody should have to remember."""
-
-    status: Status
-    fitness: float
-    why: str | None
-    min_clearance_m: float | None
-    min_clearance_at_s: float | None
-    min_clearance_obstacle: str | None
-    sim_time_s: float
-    wall_time_s: float
-    real_time_factor: float | None
-    seed: int
-    log_path: str | None
-    scenario: str
-    sut: str
-    sut_fault: str | None = None  # a seeded fault of the bundled autopilot, switched on
-    violations: list[str] = field(default_factory=list)
-    artifacts: list[str] = field(default_factory=list)
-    timings: dict[str, float] = field(default_factory=dict)
-    mavsdk: dict[str, Any] = field(default_factory=dict)
-    attempts: list[dict[str, str]] = field(default_factory=list)  # every try's status and why, when an executor retried
-    confirmations: dict[str, Any] | None = None  # a violation flown again: how often it came back
-    # Flown against a reference SUT too (harness/flight/differential.py): both sides' flights,
-    # whether they reveal a difference, and the objective that made `fitness`.
-    differential: dict[str, Any] | None = None
-    # Failure injections the SUT refused (t, unit, type, its answer): it flew on without them, so
-    # the flight did not test what the scenario says.
-    failures_refused: list[dict[str, Any]] = field(default_factory=list)
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, document: Mapping[str, Any]) -> "EvaluationResult":
-        return cls(**{**document, "status": Status(document["status"])})
-
-
-class Failure(NamedTuple):
-    """Why a flight's outcome is not what its recording alone would say: the SUT or the simulator
-    failed, the run timed out, or the mission was not performed."""
-
-    status: Status
-    why: str
-
-
-@dataclass(frozen=True)
-class FlightOutcome:
-    """What a flight leaves besides its recording: the failure that ended it early (None: it
-    flew to its end), the simulator's summary (its Finished event; empty when none came) and
-    what MAVSDK observed."""
-
-    failure: Failure | None
-    summary: Mapping[str, Any]
-    mavsdk: Mapping[str, Any]
-
-    @property
-    def end_reason(self) -> EndReason | None:
-        return self.summary.get("end_reason")
-
-
-NOT_FLOWN = FlightOutcome(None, {}, {})
-
-
-@dataclass(frozen=True)
-class Score:
-    """A flight's status and fitness (harness/flight/fitness.py's policy) and the clearance they
-    come from (None: nothing was recorded)."""
-
-    status: Status
-    fitness: float
-    why: str | None
-    clearance: scoring.Clearance | None
 
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
@@ -341,180 +212,6 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             shutil.rmtree(workdir, ignore_errors=True)
 
 
-@dataclass
-class Stack:
-    """One evaluation's running parts: its port block, the simulator, the API tap, the SUT and MAVSDK."""
-
-    ports: PortBlock
-    bridge: ManagedProcess
-    bridge_log: Path | None  # None: a warm stack between its evaluations
-    tap: ApiTap
-    sut: SutHandle
-    session: MavsdkSession
-    # Where it runs: {"cores": N, "transport": "memory" | "unix" | "shm" | "tcp"}, as the log records it.
-    placement: dict[str, Any]
-    # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
-    load: Load | None = None
-    # Set once the flight ended normally: a warm stack may then fly the next evaluation.
-    clean: bool = False
-
-
-def cores_for(options: RunOptions) -> int:
-    """The cores an evaluation gets: those it may use, as far as this machine has them."""
-    return min(options.cores, len(os.sched_getaffinity(0)))
-
-
-def transport_problem(transport: str, system: SystemUnderTest) -> str | None:
-    """Why this SUT cannot fly over this transport (None: it can)."""
-    if transport == "memory" and not sut_adapter.runs_inline(system):
-        return f"memory carries the bundled autopilot only; {system.name} runs in a process of its own: use --transport tcp"
-    if transport == "unix" and not sut_adapter.connects_to_unix_socket(system):
-        return f"unix carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
-    if transport == "shm" and not sut_adapter.connects_to_shared_memory(system):
-        return f"shm carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
-    if transport == "shm" and not shared_memory.AVAILABLE:
-        return "shm needs Linux on x86-64, which this machine is not: use --transport unix"
-    return None
-
-
-def _check_transport(options: RunOptions, system: SystemUnderTest) -> None:
-    problem = transport_problem(options.transport, system)
-    if problem is not None:
-        raise sut_adapter.SutError(system.name, problem)
-
-
-def placed_transport(options: RunOptions, system: SystemUnderTest) -> str:
-    """What carries the simulator link (RunOptions.transport): auto puts a SUT that can run
-    inside the bridge's process there when the evaluation has one core; with two, it takes
-    shared memory, else a Unix-domain socket, where the SUT can; TCP otherwise."""
-    _check_transport(options, system)
-    if options.transport != "auto":
-        return options.transport
-    preferred = ("memory",) if cores_for(options) == 1 else ("shm", "unix")
-    return next((transport for transport in preferred if transport_problem(transport, system) is None), "tcp")
-
-
-def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
-    """Whether the SUT runs inside the bridge's process."""
-    return placed_transport(options, system) == "memory"
-
-
-@contextmanager
-def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
-    """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
-    on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first).
-    With options.warm and the SUT in memory, a stack kept from this process's last evaluation
-    flies it instead (harness/flight/warm.py), and is kept for the next if the flight ended cleanly."""
-    world_path = workdir / "world.json"
-    world_path.write_text(json.dumps(world.as_dict()))
-    bridge_log = workdir / "bridge.mcap"
-    if options.warm and in_memory(options, system):
-        with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
-            yield serving.begin(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)))
-        return
-    with ExitStack() as contexts:
-        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
-
-
-def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None,
-           world: WorldSpec | None = None) -> Stack:
-    """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
-    run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
-    ports = contexts.enter_context(PortLease())
-    transport = placed_transport(options, system)
-    inline = transport == "memory"
-    # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
-    cores = 1 if inline else cores_for(options)
-    spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
-    bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                   "--rate-hz", str(options.rate_hz or sut_adapter.physics_rate(system)), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
-                   "--hold-pace", str(sut_adapter.hold_pace(system)),
-                   "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
-                   "--sim-protocol", sut_adapter.sim_protocol(system),
-                   *(["--rc-port", str(sut_adapter.rc_port(system, ports.slot))] if sut_adapter.rc_port(system, ports.slot) is not None else []),
-                   # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
-                   "--mcap-compression", "none",
-                   # stop() stops the SUT before the simulator, with the simulator link still open.
-                   "--linger-s", str(LINGER_S)]
-    # Named after the leased simulator port, so unique on this machine while the lease lasts; in
-    # the abstract namespace, so nothing is left behind however the processes end.
-    sim_socket = f"@stella-sim-{ports.sim}" if transport in ("unix", "shm") else None
-    if sim_socket is not None:
-        bridge_argv += ["--sim-socket", sim_socket]
-    if transport == "shm":
-        bridge_argv.append("--sim-shared-memory")
-    if inline:
-        bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
-                       *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
-    session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
-    contexts.callback(session.close)
-    bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
-    tap = contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET))
-    if inline:
-        sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
-    else:
-        extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
-        if sut_adapter.needs_world(system):
-            extra["world"] = world
-        if transport == "shm":
-            extra["sim_shared_memory"] = True
-        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
-
-    def stop() -> None:
-        session.close()
-        sut_exit = sut.stop()
-        if bridge_log is not None:  # a bridge flying one world ends by itself once its log is written
-            bridge.wait(5.0)
-        bridge.stop()
-        log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
-
-    contexts.callback(stop)
-    if options.pin_cpu:
-        _pin(bridge.pid, sut.pids, ports.slot, cores)
-    placement = {"cores": cores, "transport": transport}
-    return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
-
-
-class _ServingStack:
-    """A warm stack: the bridge with the SUT inside, serving flight after flight (its --serve),
-    with its own directory for its logs and the SUT's files."""
-
-    def __init__(self, contexts: ExitStack, stack: Stack):
-        self._contexts = contexts
-        self._stack = stack
-        self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
-
-    @classmethod
-    def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
-        home = Path(tempfile.mkdtemp(prefix="stella-warm-"))
-        contexts = ExitStack()
-        contexts.callback(shutil.rmtree, home, ignore_errors=True)
-        try:
-            return cls(contexts, _start(contexts, options, system, home, ["--serve", "--harness-pid", str(os.getpid())], None))
-        except BaseException:
-            contexts.close()
-            raise
-
-    def begin(self, bridge_log: Path, load: Load) -> Stack:
-        """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
-        self._stack.tap.restart()
-        self._stack.session.restart()
-        self._flight = replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
-        return self._flight
-
-    def _flew_cleanly(self) -> bool:
-        return self._flight is not None and self._flight.clean
-
-    def reusable(self) -> bool:
-        return self._flew_cleanly() and self._stack.bridge.poll() is None
-
-    def close(self) -> None:
-        bridge = self._stack.bridge
-        if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
-            log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
-        self._contexts.close()
-
-
 def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
     """Copy the SUT's artifacts out of the evaluation's temporary directory, beside its log."""
     kept = []
@@ -524,20 +221,6 @@ def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
         shutil.copy2(source, destination)
         kept.append(str(destination))
     return kept
-
-
-def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
-    """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
-    the SUT on the next one."""
-    available = sorted(os.sched_getaffinity(0))
-    first = slot * cores
-    placement = {bridge_pid: available[first % len(available)]}
-    placement.update({pid: available[(first + cores - 1) % len(available)] for pid in sut_pids})
-    for pid, core in placement.items():
-        try:
-            os.sched_setaffinity(pid, {core})
-        except OSError as error:  # a process that already exited, or a restricted container
-            log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
 def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:

@@ -23,7 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from harness.flight import warm
-from harness.flight.evaluation import RunOptions, evaluate, transport_problem
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
+from harness.flight.stack import transport_problem
 import sut_adapter
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir

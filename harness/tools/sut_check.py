@@ -23,7 +23,9 @@ from mavsdk.plugins.telemetry import FlightMode
 
 from harness.errors import InfrastructureError
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import RunOptions, Stack, arm_retry_for, simulation_stack
+from harness.flight.evaluation import arm_retry_for
+from harness.flight.results import RunOptions
+from harness.flight.stack import Stack, simulation_stack
 from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec

@@ -99,7 +99,7 @@ def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
 @command("campaign", "search logical scenarios for worst cases; resumable from its store", _campaign_options)
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import run_campaign
-    from harness.flight.evaluation import EvaluationResult, RunOptions
+    from harness.flight.results import EvaluationResult, RunOptions
     from harness.execution.registry import make_executor
     from harness.campaigns.store import Store
     from tqdm import tqdm

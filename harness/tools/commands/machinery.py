@@ -35,7 +35,7 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
 @command("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes", _bench_options)
 def cmd_bench(args: argparse.Namespace) -> int:
     from harness.tools.bench import PLACEMENTS, bench_text, run_bench
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.results import RunOptions
 
     for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
         if given and (args.executor or args.campaign):
