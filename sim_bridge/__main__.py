@@ -22,9 +22,11 @@ from pathlib import Path
 from typing import Callable
 
 from sim_bridge import ardupilot_link
-from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
+from sim_bridge.bridge import Bridge, BridgeConfig
+from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
 from sim_bridge.control import EndReason, Finished, Load, LoadRefused, Quit, Rejected
+from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
 from simlink import codec, shared_memory

@@ -1,9 +1,33 @@
 """The control channel between the harness and the simulator: its messages, typed, and how a
 flight ends. Both ends import this module; the wire stays newline-delimited JSON, one object a
 line, `{"op": NAME, ...fields}` from the harness and `{"event": NAME, ...fields}` from the
-simulator (sim_bridge/bridge.py tells what each does), so a client in any language can speak it.
+simulator, so a client in any language can speak it. A field left None is left out on the
+wire; a field the wire leaves out is None.
 
-A field left None is left out on the wire; a field the wire leaves out is None.
+The protocol (over TCP, one client, the harness; the messages below name their records):
+  bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
+      "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
+      simulation have passed: the harness can now connect, upload and arm while simulated time
+      stands still (hold mode "frozen") or runs on at `hold_pace` times real time (hold mode
+      "paced", for SUTs whose threads follow the lockstep clock); {"event": "finished",
+      ...summary} at the end. Messages sent before the harness connects wait for it.
+  harness -> bridge: {"op": "run"} ends the hold; {"op": "stop"} ends the run;
+      {"op": "add_obstacle", "obstacle": {...world-spec obstacle...}, "at_s": T};
+      {"op": "move_obstacle", "id": ID, "a": {...}, "b": {...} | null, "speed_m_s": V, "at_s": T};
+      {"op": "remove_obstacle", "id": ID, "at_s": T}. `at_s` is run time (simulation seconds
+      since "run"); without it the change applies at the next step.
+      {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
+      slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
+      A harness that hangs up before "finished" is gone: the run ends ("harness_gone").
+  Serving (`--serve`, a SUT inside the bridge's process): each harness connection starts with
+      {"op": "load", "world": PATH, "mcap": PATH} and ends after {"event": "finished"}, which
+      then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
+      world that does not load); {"op": "quit"} ends the process.
+  Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
+      end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
+      end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the
+      harness answers {"op": "failure_injected", "result": R} with the SUT's answer to
+      MAV_CMD_INJECT_FAILURE; /events records it ("failure" or "failure_cleared").
 """
 
 from __future__ import annotations
