@@ -5,18 +5,16 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.params import BY_NAME, ParamError
-
-if TYPE_CHECKING:
-    from autopilot.api import ApiLink
+from autopilot.telemetry import Link
 
 
 class ParameterProtocol:
-    def __init__(self, link: ApiLink):
+    def __init__(self, link: Link):
         self.link = link
         self.ap = link.ap
         self.mav = link.mav
@@ -65,7 +63,7 @@ class ParameterProtocol:
 
 
 class MissionProtocol:
-    def __init__(self, link: ApiLink):
+    def __init__(self, link: Link):
         self.link = link
         self.ap = link.ap
         self.mav = link.mav
