@@ -56,6 +56,7 @@ SHOWS_TOLERANCE_M = 0.5
 # Readings or views apart by more than this belong to different sightings: collision prevention
 # drops range data this old (autopilot/collision.py STALE_AFTER_S).
 SIGHTING_GAP_S = 0.5
+TOPICS = ["/clearance", "/uav/state", "/events", "/sensor/obstacle_distance", "/wind", "/pilot"]
 FINAL_APPROACH_S = 1.0  # before entering the safety distance: who closed the gap
 # Limits collision prevention plans its stop with: PX4's names, the bundled autopilot's defaults
 # (autopilot/params.py), used where the log's SUT metadata does not set them.
@@ -244,9 +245,12 @@ def explain(path: Path) -> dict[str, Any]:
     world = logs.world_of(path)
     if world is None:
         raise InputError([Problem(str(path), "", "no world metadata: not an evaluation log of this tool (give a log of `stella run` or a campaign)")])
-    clearance = min_clearance(batch for _t, _ns, batch in logs.messages(path, ["/clearance"]))
-    states = [m for _t, _ns, m in logs.messages(path, ["/uav/state"])]
-    events = [m for _t, _ns, m in logs.messages(path, ["/events"])]
+    recorded: dict[str, list[Any]] = {topic: [] for topic in TOPICS}
+    # One pass: each pass over a log decompresses every chunk, whichever topics it wants.
+    for topic, _ns, message in logs.messages(path, TOPICS):
+        recorded[topic].append(message)
+    clearance = min_clearance(recorded["/clearance"])
+    states, events = recorded["/uav/state"], recorded["/events"]
     run_start_s = next((e["t"] for e in events if e["event"] == "run"), states[0]["t"] if states else 0.0)
     base = {"log": str(path), "scenario": world.scenario, "safety_distance_m": world.safety_distance_m,
             "min_clearance_m": clearance.min_clearance_m, "obstacle": clearance.obstacle}
@@ -264,7 +268,7 @@ def explain(path: Path) -> dict[str, Any]:
     in_view_at = _final_sighting_start([m.t_s for m in moments if m.in_view])
     reported_at, reported_distance = None, None
     shown = []
-    for _t, _ns, reading in logs.messages(path, ["/sensor/obstacle_distance"]):
+    for reading in recorded["/sensor/obstacle_distance"]:
         if not run_start_s <= reading["t"] <= t_closest:
             continue
         ideal = geometry.ideal_sectors(_nearest(states, times, reading["t"]))
@@ -276,9 +280,12 @@ def explain(path: Path) -> dict[str, Any]:
     if shown:
         reported_at = _final_sighting_start([t for t, _d in shown])
         reported_distance = next(d for t, d in shown if t == reported_at)
-    entered_at = _entry(path, world.safety_distance_m, t_closest)
-    wind = {m["t"]: m["wind_ned_m_s"] for _t, _ns, m in logs.messages(path, ["/wind"])}
-    pilots = [m for _t, _ns, m in logs.messages(path, ["/pilot"])]
+    if reported_at is not None and (in_view_at is None or reported_at < in_view_at):
+        # A reading that shows it was taken in view: the poses, 25 a second, fell either side of it.
+        in_view_at = reported_at
+    entered_at = _entry(recorded["/clearance"], world.safety_distance_m, t_closest)
+    wind = {m["t"]: m["wind_ned_m_s"] for m in recorded["/wind"]}
+    pilots = recorded["/pilot"]
 
     def at(t: float) -> Moment:
         return geometry.moment(_nearest(states, times, t))
@@ -332,10 +339,10 @@ def explain(path: Path) -> dict[str, Any]:
     }
 
 
-def _entry(path: Path, safety_distance_m: float, t_closest: float) -> float | None:
+def _entry(batches: Sequence[Mapping[str, Any]], safety_distance_m: float, t_closest: float) -> float | None:
     """The last time before the closest approach that the clearance fell below the safety distance."""
     entered, outside = None, True
-    for _t, _ns, batch in logs.messages(path, ["/clearance"]):
+    for batch in batches:
         for t, d in zip(batch["t"], batch["d"]):
             if t > t_closest:
                 return entered

@@ -227,7 +227,7 @@ async function triage() {
     const worst = element("td"), typical = element("td");
     worst.append(evaluationLink(name, m.worst, `f ${number(m.worst.fitness)}`, "open-worst"));
     typical.append(evaluationLink(name, m.typical, `f ${number(m.typical.fitness)}`, "open-typical"));
-    row.append(element("td", m.count, { class: "number count" }), element("td", m.obstacle), element("td", m.approach), element("td", m.phase),
+    row.append(element("td", m.count, { class: "number count" }), element("td", m.mechanism), element("td", m.obstacle), element("td", m.approach), element("td", m.phase),
       element("td", m.speed), element("td", m.wind), element("td", m.visibility), element("td", m.contacts, { class: "number" }),
       element("td", m.near_misses, { class: "number" }), worst, typical);
     return row;
