@@ -56,6 +56,7 @@ SHOWS_TOLERANCE_M = 0.5
 # Readings or views apart by more than this belong to different sightings: collision prevention
 # drops range data this old (autopilot/collision.py STALE_AFTER_S).
 SIGHTING_GAP_S = 0.5
+SLOWED_M_S = 0.5  # for the timeline only: a drop in speed towards the obstacle that is braking, not jitter
 TOPICS = ["/clearance", "/uav/state", "/events", "/sensor/obstacle_distance", "/wind", "/pilot"]
 FINAL_APPROACH_S = 1.0  # before entering the safety distance: who closed the gap
 # Limits collision prevention plans its stop with: PX4's names, the bundled autopilot's defaults
@@ -324,10 +325,15 @@ def explain(path: Path) -> dict[str, Any]:
         "own_closing_final_m_s": own_final, "obstacle_closing_final_m_s": obstacle_final, "wind_towards_obstacle_at_entry_m_s": wind_in,
     }
     mechanism, evidence = _classify(clearance.min_clearance_m, world, moments, in_view_at, reported_at, numbers, situation, limits)
+    # The SUT's reaction as its flight shows it (the bundled autopilot publishes no collision
+    # prevention state): its speed towards the obstacle first SLOWED_M_S below that at the report.
+    slowed_at = next((m.t_s for m in moments if first is not None and m.t_s > first.t_s
+                      and m.own_closing_m_s < first.own_closing_m_s - SLOWED_M_S), None)
     timeline = [entry_ for entry_ in (
         ("run", run_start_s, None),
         ("in view", in_view_at, at(in_view_at).distance_m if in_view_at is not None else None),
         ("reported to the SUT", reported_at, reported_distance),
+        ("the vehicle slowed towards it", slowed_at, at(slowed_at).distance_m if slowed_at is not None else None),
         ("entered the safety distance", entered_at, None),
         ("closest approach", t_closest, clearance.min_clearance_m),
     ) if entry_[1] is not None]
