@@ -250,6 +250,17 @@ def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
             draw(log_path, target)
         return FileResponse(target, media_type="image/png")
 
+    @app.get("/api/campaigns/{name}/evaluations/{evaluation}/explain")
+    def explanation(name: str, evaluation: int) -> dict[str, Any]:
+        """`stella explain` of the evaluation's log: its closest approach's timeline and mechanism."""
+        from harness.campaigns.explain import explain, explain_text
+
+        try:
+            report = explain(log_of(name, evaluation))
+        except InputError as error:
+            raise HTTPException(422, str(error)) from None
+        return {**report, "text": explain_text(report)}
+
     @app.get("/api/campaigns/{name}/report.html")
     def report(name: str) -> FileResponse:
         from harness.campaigns.report import write_report

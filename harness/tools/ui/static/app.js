@@ -241,6 +241,16 @@ function showEvaluation(name, e) {
   $("mcap-link").href = `${base}/log.mcap`;
   $("plot").src = `${base}/plot.png`;
   $("concrete").textContent = JSON.stringify(e.concrete, null, 2);
+  explainEvaluation(base, e.id);
+}
+
+async function explainEvaluation(base, id) {
+  $("explanation").dataset.id = id;
+  $("explanation").textContent = "reading the log...";
+  const response = await api(`${base}/explain`);
+  const answer = await response.json();
+  if ($("explanation").dataset.id !== String(id)) return;  // another evaluation was opened meanwhile
+  $("explanation").textContent = response.ok ? answer.text : answer.detail;
 }
 
 function open(name) {
