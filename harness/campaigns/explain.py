@@ -190,6 +190,23 @@ def _nearest(states: Sequence[Mapping[str, Any]], times: Sequence[float], t: flo
     return states[index]
 
 
+def _first_report(readings: Sequence[Mapping[str, Any]], geometry: Geometry, states: Sequence[Mapping[str, Any]], times: Sequence[float],
+                  run_start_s: float, t_closest: float) -> tuple[float | None, float | None]:
+    """When the final sighting in the delivered readings began, and the distance they showed then."""
+    shown = []
+    for reading in readings:
+        if not run_start_s <= reading["t"] <= t_closest:
+            continue
+        ideal = geometry.ideal_sectors(_nearest(states, times, reading["t"]))
+        # range_m + 1 cm is "nothing in reach" (and 65535 no reading): never a sighting.
+        delivered = {i: reading["distances_cm"][i] / 100.0 for i in ideal if reading["distances_cm"][i] / 100.0 <= reading["range_m"]}
+        seen = [value for i, value in delivered.items() if value <= ideal[i] + SHOWS_TOLERANCE_M]
+        if seen:
+            shown.append((reading["t"], min(seen)))
+    started = _final_sighting_start([t for t, _d in shown])
+    return started, next((d for t, d in shown if t == started), None)
+
+
 def _active(events: Sequence[Mapping[str, Any]], t: float, run_start_s: float) -> dict[str, Any]:
     """The failures in force and the gust blowing at simulation time t."""
     failures: dict[tuple[str, str], float] = {}
@@ -267,20 +284,7 @@ def explain(path: Path) -> dict[str, Any]:
     flown = [s for s in states if run_start_s <= s["t"] <= t_closest]
     moments = [geometry.moment(s) for s in flown]
     in_view_at = _final_sighting_start([m.t_s for m in moments if m.in_view])
-    reported_at, reported_distance = None, None
-    shown = []
-    for reading in recorded["/sensor/obstacle_distance"]:
-        if not run_start_s <= reading["t"] <= t_closest:
-            continue
-        ideal = geometry.ideal_sectors(_nearest(states, times, reading["t"]))
-        # range_m + 1 cm is "nothing in reach" (and 65535 no reading): never a sighting.
-        delivered = {i: reading["distances_cm"][i] / 100.0 for i in ideal if reading["distances_cm"][i] / 100.0 <= reading["range_m"]}
-        seen = [value for i, value in delivered.items() if value <= ideal[i] + SHOWS_TOLERANCE_M]
-        if seen:
-            shown.append((reading["t"], min(seen)))
-    if shown:
-        reported_at = _final_sighting_start([t for t, _d in shown])
-        reported_distance = next(d for t, d in shown if t == reported_at)
+    reported_at, reported_distance = _first_report(recorded["/sensor/obstacle_distance"], geometry, states, times, run_start_s, t_closest)
     if reported_at is not None and (in_view_at is None or reported_at < in_view_at):
         # A reading that shows it was taken in view: the poses, 25 a second, fell either side of it.
         in_view_at = reported_at

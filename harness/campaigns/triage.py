@@ -115,7 +115,7 @@ def _mechanism(log_path: Path) -> str:
 
     try:
         return explain(log_path)["mechanism"]
-    except InputError:
+    except (InputError, KeyError):  # KeyError: a log from a recorder older than a field explain reads
         return "unexplained"
 
 
