@@ -13,8 +13,8 @@ def _explain_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="an evaluation's .mcap file (from `stella run --out` or a campaign's logs folder)")
 
 
-@command("explain", "why a flight came closest where it did: when the obstacle was in view and reported, the speed against the distance "
-                    "needed to stop, drive, wind, failures, and the mechanism (unseen, seen_late, braked_too_little, outrun, pushed, other)",
+@command("explain", "why a flight came closest: the timeline from the log alone and the mechanism (unseen, seen_late, braked_too_little, "
+                    "outrun, pushed, other)",
          _explain_options, description="The causal timeline of a flight's closest approach, read from its log alone, and the mechanism "
                                         "with the numbers behind it. docs/explain.md defines the mechanisms.")
 def cmd_explain(args: argparse.Namespace) -> int:
