@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.campaigns.explain import explain
+from autopilot.collision import max_speed_from_distance
+from harness.campaigns.explain import Limits, explain
 from harness.campaigns.store import Store
 from harness.campaigns.triage import triage
 from harness.flight.evaluation import RunOptions, evaluate
@@ -21,7 +22,6 @@ from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
 from sut_adapter import SutConfig
 
-pytestmark = pytest.mark.slow
 DATA = ROOT / "tests" / "data" / "scenarios"
 # 20 m wide, 10 m thick, 20 m high, its near face 25 m north: at 5 m/s the bundled stack needs
 # about 15 m to stop and its sensor reaches 20 m, so in clear air it is seen in time.
@@ -69,6 +69,7 @@ def explained(flown, name: str) -> dict:
     return explain(Path(flown[name][2].log_path))
 
 
+@pytest.mark.slow
 def test_a_stuck_range_sensor_leaves_the_wall_unseen(flown):
     report = explained(flown, "stuck_sensor")
     assert report["mechanism"] == "unseen"
@@ -79,6 +80,7 @@ def test_a_stuck_range_sensor_leaves_the_wall_unseen(flown):
     assert report["context"]["failures"] == [{"unit": "distance sensor", "type": "stuck", "since_s": pytest.approx(1.0, abs=0.05)}]
 
 
+@pytest.mark.slow
 def test_a_fast_intruder_from_behind_outruns_the_vehicle(flown):
     report = explained(flown, "intruder_from_behind")
     assert report["mechanism"] == "outrun"
@@ -88,6 +90,7 @@ def test_a_fast_intruder_from_behind_outruns_the_vehicle(flown):
     assert np.hypot(*report["context"]["obstacle_velocity_m_s"][:2]) == pytest.approx(10.0, abs=0.5)
 
 
+@pytest.mark.slow
 def test_a_gust_into_the_wall_pushes_a_vehicle_that_had_braked(flown):
     report = explained(flown, "gust_into_wall")
     assert report["mechanism"] == "pushed"
@@ -98,6 +101,7 @@ def test_a_gust_into_the_wall_pushes_a_vehicle_that_had_braked(flown):
     assert report["context"]["gust"]["from_deg"] == pytest.approx(180.0)
 
 
+@pytest.mark.slow
 def test_collision_prevention_off_brakes_too_little_though_the_wall_was_seen_in_time(flown):
     report = explained(flown, "cp_off")
     assert report["mechanism"] == "braked_too_little"
@@ -108,6 +112,7 @@ def test_collision_prevention_off_brakes_too_little_though_the_wall_was_seen_in_
     assert report["context"]["drive"]["into_obstacle"] is True
 
 
+@pytest.mark.slow
 def test_thick_fog_shows_the_wall_too_late_to_stop(flown):
     report = explained(flown, "thick_fog")
     assert report["mechanism"] == "seen_late"
@@ -115,6 +120,7 @@ def test_thick_fog_shows_the_wall_too_late_to_stop(flown):
     assert numbers["distance_at_report_m"] <= 2.5 < numbers["stopping_distance_needed_m"]
 
 
+@pytest.mark.slow
 def test_a_range_sensor_that_goes_off_holds_the_vehicle_so_there_is_nothing_unseen_to_explain(tmp_path, profile):
     # Without range data for 0.5 s the bundled collision prevention stops horizontal motion: an
     # "off" sensor (no readings) keeps the vehicle where it is, unlike a stuck one (above).
@@ -127,6 +133,7 @@ def test_a_range_sensor_that_goes_off_holds_the_vehicle_so_there_is_nothing_unse
     assert report["min_clearance_m"] > 20.0 and report["context"]["failures"][0]["type"] == "off"
 
 
+@pytest.mark.slow
 def test_explain_on_the_command_line_prints_json_and_text(flown, capsys):
     log = flown["cp_off"][2].log_path
     assert main(["explain", log, "--json"]) == 0
@@ -137,6 +144,7 @@ def test_explain_on_the_command_line_prints_json_and_text(flown, capsys):
     assert main(["explain", str(Path(log).with_name("missing.mcap"))]) == 2
 
 
+@pytest.mark.slow
 def test_triage_groups_by_mechanism_and_still_works_when_a_log_is_gone(flown, tmp_path):
     store_path = tmp_path / "hand_made.db"
     with Store.for_campaign(store_path) as store:
@@ -154,3 +162,13 @@ def test_triage_groups_by_mechanism_and_still_works_when_a_log_is_gone(flown, tm
         (tmp_path / "moved.mcap").rename(flown["thick_fog"][2].log_path)
     assert sorted(m["mechanism"] for m in report["modes"]) == ["braked_too_little", "outrun", "pushed", "unseen"]
     assert [s["why"] for s in report["skipped"]] == ["its log is missing"]
+
+
+@pytest.mark.parametrize("speed_m_s", [0.5, 2.0, 5.0, 12.0])
+@pytest.mark.parametrize("sut, delay_s", [({"params": {}}, 0.4), ({"params": {"CP_DELAY": 0.1, "MPC_ACC_HOR": 5.0, "MPC_JERK_AUTO": 10.0}}, 0.1)])
+def test_the_stopping_distance_is_the_one_the_bundled_collision_prevention_plans_with(speed_m_s, sut, delay_s):
+    limits = Limits.of(sut)
+    braking_m = limits.stopping_distance_m(speed_m_s) - limits.cp_dist_m - delay_s * speed_m_s
+    # autopilot/collision.py allows exactly this speed with that much room left to brake in.
+    assert max_speed_from_distance(limits.jerk_m_s3, limits.acc_m_s2, braking_m) == pytest.approx(speed_m_s)
+    assert ("CP_DELAY" in limits.assumed) == (sut["params"] == {})
