@@ -92,11 +92,12 @@ class Limits:
 class Moment:
     """The geometry at one instant: horizontal distance from the vehicle's hull to the obstacle's
     cut at the vehicle's height (None when the obstacle is not at that height), the unit vector
-    towards its nearest point, and the speeds towards each other along it."""
+    towards its nearest point (horizontal at that height; else vertical over or under it, or
+    towards its centre), and the speeds towards each other along it."""
 
     t_s: float
     distance_m: float | None
-    towards: tuple[float, float]
+    towards: tuple[float, float, float]  # north, east, up
     own_closing_m_s: float
     obstacle_closing_m_s: float
     in_fov: bool
@@ -138,19 +139,28 @@ class Geometry:
             nearest = int(np.argmin(rays))
             if math.isfinite(rays[nearest]):
                 bearing = float(FULL_CIRCLE[nearest])
-                towards = (math.cos(bearing), math.sin(bearing))
+                towards = (math.cos(bearing), math.sin(bearing), 0.0)
                 distance = max(0.0, float(rays[nearest]) - _hull_offset(self.world.uav.body, bearing - yaw))
-        if towards is None:  # above or below the vehicle: towards its centre
-            dn, de = obstacle.position[0] - state["north_m"], obstacle.position[1] - state["east_m"]
-            norm = math.hypot(dn, de) or 1.0
-            towards = (dn / norm, de / norm)
-        vn, ve, _vd = state["v_ned_m_s"]
-        own = vn * towards[0] + ve * towards[1]
+        if towards is None:  # above or below the vehicle (landing on it, climbing into it)
+            towards = self._vertical_or_centre(obstacle, state)
+        vn, ve, vd = state["v_ned_m_s"]
+        own = vn * towards[0] + ve * towards[1] - vd * towards[2]
         moving = self.velocity(t)
         relative = (math.atan2(towards[1], towards[0]) - yaw + math.pi) % (2.0 * math.pi) - math.pi
         in_fov = cut is not None and abs(relative) <= self.half_fov_rad
         in_view = in_fov and distance is not None and distance <= self.world.sensor.range_m
-        return Moment(t, distance, towards, own, -(moving[0] * towards[0] + moving[1] * towards[1]), in_fov, in_view)
+        return Moment(t, distance, towards, own, -float(np.dot(moving, towards)), in_fov, in_view)
+
+    @staticmethod
+    def _vertical_or_centre(obstacle: Obstacle, state: Mapping[str, Any]) -> tuple[float, float, float]:
+        """Straight up or down over or under its footprint, else towards its centre."""
+        n, e, u = obstacle.position.tolist()
+        middle = obstacle.cross_section(u)
+        if middle is not None and ray_distances(state["north_m"], state["east_m"], np.zeros(1), middle)[0] == 0.0:
+            return (0.0, 0.0, 1.0 if u > state["up_m"] else -1.0)
+        dn, de, du = n - state["north_m"], e - state["east_m"], u - state["up_m"]
+        norm = math.sqrt(dn * dn + de * de + du * du) or 1.0
+        return (dn / norm, de / norm, du / norm)
 
     def ideal_sectors(self, state: Mapping[str, Any]) -> dict[int, float]:
         """Sector -> the distance from the hull at which an ideal sensor would read this obstacle
@@ -225,7 +235,7 @@ def _active(events: Sequence[Mapping[str, Any]], t: float, run_start_s: float) -
             "gust": gust}
 
 
-def _drive(world: Any, state: Mapping[str, Any], pilot: Mapping[str, Any] | None, towards: tuple[float, float], obstacle: Obstacle) -> dict[str, Any]:
+def _drive(world: Any, state: Mapping[str, Any], pilot: Mapping[str, Any] | None, towards: tuple[float, float, float], obstacle: Obstacle) -> dict[str, Any]:
     """What the drive asked at this instant, and whether it led into the obstacle."""
     n, e = state["north_m"], state["east_m"]
     if world.drive == "pilot" and pilot is not None:
@@ -295,13 +305,13 @@ def explain(path: Path) -> dict[str, Any]:
     def at(t: float) -> Moment:
         return geometry.moment(_nearest(states, times, t))
 
-    def wind_towards(t: float, towards: tuple[float, float]) -> tuple[float, list[float]]:
+    def wind_towards(t: float, towards: tuple[float, float, float]) -> tuple[float, list[float]]:
         if wind:
             keys = sorted(wind)
             air = wind[keys[min(bisect.bisect_left(keys, t), len(keys) - 1)]]
         else:
             air = [world.atmosphere.wind_north_m_s, world.atmosphere.wind_east_m_s, 0.0]
-        return air[0] * towards[0] + air[1] * towards[1], air
+        return air[0] * towards[0] + air[1] * towards[1] - air[2] * towards[2], air
 
     closest = at(t_closest)
     first = at(reported_at) if reported_at is not None else None
