@@ -17,6 +17,7 @@ from harness.campaigns.explain import Limits, explain
 from harness.campaigns.store import Store
 from harness.campaigns.triage import triage
 from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.fitness import COULD_NOT_FINISH
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -49,6 +50,15 @@ FLIGHTS = {
 }
 
 
+def fly_once(space, x, out, name, options):
+    """One flight; flown again where the run could not finish (as executors do), so that a machine
+    too busy to start the stack in time does not decide the test."""
+    result = evaluate(space, x, seed=2, out_dir=out, name=name, options=options)
+    if result.status in COULD_NOT_FINISH:
+        result = evaluate(space, x, seed=2, out_dir=out, name=name, options=options)
+    return result
+
+
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory, profile):
     """Each hand-made flight once: (its search space, vector, result)."""
@@ -59,7 +69,7 @@ def flown(tmp_path_factory, profile):
         space = SearchSpace(load_logical(DATA / scenario, short), short)
         x = space.vector_from(values)
         assert space.violations(x) == []
-        result = evaluate(space, x, seed=2, out_dir=out, name=name, options=RunOptions(sut=SutConfig(params=params), min_real_time_factor=SLOW_MACHINE))
+        result = fly_once(space, x, out, name, RunOptions(sut=SutConfig(params=params), min_real_time_factor=SLOW_MACHINE))
         assert result.status == "violation", (name, result.status, result.why)
         flights[name] = (space, x, result)
     return flights
@@ -126,8 +136,8 @@ def test_a_range_sensor_that_goes_off_holds_the_vehicle_so_there_is_nothing_unse
     # "off" sensor (no readings) keeps the vehicle where it is, unlike a stuck one (above).
     short = replace(profile, document={**profile.document, "time_limit_s": TIME_LIMIT_S})
     space = SearchSpace(load_logical(DATA / "wall_range_off.json", short), short)
-    result = evaluate(space, space.vector_from({**WALL, "failure_1.onset_s": 1.0, "failure_1.duration_s": 60.0}), seed=2, out_dir=tmp_path, name="off",
-                      options=RunOptions(min_real_time_factor=SLOW_MACHINE))
+    result = fly_once(space, space.vector_from({**WALL, "failure_1.onset_s": 1.0, "failure_1.duration_s": 60.0}), tmp_path, "off",
+                      RunOptions(min_real_time_factor=SLOW_MACHINE))
     report = explain(Path(result.log_path))
     assert result.status == "mission_failed" and report["mechanism"] == "none"
     assert report["min_clearance_m"] > 20.0 and report["context"]["failures"][0]["type"] == "off"
