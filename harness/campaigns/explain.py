@@ -388,10 +388,12 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
             why = f"the range sensor had failed ({sensor_failed[0]['type']} since run time {sensor_failed[0]['since_s']:.1f} s)"
         elif in_view_at is not None:
             why = "it was in view but no delivered reading showed it"
+        elif all(m.distance_m is None for m in moments):
+            why = "it was never at the height the sensor scans: it passed above or below it"
         elif any(m.distance_m is not None and m.distance_m <= world.sensor.range_m for m in moments):
-            why = f"it was within reach but never inside the {world.sensor.fov_deg:.0f} degree field of view (or at the sensor's height)"
+            why = f"it was within reach but never inside the {world.sensor.fov_deg:.0f} degree field of view"
         else:
-            why = f"it never came within the sensor's reach of {world.sensor.range_m:.1f} m while at the sensor's height"
+            why = f"it never came within the sensor's reach of {world.sensor.range_m:.1f} m"
         seen = f"while in view from run time {in_view_at - moments[0].t_s:.1f} s" if in_view_at is not None and moments else "it was never in view"
         return "unseen", [f"never reported to the SUT before the closest approach: {why}", seen]
     distance, needed, first = numbers["distance_at_report_m"], numbers["stopping_distance_needed_m"], numbers["own_closing_at_report_m_s"]
