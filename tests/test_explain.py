@@ -119,6 +119,7 @@ def test_collision_prevention_off_brakes_too_little_though_the_wall_was_seen_in_
     assert numbers["distance_at_report_m"] > numbers["stopping_distance_needed_m"]
     assert numbers["own_closing_at_entry_m_s"] > 4.0  # it flew in at about cruise speed
     assert report["context"]["limits"]["cp_dist_m"] == -1.0 and "CP_DIST" not in report["context"]["limits"]["assumed"]
+    assert report["context"]["sut"] == {"name": "bundled", "fault": None, "params": {"CP_DIST": -1.0}}
     assert report["context"]["drive"]["into_obstacle"] is True
 
 

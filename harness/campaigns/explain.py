@@ -287,7 +287,8 @@ def explain(path: Path) -> dict[str, Any]:
     spec = next((o for o in world.obstacles if o["id"] == clearance.obstacle), None)
     if spec is None:
         return {**base, "mechanism": "other", "evidence": [f"{clearance.obstacle} is not in the world spec: an injection added it"], "timeline": []}
-    limits = Limits.of(logs.json_metadata(path, "sut"))
+    sut = logs.json_metadata(path, "sut") or {}
+    limits = Limits.of(sut)
     geometry = Geometry(world, spec, run_start_s)
     times = [s["t"] for s in states]
     t_closest = clearance.at_s
@@ -330,6 +331,7 @@ def explain(path: Path) -> dict[str, Any]:
         "obstacle_kind": spec.get("kind"), "obstacle_form": spec.get("form"),
         "obstacle_velocity_m_s": [round(v, 3) for v in geometry.velocity(t_closest).tolist()],
         "wind_ned_m_s": [round(v, 3) for v in air], "wind_towards_obstacle_m_s": round(wind_in, 3), **situation,
+        "sut": {"name": sut.get("name"), "fault": sut.get("fault"), "params": dict(sut.get("params") or {})},
         "limits": {**asdict(limits), "assumed": list(limits.assumed)},
         "sensor": {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg},
     }
@@ -434,6 +436,9 @@ def explain_text(report: Mapping[str, Any]) -> str:
                      f"({context['wind_towards_obstacle_m_s']:+.2f} towards it)" + (f"; gust {context['gust']['amplitude_m_s']:.1f} m/s" if context["gust"] else ""))
         failures = ", ".join(f"{f['unit']} {f['type']} since {f['since_s']:.1f} s" for f in context["failures"]) or "none"
         lines.append(f"failures active: {failures}")
+        sut = context["sut"]
+        lines.append(f"SUT: {sut['name']}" + (f", seeded fault {sut['fault']}" if sut["fault"] else "")
+                     + (f", parameters {', '.join(f'{k}={v}' for k, v in sut['params'].items())}" if sut["params"] else ""))
         limits = context["limits"]
         assumed = f" (assumed defaults: {', '.join(limits['assumed'])})" if limits["assumed"] else ""
         lines.append(f"stopping model: CP_DIST {limits['cp_dist_m']} m, CP_DELAY {limits['cp_delay_s']} s, MPC_ACC_HOR {limits['acc_m_s2']} m/s^2, "
