@@ -13,7 +13,7 @@ import pytest
 
 from conftest import ROOT
 from autopilot.collision import max_speed_from_distance
-from harness.campaigns.explain import Limits, explain
+from harness.campaigns.explain import MECHANISMS, Limits, explain
 from harness.campaigns.store import Store
 from harness.campaigns.triage import triage
 from harness.flight.evaluation import RunOptions, evaluate
@@ -165,6 +165,7 @@ def test_triage_groups_by_mechanism_and_still_works_when_a_log_is_gone(flown, tm
             store.add_evaluation(run_id, ordinal=0, step=0, optimizer="hand-made", vector=x, result=result, concrete=None)
     report = triage(store_path)
     assert sorted(m["mechanism"] for m in report["modes"]) == ["braked_too_little", "outrun", "pushed", "seen_late", "unseen"]
+    assert all(m["mode"].startswith(f"{m['mechanism']}: ") and m["mechanism"] in MECHANISMS for m in report["modes"])
     # A log deleted since: that violation is listed as not triaged, the others keep their modes.
     Path(flown["thick_fog"][2].log_path).rename(tmp_path / "moved.mcap")
     try:

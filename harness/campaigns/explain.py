@@ -48,7 +48,7 @@ from harness.flight.fitness import min_clearance
 from sim_bridge.obstacles import Obstacle, ray_distances
 
 MECHANISMS = ("unseen", "seen_late", "braked_too_little", "outrun", "pushed", "other", "none")
-SECTOR_DEG = 5.0
+SECTOR_DEG = 5.0  # OBSTACLE_DISTANCE's sectors as sim_bridge/world.py reads them (its SECTOR_DEG)
 FULL_CIRCLE = np.radians(np.arange(0.0, 360.0, 1.0))
 # A delivered sector shows the obstacle when it is no farther than the ideal reading by more
 # than the vehicle moves between a reading and the pose it is compared with (25 Hz states).
