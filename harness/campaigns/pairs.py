@@ -5,8 +5,10 @@ Both sides of a batch go to the executor together, so they fly in parallel where
 workers. A pair that reveals a difference is flown `confirm` more times on both sides and judged
 again on all flights: with SUTs that do not repeat bit for bit, only a difference that survives
 the measured spread counts. Reference flights are kept in a ReferenceCache by concrete scenario,
-seed and reference build, so a case flown against many subjects (mutants) costs its reference
-flights once.
+seed and reference build, so a case flown against many subjects (mutants) costs its first
+reference flight once. The confirming reference flights are always flown afresh, beside the
+subject's: a SUT's timing depends on the machine's load (PX4 lands up to 40 cm apart on one wall),
+and a reference cached in a quieter sitting must not make a loaded subject look different.
 """
 
 from __future__ import annotations
@@ -110,15 +112,13 @@ class PairedFlights:
         revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None]
         if self.confirm and revealing:
             again = [replace(job, name=f"{job.name}-confirm{i}") for job in revealing for i in range(1, self.confirm + 1)]
-            again += [self._reference_job(job, i) for job in revealing for i in range(len(references[job.name]), self.confirm + 1)]
+            again += [self._reference_job(job, i) for job in revealing for i in range(1, self.confirm + 1)]
             flown = self._fly(again)
             for job in revealing:
                 subjects[job.name] += [flown[f"{job.name}-confirm{i}"] for i in range(1, self.confirm + 1)]
-                extra = [Outcome.of(flown[name]) for i in range(len(references[job.name]), self.confirm + 1)
-                         if (name := f"{job.name}-reference-confirm{i}") in flown]
-                if extra:
-                    references[job.name] = references[job.name] + extra
-                    self._remember(keys[job.name], references[job.name])
+                references[job.name] = references[job.name] + [Outcome.of(flown[f"{job.name}-reference-confirm{i}"])
+                                                                for i in range(1, self.confirm + 1)]
+                self._remember(keys[job.name], references[job.name])
         for job in jobs:
             flights = subjects[job.name]
             differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])
