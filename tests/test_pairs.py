@@ -14,6 +14,7 @@ from harness.execution.local import SequentialExecutor
 from harness.flight.differential import Outcome
 from harness.flight.evaluation import RunOptions
 from harness.scenario.world import space_from_concrete
+from sut_adapter import SutConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL = ROOT / "scenarios" / "examples" / "wall_concrete.json"
@@ -46,3 +47,15 @@ def test_a_reference_cached_in_another_sitting_does_not_make_a_build_differ_from
     # Judged on the cached flights and the one flown beside the subject's two.
     assert len(differential["subject"]) == 2 and len(differential["reference"]) == 3
     assert differential["reference"][2]["min_clearance_m"] == here.min_clearance_m
+
+
+def test_two_firmware_builds_are_two_references_and_one_build_in_two_folders_is_one(tmp_path):
+    """The reference cache's key holds the binary's digest, so a cached flight of one build is
+    never taken for another's."""
+    for folder, text in (("a", "build one"), ("b", "build two"), ("c", "build one")):
+        binary = tmp_path / folder / "arducopter"
+        binary.parent.mkdir()
+        binary.write_text(text)
+        binary.chmod(0o755)
+    identity = {folder: build_identity(SutConfig("ardupilot", ardupilot_bin=str(tmp_path / folder / "arducopter"))) for folder in "abc"}
+    assert identity["a"] != identity["b"] and identity["a"] == identity["c"]

@@ -28,14 +28,18 @@ from sut_adapter import SutConfig
 
 def build_identity(config: SutConfig) -> dict[str, object]:
     """What tells two reference configurations apart, builds included: the SUT's identity plus a
-    digest of the PX4 binary's bytes (the same build from another folder is the same build) or the
-    bundled autopilot's source folder."""
+    digest of the firmware binary's bytes (the same build from another folder is the same build) or
+    the bundled autopilot's source folder."""
     identity: dict[str, object] = {**config.identity()}
     if config.px4_bin:
         from sut_adapter.px4 import resolve_binary
 
         binary, _etc = resolve_binary(config.px4_bin)
         identity["px4_sha256"] = _file_digest(binary)
+    if config.ardupilot_bin:
+        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+
+        identity["ardupilot_sha256"] = _file_digest(resolve_arducopter(config.ardupilot_bin))
     for name in ("autopilot_dir", "command", "hold"):
         if getattr(config, name):
             identity[name] = str(getattr(config, name))
