@@ -53,7 +53,7 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
     p.add_argument("--stop-at-reveal", action="store_true", help="with a reference: end each run at its first (confirmed) revealing candidate")
-    add_reference_options(p)
+    add_reference_options(p, campaign=True)
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
 
