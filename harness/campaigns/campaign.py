@@ -85,8 +85,11 @@ class CampaignConfig:
 
     def sources(self) -> dict[str, Any]:
         """Where the campaign's documents were read from: information, not identity."""
+        from harness.campaigns.pairs import build_record
+
         return {"scenario_files": [str(Path(s).resolve()) for s in self.scenarios], "profile": self.profile,
-                **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {})}
+                **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {}),
+                "sut_build": build_record(self.sut), **({"reference_build": build_record(self.reference)} if self.reference else {})}
 
     def _identity(self, *, scenarios: list[str], profile: str) -> dict[str, Any]:
         overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
@@ -44,6 +45,37 @@ def build_identity(config: SutConfig) -> dict[str, object]:
         if getattr(config, name):
             identity[name] = str(getattr(config, name))
     return identity
+
+
+def build_record(config: SutConfig) -> dict[str, object]:
+    """Where the SUT's build lay and what it was, for a person reading a finding later: its
+    identity, the binary's or source folder's path, and `git describe` of the tree it lies in."""
+    record = build_identity(config)
+    where: Path | None = None
+    if config.px4_bin:
+        from sut_adapter.px4 import resolve_binary
+
+        where = resolve_binary(config.px4_bin)[0]
+    elif config.ardupilot_bin:
+        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+
+        where = resolve_arducopter(config.ardupilot_bin)
+    elif config.name == "bundled":
+        where = Path(config.autopilot_dir) if config.autopilot_dir else Path(__file__).resolve().parents[2]
+    if where is not None:
+        record["path"] = str(where)
+        described = _git_describe(where if where.is_dir() else where.parent)
+        if described:
+            record["git_describe"] = described
+    return record
+
+
+def _git_describe(folder: Path) -> str | None:
+    try:
+        found = subprocess.run(["git", "-C", str(folder), "describe", "--always", "--dirty", "--tags"], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return found.stdout.strip() if found.returncode == 0 and found.stdout.strip() else None
 
 
 _DIGESTS: dict[tuple[str, float, int], str] = {}

@@ -232,3 +232,18 @@ def _export_aerialist(args: argparse.Namespace) -> int:
     lines.append(f"wrote {len(written)} competition test(s) (YAML and .plan) to {out}; {len(skipped)} not expressible")
     emit(args, {"out": str(out), "files": written, "not_expressible": skipped}, "\n".join(lines))
     return 0
+
+
+def _findings_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store", help="SQLite campaign store")
+    p.add_argument("--out", required=True, help="folder for one bundle per failure mode and FINDINGS.md")
+
+
+@command("export-findings", "write one bug-report bundle per failure mode of a campaign: case, logs, plot, FINDING.md", _findings_options)
+def cmd_export_findings(args: argparse.Namespace) -> int:
+    from harness.campaigns.findings import export_findings
+
+    folders = export_findings(Path(args.store), Path(args.out))
+    text = "\n".join(str(f) for f in folders) + f"\nwrote {len(folders)} finding(s) to {args.out}: start with {Path(args.out) / 'FINDINGS.md'}"
+    emit(args, {"out": args.out, "findings": [str(f) for f in folders]}, text)
+    return 0
