@@ -366,7 +366,7 @@ def summary(report: ShrinkReport) -> dict[str, Any]:
 def elements_text(counted: Mapping[str, Any]) -> str:
     kinds = ", ".join(f"{n} {kind}" for kind, n in counted["by_kind"].items())
     return (f"{counted['obstacles']} obstacle(s)" + (f" ({kinds})" if kinds else "") + f", {counted['failures']} failure(s), "
-            + ("gusts" if counted["gusts"] else "no gusts") + f", wind {counted['wind_speed_m_s']:.3g} m/s, visibility {counted['visibility_m']:.4g} m, "
+            + ("gusts" if counted["gusts"] else "no gusts") + f", wind {counted['wind_speed_m_s']:.3g} m/s, visibility {counted['visibility_m']:g} m, "
             f"{counted['searched_values']} searched values")
 
 

@@ -171,8 +171,8 @@ def weather_steps(state) -> Iterator[Candidate]:
     clear = max(fog, key=lambda name: (fog[name].min, fog[name].max))
     candidate = _variant(state.current, _category_edit("reduced visibility", clear, {"visibility_m": fog[clear].max}))
     if candidate is not None:
-        yield Candidate("fog", f"clear the air: visibility {state.current['environment']['visibility_m']:.4g} m -> "
-                               f"{candidate['environment']['visibility_m']:.4g} m ({clear})", candidate)
+        yield Candidate("fog", f"clear the air: visibility {state.current['environment']['visibility_m']:g} m -> "
+                               f"{candidate['environment']['visibility_m']:g} m ({clear})", candidate)
 
 
 def _kmh_scale(profile) -> float:
@@ -224,7 +224,7 @@ def neutral_steps(state) -> Iterator[Candidate]:
     if len(moves) > 1:
         candidate = _variant(state.current, _set_values(moves))
         if candidate is not None:
-            yield Candidate("neutral", f"every value to its neutral one ({len(moves)} values)", candidate)
+            yield Candidate("neutral", f"to their neutral values: {_moves_text(state.current, dimensions, moves)}", candidate)
     for dimension in dimensions:
         target = neutral_value(dimension)
         if target is None:
@@ -258,7 +258,7 @@ def round_steps(state) -> Iterator[Candidate]:
         if len(moves) > 1:
             candidate = _variant(state.current, _set_values(moves))
             if candidate is not None:
-                yield Candidate("round", f"every value rounded to {_grain_text(level)} ({len(moves)} values)", candidate)
+                yield Candidate("round", f"rounded to {_grain_text(level)}: {_moves_text(state.current, dimensions, moves)}", candidate)
         for dimension in dimensions:
             before = _value(state.current, dimension)
             after = _rounded(dimension, before, grain[dimension.path])
@@ -267,6 +267,10 @@ def round_steps(state) -> Iterator[Candidate]:
             candidate = _variant(state.current, _set_values({dimension.path: after}))
             if candidate is not None:
                 yield Candidate("round", _change(dimension, before, after, "rounded"), candidate)
+
+
+def _moves_text(document: Document, dimensions: tuple[Dimension, ...], moves: Mapping[tuple[Any, ...], float]) -> str:
+    return ", ".join(f"{d.name} {_value(document, d):.6g} -> {moves[d.path]:.6g}" for d in dimensions if d.path in moves)
 
 
 def _grain_text(level: int) -> str:
