@@ -120,6 +120,7 @@ def test_a_case_that_does_not_violate_is_refused_naming_the_file(tmp_path, capsy
     assert main(["shrink", str(wall), "--out", str(tmp_path)]) == 2
     error = capsys.readouterr().err
     assert f"{wall}: does not violate the safety distance as given (flown: ok with fitness" in error
+    assert not list(tmp_path.glob("*.journal.jsonl"))  # so the same case can be tried with another SUT
 
 
 def test_an_evaluation_not_in_the_store_or_none_given_is_refused_naming_the_store_and_option(tmp_path, capsys, profile):

@@ -270,6 +270,9 @@ class Shrinker:
         flights, _ = self._flights(document, "the case as given")
         if self.violates(flights):
             return State(document, flights)
+        if len(self.journal.entries) == 1:
+            # Nothing to resume: a journal left behind would refuse the same case with another SUT.
+            self.journal.path.unlink()
         unfinished = [f for f in flights if f.status in COULD_NOT_FINISH]
         if unfinished:
             raise InfrastructureError(f"{label}: the flight as given could not finish ({unfinished[0].status}); see its log {unfinished[0].log}")
