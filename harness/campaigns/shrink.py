@@ -31,6 +31,7 @@ from harness.scenario.documents import load_json
 from harness.scenario.world import space_from_concrete, with_drive_recorded
 
 JOURNAL_FORMAT = "stella.shrink-journal/1"
+ATTEMPTS = 2  # flights of a candidate whose flight could not finish, as `stella campaign --attempts`
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -257,10 +258,19 @@ class Shrinker:
                 raise BudgetSpent(f"the evaluation budget of {self.budget.flights} flights is spent")
             if self.budget.wall_s is not None and self.elapsed_s >= self.budget.wall_s:
                 raise BudgetSpent(f"the time budget of {self.budget.wall_s:g} s is spent")
-            flights.append(self.fly(document, f"{key[:12]}-{len(flights) + 1}"))
-            self.flown += 1
+            flights.append(self._finished_flight(document, f"{key[:12]}-{len(flights) + 1}"))
         self.journal.record(key, step, flights)
         return flights, False
+
+    def _finished_flight(self, document: Document, name: str) -> Flight:
+        """A flight that could not finish (the SUT crashed, time ran out on a busy machine) says
+        nothing about the candidate: flown again, as an executor tries such an evaluation again."""
+        for _attempt in range(ATTEMPTS):
+            flight = self.fly(document, name)
+            self.flown += 1
+            if flight.status not in COULD_NOT_FINISH:
+                break
+        return flight
 
     def violates(self, flights: list[Flight]) -> bool:
         return len(flights) == self.confirm and all(f.status == Status.VIOLATION for f in flights)
