@@ -17,7 +17,7 @@ import pytest
 from conftest import ROOT, stored_result
 from harness.campaigns.regression import load_regression
 from harness.campaigns.shrink import Flight, Journal, State, key_of
-from harness.campaigns.shrink_steps import STEPS, checked, elements, neutral_value, space_of
+from harness.campaigns.shrink_steps import STEPS, checked, elements, neutral_value, round_steps, space_of
 from harness.campaigns.store import Store
 from harness.errors import InputError
 from harness.scenario.logical import load_logical
@@ -153,6 +153,10 @@ def test_the_steps_remove_the_most_first_and_each_is_a_valid_smaller_scenario(tm
         assert elements(candidate.document)["searched_values"] <= elements(document)["searched_values"]
     neutral = {d.name: neutral_value(d) for d in space_of(document).dimensions}
     assert neutral["wind_speed_m_s"] == pytest.approx(1.0 / 3.6) and neutral["temperature_c"] == 15.0 and neutral["obstacle_1.north_m"] is None
+    # A value at its neutral value is left there: rounding 0.2778 m/s (1 km/h) would lead away from it.
+    state.current = checked({**document, "environment": {**document["environment"], "wind_speed_m_s": neutral["wind_speed_m_s"]}})
+    rounding = [c.description for c in round_steps(state)]
+    assert rounding and not any("wind_speed_m_s" in text for text in rounding)
 
 
 def test_a_journal_cut_mid_line_keeps_its_whole_lines_and_a_foreign_one_is_refused(tmp_path):

@@ -242,6 +242,8 @@ def neutral_steps(state) -> Iterator[Candidate]:
 
 
 def _rounded(dimension: Dimension, value: float, grain: float) -> float | None:
+    if value == neutral_value(dimension):
+        return None  # already as simple as it gets; rounding would lead away from it, and back
     rounded = round(round(value / grain) * grain, 10)
     if not dimension.lower <= rounded <= dimension.upper:
         rounded = round((math.floor if rounded > dimension.upper else math.ceil)(value / grain) * grain, 10)
