@@ -123,6 +123,14 @@ def test_a_case_that_does_not_violate_is_refused_naming_the_file(tmp_path, capsy
     assert not list(tmp_path.glob("*.journal.jsonl"))  # so the same case can be tried with another SUT
 
 
+@pytest.mark.slow
+def test_a_sut_that_cannot_fly_the_case_ends_the_shrink_as_an_infrastructure_failure(tmp_path, capsys):
+    case = ROOT / "scenarios" / "examples" / "wall_concrete.json"
+    assert main(["shrink", str(case), "--out", str(tmp_path), "--sut", "command", "--sut-command", "sh -c 'exit 1' {sim_port} {api_port}"]) == 3
+    assert f"{case}: the case as given: a flight could not finish in 2 attempts (sut_crashed" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.journal.jsonl"))  # nothing was learnt, so nothing to replay
+
+
 def test_an_evaluation_not_in_the_store_or_none_given_is_refused_naming_the_store_and_option(tmp_path, capsys, profile):
     space = SearchSpace(load_logical(ROOT / "scenarios" / "examples" / "fig4.json", profile), profile)
     x = space.sample_feasible(np.random.default_rng(0), 1)[0]

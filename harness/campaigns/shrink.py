@@ -45,6 +45,7 @@ class Flight:
     min_clearance_m: float | None
     obstacle: str | None
     log: str | None
+    why: str | None = None
 
 
 @dataclass(frozen=True)
@@ -209,14 +210,24 @@ class ShrinkReport:
     replayed: int
     wall_s: float
     stopped: str | None  # why the shrink ended before it was done (a budget), None if it was
+    unfinished_flight: bool = False  # it stopped because a flight could not finish
 
     @property
     def kept(self) -> list[StepRecord]:
         return [step for step in self.steps if step.kept]
 
 
-class BudgetSpent(Exception):
+class Stopped(Exception):
+    """The shrink cannot go on in this session; the journal keeps what it flew."""
+
+
+class BudgetSpent(Stopped):
     pass
+
+
+class FlightUnfinished(Stopped):
+    """A candidate's flight could not finish, attempt after attempt: the SUT or the machine is at
+    fault, not the candidate, so nothing is concluded from it (nor journaled)."""
 
 
 @dataclass
@@ -269,33 +280,39 @@ class Shrinker:
             flight = self.fly(document, name)
             self.flown += 1
             if flight.status not in COULD_NOT_FINISH:
-                break
-        return flight
+                return flight
+        raise FlightUnfinished(f"a flight could not finish in {ATTEMPTS} attempts ({flight.status}"
+                               + (f": {flight.why}" if flight.why else "") + ")")
 
     def violates(self, flights: list[Flight]) -> bool:
         return len(flights) == self.confirm and all(f.status == Status.VIOLATION for f in flights)
 
     def start(self, document: Document, label: str) -> State:
         """The case flown as given: it must violate to be shrunk."""
-        flights, _ = self._flights(document, "the case as given")
+        try:
+            flights, _ = self._flights(document, "the case as given")
+        except FlightUnfinished as unfinished:
+            self._forget_journal()
+            raise InfrastructureError(f"{label}: the case as given: {unfinished}") from None
         if self.violates(flights):
             return State(document, flights)
-        if len(self.journal.entries) == 1:
-            # Nothing to resume: a journal left behind would refuse the same case with another SUT.
-            self.journal.path.unlink()
-        unfinished = [f for f in flights if f.status in COULD_NOT_FINISH]
-        if unfinished:
-            raise InfrastructureError(f"{label}: the flight as given could not finish ({unfinished[0].status}); see its log {unfinished[0].log}")
+        self._forget_journal()
         seen = ", ".join(f"{f.status} with fitness {f.fitness:.3f}" for f in flights)
         raise InputError([Problem(label, "", f"does not violate the safety distance as given (flown: {seen}"
                                              + (f", {len(flights)} of --confirm {self.confirm} flights" if self.confirm > 1 else "")
                                              + "): there is nothing to shrink; give a violating case, or the SUT it violated with (--sut, --sut-param)")])
 
+    def _forget_journal(self) -> None:
+        """A shrink refused at its start leaves nothing to resume, and a journal left behind would
+        refuse the same case with another SUT."""
+        if len(self.journal.entries) <= 1:
+            self.journal.path.unlink(missing_ok=True)
+
     def shrink(self, document: Document, label: str) -> ShrinkReport:
         state = self.start(document, label)
         f_start = worst_case_fitness(state.flights)
         steps: list[StepRecord] = []
-        stopped = None
+        stopped, unfinished = None, False
         try:
             removed = True
             while removed:
@@ -315,10 +332,10 @@ class Shrinker:
                             _discard(flights)
                         if self.on_step:
                             self.on_step(record, self)
-        except BudgetSpent as spent:
-            stopped = str(spent)
+        except Stopped as why:
+            stopped, unfinished = str(why), isinstance(why, FlightUnfinished)
         return ShrinkReport(document, state.current, f_start, worst_case_fitness(state.flights), state.flights, steps, self.flown, self.replayed,
-                            self.elapsed_s, stopped)
+                            self.elapsed_s, stopped, unfinished)
 
 
 def worst_case_fitness(flights: list[Flight]) -> float:
@@ -342,7 +359,7 @@ def flyer(options, seed: int, out_dir: Path) -> Fly:
     def fly(document: Document, name: str) -> Flight:
         space = space_of(document)
         result = evaluate(space, space.from_concrete(document), seed=seed, out_dir=out_dir, options=options, name=name)
-        return Flight(str(result.status), result.fitness, result.min_clearance_m, result.min_clearance_obstacle, result.log_path)
+        return Flight(str(result.status), result.fitness, result.min_clearance_m, result.min_clearance_obstacle, result.log_path, result.why)
 
     return fly
 
@@ -373,7 +390,8 @@ def summary(report: ShrinkReport) -> dict[str, Any]:
     return {"before": {"fitness": report.f_start, "elements": elements(report.start)},
             "after": {"fitness": report.f_result, "elements": elements(report.result)},
             "steps": [asdict(step) for step in report.steps], "kept": [asdict(step) for step in report.kept],
-            "flown": report.flown, "replayed": report.replayed, "wall_s": report.wall_s, "stopped": report.stopped}
+            "flown": report.flown, "replayed": report.replayed, "wall_s": report.wall_s, "stopped": report.stopped,
+            "unfinished_flight": report.unfinished_flight}
 
 
 def elements_text(counted: Mapping[str, Any]) -> str:

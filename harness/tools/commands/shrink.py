@@ -88,7 +88,7 @@ def cmd_shrink(args: argparse.Namespace) -> int:
         shutil.rmtree(out / f"{name}-flights", ignore_errors=True)
     result = {"source": case.label, "sut": sut.identity(), "seed": case.seed, **shrink.summary(report), **written, "journal": str(journal.path)}
     emit(args, result, _text(report, written, case.label, journal.path))
-    return 0
+    return 3 if report.unfinished_flight else 0
 
 
 def _text(report, written: dict[str, str], label: str, journal: Path) -> str:
