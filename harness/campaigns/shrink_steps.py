@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Mapping
 
 from harness.errors import InputError
+from harness.scenario import units
 from harness.scenario.space import Dimension, SearchSpace
 from harness.scenario.world import space_from_concrete
 
@@ -162,7 +163,7 @@ def weather_steps(state) -> Iterator[Candidate]:
     profile = space_of(state.current).profile
     wind = profile.parameters["wind force"].categories
     calm = min(wind, key=lambda name: (wind[name].max, wind[name].min))
-    candidate = _variant(state.current, _category_edit("wind force", calm, {"wind_speed_m_s": wind[calm].min * _kmh_scale(profile),
+    candidate = _variant(state.current, _category_edit("wind force", calm, {"wind_speed_m_s": wind[calm].min * _wind_scale(profile),
                                                                               "wind_from_deg": 0.0}))
     if candidate is not None:
         yield Candidate("wind", f"calm the wind: {state.current['environment']['wind_speed_m_s']:.3g} m/s -> "
@@ -175,9 +176,7 @@ def weather_steps(state) -> Iterator[Candidate]:
                                f"{candidate['environment']['visibility_m']:g} m ({clear})", candidate)
 
 
-def _kmh_scale(profile) -> float:
-    from harness.scenario import units
-
+def _wind_scale(profile) -> float:
     return units.factor(profile.parameters["wind force"].unit, "m/s")
 
 

@@ -4,6 +4,7 @@ or a campaign's evaluation."""
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -83,8 +84,6 @@ def cmd_shrink(args: argparse.Namespace) -> int:
         warm.close_all()
     written = shrink.write_outputs(report, case, out, name, sut.identity(), args.expect)
     if not report.stopped:
-        import shutil
-
         shutil.rmtree(out / f"{name}-flights", ignore_errors=True)
     result = {"source": case.label, "sut": sut.identity(), "seed": case.seed, **shrink.summary(report), **written, "journal": str(journal.path)}
     emit(args, result, _text(report, written, case.label, journal.path))
