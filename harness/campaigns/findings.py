@@ -7,8 +7,10 @@ developer needs to see, rerun and keep the failure:
 * `flight.mcap`: the harness's log (Foxglove opens it); `sut/`: the SUT's own logs and console
   (PX4's ULog, ArduPilot's dataflash .BIN, the bundled autopilot's record), as the flight kept them;
 * `flight.png`: the top view of the trajectory with the obstacles and the clearance over time;
-* `FINDING.md`: what happened, the command that flies it again, and the SUT's identity (the build's
-  digest and `git describe` where its tree is known, the parameters the campaign set).
+* `FINDING.md`: what happened, the command that flies it again, the command that shrinks it, and
+  the SUT's identity (the build's digest and `git describe` where its tree is known, the
+  parameters the campaign set);
+* with `--shrink`, `shrunk/`: the smallest version that still violates (`stella shrink`).
 
 `FINDINGS.md` in DIR lists the modes, most frequent first.
 """
@@ -28,9 +30,10 @@ from harness.flight.inspect_log import plot
 from harness.flight.logs import slug
 
 
-def export_findings(store_path: Path, out_dir: Path) -> list[Path]:
+def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
     """One bundle per failure mode of the campaign's violations (revealing cases, for a
-    differential campaign); the bundles' folders, most frequent mode first."""
+    differential campaign): each bundle's folder and the store's id of the evaluation in it, most
+    frequent mode first."""
     report = triage(store_path)
     if not report["modes"]:
         raise InputError([Problem(str(store_path), "", "no violation with a log to export: nothing was found, or the logs were deleted "
@@ -51,7 +54,7 @@ def export_findings(store_path: Path, out_dir: Path) -> list[Path]:
     index += [f"| {n} | {m['mode']} | {m['count']} | {m['contacts']} | {m['worst']['fitness']:.3f} | [{f.name}]({f.name}/FINDING.md) |"
               for n, (m, f) in enumerate(zip(report["modes"], folders), start=1)]
     (out_dir / "FINDINGS.md").write_text("\n".join(index) + "\n")
-    return folders
+    return [(folder, case.id) for folder, case in zip(folders, worst)]
 
 
 def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None, sut: Mapping[str, Any], sources: Mapping[str, Any],
@@ -69,7 +72,7 @@ def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None
         shutil.copytree(artifacts, folder / "sut", dirs_exist_ok=True)
     plot(log, folder / "flight.png")
     sut_files = sorted(str(path.relative_to(folder)) for path in (folder / "sut").rglob("*") if path.is_file()) if (folder / "sut").is_dir() else []
-    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, regression.name, sut_files))
+    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, regression.name, sut_files, str(store_path.resolve())))
 
 
 def _sut_options(sut: Mapping[str, Any], build: Mapping[str, Any]) -> str:
@@ -85,7 +88,7 @@ def _sut_options(sut: Mapping[str, Any], build: Mapping[str, Any]) -> str:
 
 
 def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], regression: str,
-                  sut_files: list[str]) -> str:
+                  sut_files: list[str], store_hint: str) -> str:
     build = sources.get("sut_build", {})
     options = _sut_options(sut, build)
     clearance = f"{case.min_clearance_m:.2f} m" if case.min_clearance_m is not None else "none recorded"
@@ -117,6 +120,14 @@ def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[
         "```",
         f"stella run --concrete concrete.json --seed {case.seed} {options}".rstrip(),
         f"pytest {regression}    # the regression case: fails while the SUT violates the safety distance here",
+        "```",
+        "",
+        "## Shrink it",
+        "",
+        "The smallest, simplest version of this scenario that still violates (docs/shrink.md; `export-findings --shrink` runs it into `shrunk/`):",
+        "",
+        "```",
+        f"stella shrink {store_hint} --evaluation {case.id} --out shrunk {options}".rstrip(),
         "```",
         "",
         "## The SUT",
