@@ -30,7 +30,8 @@ def test_each_failure_mode_becomes_a_bundle_whose_command_flies_the_violation_ag
     for mode in triage["modes"]:
         assert mode["mode"] in index
     first = out / exported["findings"][0]
-    assert {"FINDING.md", "concrete.json", "case.regression.json", "flight.mcap", "flight.png"} <= {p.name for p in first.iterdir()}
+    assert {"FINDING.md", "concrete.json", "case.regression.json", "flight.mcap", "flight.png", "explanation.txt"} <= {p.name for p in first.iterdir()}
+    assert json.loads((first / "explanation.json").read_text())["mechanism"] == triage["modes"][0]["mechanism"]
     assert (first / "flight.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     finding = (first / "FINDING.md").read_text()
     assert "git describe" in finding  # the bundled autopilot's tree is this checkout

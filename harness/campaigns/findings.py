@@ -7,6 +7,8 @@ developer needs to see, rerun and keep the failure:
 * `flight.mcap`: the harness's log (Foxglove opens it); `sut/`: the SUT's own logs and console
   (PX4's ULog, ArduPilot's dataflash .BIN, the bundled autopilot's record), as the flight kept them;
 * `flight.png`: the top view of the trajectory with the obstacles and the clearance over time;
+* `explanation.txt` (and `.json`): `stella explain`'s timeline of the closest approach and its
+  mechanism, with the numbers behind it;
 * `FINDING.md`: what happened, the command that flies it again, the command that shrinks it, and
   the SUT's identity (the build's digest and `git describe` where its tree is known, the
   parameters the campaign set);
@@ -22,6 +24,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Mapping
 
+from harness.campaigns.explain import explain, explain_text
 from harness.campaigns.regression import SUFFIX, case_document
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.campaigns.triage import triage
@@ -71,6 +74,9 @@ def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None
     if artifacts.is_dir():
         shutil.copytree(artifacts, folder / "sut", dirs_exist_ok=True)
     plot(log, folder / "flight.png")
+    explanation = explain(log)
+    (folder / "explanation.txt").write_text(explain_text(explanation) + "\n")
+    (folder / "explanation.json").write_text(json.dumps(explanation, indent=2, default=str) + "\n")
     sut_files = sorted(str(path.relative_to(folder)) for path in (folder / "sut").rglob("*") if path.is_file()) if (folder / "sut").is_dir() else []
     (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, regression.name, sut_files, str(store_path.resolve())))
 
@@ -109,6 +115,7 @@ def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[
         "",
         "* obstacle: " + str(mode["obstacle"]) + "; approach: " + str(mode["approach"]) + "; phase: " + str(mode["phase"])
         + "; closing speed: " + str(mode["speed"]) + "; " + str(mode["wind"]) + "; " + str(mode["visibility"]),
+        "* `explanation.txt`: why it failed (`stella explain`): the timeline of the closest approach and the mechanism, with its evidence",
         "* `flight.png`: the trajectory from above, with the obstacles, and the clearance over time",
         "* `flight.mcap`: the flight's log (open it in Foxglove; `stella inspect flight.mcap`)",
         ("* the SUT's own logs and console: " + ", ".join(f"`{name}`" for name in sut_files) if sut_files
