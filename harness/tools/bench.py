@@ -198,7 +198,8 @@ def bench_text(report: dict[str, Any]) -> str:
     for cores, alone in sorted((report.get("sut_alone") or {}).items()):
         label = f"{report['sut']} alone on {cores} core{'s' if cores != 1 else ''}"
         lines.append(f"  {label:<30}{alone['real_time_factor']:.1f}x real time "
-                     f"({alone['step_us']:.0f} us per step; the flight's simulator link replayed, {alone['timed_steps']} steps timed)")
+                     f"({alone['step_us']:.0f} us per step; the flight's simulator link replayed, {alone['timed_steps']} steps timed, "
+                     f"{'every answer in step' if alone['in_step'] else 'ANSWERS OUT OF STEP: not a lockstep figure'})")
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]

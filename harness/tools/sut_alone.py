@@ -40,37 +40,41 @@ CONNECT_TIMEOUT_S = 60.0
 STALL_TIMEOUT_S = 10.0
 
 
-def link_steps(stream: bytes) -> list[bytes]:
+def link_steps(stream: bytes) -> tuple[list[bytes], list[int]]:
     """A recorded simulator-to-SUT stream cut into the bridge's steps: each step's frames, its
-    HIL_SENSOR last (the bridge sends it last, so the SUT has seen the rest when it steps on it)."""
+    HIL_SENSOR last (the bridge sends it last, so the SUT has seen the rest when it steps on
+    it), and each step's time (its HIL_SENSOR's, in us), which the SUT's answer carries back."""
     splitter = codec.FrameSplitter(_CRC_EXTRAS)
     steps: list[bytes] = []
+    times: list[int] = []
     pending: list[bytes] = []
-    for msgid, _payload, frame in splitter.feed(stream):
+    for msgid, payload, frame in splitter.feed(stream):
         pending.append(frame)
         if msgid == codec.HIL_SENSOR_ID:
             steps.append(b"".join(pending))
+            times.append(codec.decode_hil_sensor(payload)[0])
             pending = []
     if splitter.bad_frames or splitter.skipped_bytes:
         raise ValueError(f"the recorded simulator link has {splitter.bad_frames} bad frames and {splitter.skipped_bytes} stray bytes: not a bridge's recording")
-    return steps
+    return steps, times
 
 
 def recorded_link(log_path: Path) -> dict[str, Any]:
     """What a replay needs of a flight's log: its steps, their period, and the step its run
     began at (the flight's real-time factor counts from there)."""
     stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
-    steps = link_steps(stream)
+    steps, times = link_steps(stream)
     summary = logs.json_metadata(log_path, "bridge_summary")
     dt_s = summary["sim_time_s"] / summary["steps"]
     run_at_s = next((m["t"] for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "run"), 0.0)
-    return {"steps": steps, "dt_s": dt_s, "run_step": min(len(steps) - 1, round(run_at_s / dt_s))}
+    return {"steps": steps, "times_us": times, "dt_s": dt_s, "run_step": min(len(steps) - 1, round(run_at_s / dt_s))}
 
 
-def replay(link: SocketLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
+def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
     """Send the steps as the bridge does: at real-time pace until the SUT's first answer, then
-    each step once the last one is answered. Times the steps from `timed_from` on; returns the
-    HIL_SENSOR times the answers carried (in order) with the timing."""
+    each step once the last one is answered. Times the steps from `timed_from` on, and says
+    whether each timed step's answer carried that step's time (`in_step`: the replay and the SUT
+    kept in lockstep)."""
     splitter = codec.FrameSplitter(_CRC_EXTRAS)
     answer_times: list[int] = []
     lockstep_from = None
@@ -94,7 +98,7 @@ def replay(link: SocketLink, steps: list[bytes], dt_s: float, timed_from: int, s
     wall_s = perf() - started
     timed = len(steps) - timed_from
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": lockstep_from, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
-            "real_time_factor": timed * dt_s / wall_s, "answer_times_us": answer_times}
+            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:]}
 
 
 def _answers(splitter: codec.FrameSplitter, data: bytes, answer_times: list[int]) -> bool:
@@ -139,7 +143,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                         raise RuntimeError(f"{system.name} did not connect to the stand-in within {CONNECT_TIMEOUT_S:.0f} s: {handle.stderr_tail()}") from None
                     link = SocketLink(sock, STALL_TIMEOUT_S)
                     try:
-                        runs.append(replay(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], SPIN_S if cores >= 2 else 0.0))
+                        runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], SPIN_S if cores >= 2 else 0.0))
                     except (BlockingIOError, OSError) as error:
                         raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
                     finally:
@@ -153,4 +157,5 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
             shutil.rmtree(workdir, ignore_errors=True)
     rtf = statistics.median(r["real_time_factor"] for r in runs)
     return {"log": str(log_path), "cores": cores, "timed_steps": runs[0]["timed_steps"], "real_time_factor": rtf,
-            "step_us": statistics.median(r["step_us"] for r in runs), "per_run": [r["real_time_factor"] for r in runs]}
+            "step_us": statistics.median(r["step_us"] for r in runs), "per_run": [r["real_time_factor"] for r in runs],
+            "in_step": all(r["in_step"] for r in runs)}
