@@ -52,9 +52,10 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
               sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str, bool], ...] = PLACEMENTS, drive: str | None = None,
               mission_plan: Path | None = None, limit: bool = False) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
-    default. `drive` overrides the scenario's drive, `mission_plan` its route. `limit`: also
-    the SUT alone in each placement's cores (harness/tools/sut_alone.py), replaying the first
-    flight `runs` times, and each flight's speed as a share of it."""
+    default. `drive` overrides the scenario's drive, `mission_plan` its route. `limit`: after
+    each flight, the SUT alone on the placement's cores (harness/tools/sut_alone.py, replaying
+    the first flight), and each flight's speed as a share of the replay beside it: paired, the
+    ratio holds while the machine's load drifts."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile, drive, mission_plan), profile)
@@ -64,6 +65,9 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     autopilot = None
     physics_alone = None
     first_log = None
+    sut_alone = None
+    if limit:
+        from harness.tools.sut_alone import sut_alone as replay_alone
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
@@ -87,6 +91,10 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                         continue
                     rows.append(_run_figures(result, rate_hz, wall))
                     first_log = first_log or Path(result.log_path)
+                    if limit:
+                        alone = replay_alone(first_log, sut.sut, cores, 1, pin_cpu)
+                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"], "in_step": alone["in_step"] and (sut_alone or alone)["in_step"]}
+                        rows[-1].update(sut_alone_real_time_factor=alone["real_time_factor"], flight_speed_of_sut_alone=rows[-1]["real_time_factor"] / alone["real_time_factor"])
                     if autopilot is None and sut.sut.name == "bundled":
                         autopilot = autopilot_step_bench(Path(result.log_path))
                     if physics_alone is None:
@@ -101,14 +109,6 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                                       # Comparable across machines: the flight's speed and an evaluation's cost against JSBSim stepped alone.
                                       "flight_speed_of_jsbsim_alone": median["real_time_factor"] / physics_alone["real_time_factor"],
                                       "evaluation_cost_in_jsbsim_alone": median["wall_time_s"] / alone_s})
-        sut_alone = None
-        if limit:
-            from harness.tools.sut_alone import sut_alone as replay_alone
-
-            # Measured after the flights, in the same invocation: the ratio's two sides share the sitting.
-            sut_alone = {cores: replay_alone(first_log, sut.sut, cores, runs, pin_cpu) for cores in sorted({p["cores_per_evaluation"] for p in report_placements})}
-            for placement in report_placements:
-                placement["flight_speed_of_sut_alone"] = placement["median"]["real_time_factor"] / sut_alone[placement["cores_per_evaluation"]]["real_time_factor"]
     fitnesses = {r["fitness"] for p in report_placements for r in p["per_run"]}
     return {
         "scenario": str(path),
@@ -195,21 +195,21 @@ def bench_text(report: dict[str, Any]) -> str:
     alone = report["jsbsim_alone"]
     lines.append(f"  JSBSim's F450 alone           {alone['real_time_factor']:.0f}x real time ({alone['step_us']:.0f} us per step; the flight's "
                  f"motor commands replayed, nothing else)")
-    for cores, alone in sorted((report.get("sut_alone") or {}).items()):
-        label = f"{report['sut']} alone on {cores} core{'s' if cores != 1 else ''}"
-        lines.append(f"  {label:<30}{alone['real_time_factor']:.1f}x real time "
-                     f"({alone['step_us']:.0f} us per step; the flight's simulator link replayed, {alone['timed_steps']} steps timed, "
+    alone = report.get("sut_alone")
+    if alone:
+        lines.append(f"  {report['sut'] + ' alone':<30}the first flight's simulator link replayed to it after each flight ({alone['timed_steps']} steps timed, "
                      f"{'every answer in step' if alone['in_step'] else 'ANSWERS OUT OF STEP: not a lockstep figure'})")
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]
-        of_sut_alone = f", {placement['flight_speed_of_sut_alone']:.3f} of {report['sut']} alone's" if "flight_speed_of_sut_alone" in placement else ""
         lines += [
             f"  {PLACEMENT_NAMES[(placement['cores_per_evaluation'], placement['transport'], placement['warm'])]}:",
-            f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's{of_sut_alone}",
+            f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's",
             f"    wall time per evaluation    {m['wall_time_s']:.2f} s (start {m['start_s']:.2f} s, setup {m['setup_s']:.2f} s, stop {m['stop_s']:.2f} s, "
             f"scoring {m['score_s']:.2f} s), "
             f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
+            *([f"    {report['sut']} alone{' ' * (22 - len(report['sut']))}{m['sut_alone_real_time_factor']:.1f}x; the flight at "
+               f"{m['flight_speed_of_sut_alone']:.3f} of it (median of the paired ratios)"] if "flight_speed_of_sut_alone" in m else []),
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
             f"      waiting for the SUT       {m['sut_wait_us']:.0f} us",
