@@ -10,6 +10,10 @@ HIL_SENSOR to receiving HIL_ACTUATOR_CONTROLS, less the bridge's own work in bet
 both socket hops and, on one core, the SUT's whole computation), building the sensor messages,
 JSBSim, and the bridge's world work (obstacles, clearance, recording, done while the SUT
 computes); the rest is the loop itself and its timers.
+
+With `limit`, a SUT in a process of its own is also measured alone after each flight
+(harness/tools/sut_alone.py): the first flight's simulator link replayed to it in lockstep, the
+yardstick a flight through the bridge is reported against ("PX4 alone").
 """
 
 from __future__ import annotations
