@@ -147,6 +147,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                     except (BlockingIOError, OSError) as error:
                         raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
                     finally:
+                        handle.stop()  # before its link closes: PX4 spins on a closed simulator link and heeds SIGTERM late
                         link.close()
                 finally:
                     os.sched_setaffinity(0, own_cores)
