@@ -10,7 +10,8 @@ reported as a share of it.
 
 What the replay does not give the SUT: its API link. Nobody uploads a mission or arms it, so it
 computes every step on the recorded flight's sensors but stays disarmed (for PX4: the same
-estimator and controllers run, its logger does not write, as it logs from arming).
+estimator and controllers run, its logger does not write, as it logs from arming; a replay that
+force-armed it ran no slower: docs/benchmarks.md).
 """
 
 from __future__ import annotations
