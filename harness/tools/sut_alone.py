@@ -129,7 +129,9 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     for _ in range(max(1, repeats)):
         workdir = Path(tempfile.mkdtemp(prefix="stella-alone-"))
         try:
-            with PortLease() as ports:
+            # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
+            limited = sut_adapter.instance_count(system)
+            with (PortLease(slots=limited, wait_s=CONNECT_TIMEOUT_S) if limited else PortLease()) as ports:
                 listener = listen(ports.sim)
                 handle = None
                 try:
