@@ -269,9 +269,13 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
 
     try:
         system = sut_adapter.system_for(options.sut)
+        started = time.monotonic()
         with simulation_stack(world, options, system, workdir) as stack:
+            timings["start_s"] = time.monotonic() - started
             failure, summary, mavsdk_info = _fly(world, options, stack, timings, system)
             stack.clean = failure is None and summary.get("end_reason") in NORMAL_ENDS
+            stopping = time.monotonic()
+        timings["stop_s"] = time.monotonic() - stopping
         if failure is None and summary.get("end_reason") in ("sut_disconnected", "sut_stalled"):
             failure = (Status.SUT_CRASHED, f"{summary['end_reason']}: {stack.sut.stderr_tail()[-500:]}")
         artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
