@@ -54,7 +54,7 @@ def mission_items(world: WorldSpec, home_item: bool = False) -> list[MissionItem
     if not home_item:
         return items
     lat, lon = geodetic_from_local(world.origin.lat_deg, world.origin.lon_deg, world.uav.start.north_m, world.uav.start.east_m)
-    home = MissionItem(seq=0, frame=0, command=NAV_WAYPOINT, current=1, autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
+    home = MissionItem(seq=0, frame=0, command=MAV_CMD_NAV_WAYPOINT, current=1, autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
                        x=int(round(lat * 1e7)), y=int(round(lon * 1e7)), z=float(world.start_msl_m), mission_type=0)
     return [home] + [MissionItem(seq=item.seq + 1, frame=item.frame, command=item.command, current=0, autocontinue=item.autocontinue,
                                  param1=item.param1, param2=item.param2, param3=item.param3, param4=item.param4, x=item.x, y=item.y, z=item.z,
