@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
@@ -112,6 +112,10 @@ class MavsdkSession:
         # The answer to an injection while the failure plugin is off: a SUT without
         # MAV_CMD_INJECT_FAILURE (ArduPilot) says UNSUPPORTED.
         self.answer_without_injection = "NOT_ENABLED"
+        # A SUT that fails its units through parameters instead (ArduPilot's SITL): (unit, type)
+        # -> parameters, None where it has no means; and what each unit's failure set.
+        self.failure_params: Callable[[str, str], Mapping[str, float] | None] | None = None
+        self._failed_params: dict[str, Mapping[str, float]] = {}
 
     def restart(self) -> None:
         """A new flight with the same connection (a warm stack's next evaluation): forget what the
@@ -120,6 +124,7 @@ class MavsdkSession:
             self.status_texts = []
             self.mission_progress = (0, 0)
         self.failure = None
+        self._failed_params = {}
 
     def discover(self, timeout_s: float = 20.0, alive=lambda: True) -> "MavsdkSession":
         """Wait for the autopilot's heartbeat, giving up early when alive() turns false; with a
@@ -222,12 +227,32 @@ class MavsdkSession:
         """MAV_CMD_INJECT_FAILURE for a scenario's unit and type ("ok" clears it); the SUT's
         answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
         failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
+        if self.failure is None and self.failure_params is not None:
+            return self._fail_by_params(unit, kind)
         if self.failure is None:
             return self.answer_without_injection
         try:
             self.failure.inject(FailureUnit(int(UNIT_BY_NAME[unit])), failure_type, 0)
         except Exception as error:  # MAVSDK's FailureError carries the SUT's answer
             return getattr(getattr(error, "result", None), "name", str(error))
+        return "SUCCESS"
+
+    def _fail_by_params(self, unit: str, kind: str) -> str:
+        """A failure through the SUT's parameters; its end sets back those its onset set."""
+        if kind == "ok":
+            failed = self._failed_params.pop(unit, None)
+            unfailed = self.failure_params(unit, "ok") if failed is not None else None
+            params = None if unfailed is None else {name: unfailed[name] for name in failed}
+        else:
+            params = self.failure_params(unit, kind)
+        if params is None:
+            return self.answer_without_injection
+        try:
+            self.set_params(params)
+        except InfrastructureError as error:
+            return f"DENIED: {error}"
+        if kind != "ok":
+            self._failed_params[unit] = params
         return "SUCCESS"
 
     def close(self) -> None:
