@@ -15,6 +15,7 @@ the world's origin (`--home`), where the bridge's positions are measured from.
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping
 
@@ -148,7 +149,10 @@ class ArduPilotSitl:
         (ardupilot_dir / PARAMS_FILE).write_text(format_params({**DEFAULT_PARAMS, **world_params(world), **params}))
         origin = (world.origin.lat_deg, world.origin.lon_deg, world.start_msl_m)
         argv = self.command(sim_port=sim_port, api_port=api_port, instance=instance, workdir=ardupilot_dir, origin=origin)
-        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir)
+        # Its SIGTERM handler only sets a flag its scheduler reads, on the clock our steps advance:
+        # once the flight or the harness is gone nothing reads it (2 s lost at each stop, an
+        # arducopter left after kill -9 of a campaign). Its dataflash log is written as it goes.
+        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir, end_signal=signal.SIGKILL)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(ardupilot_dir, [process.stdout_path, process.stderr_path]),
                              mavlink_params=dict(params))
 

@@ -7,13 +7,17 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 from pymavlink import DFReader
 from pymavlink.dialects.v20 import common as mavlink
 
-from conftest import ROOT
+from conftest import ROOT, alive, children
 from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
@@ -126,3 +130,66 @@ def test_a_gps_failure_reaches_ardupilots_sitl_through_its_parameters_and_one_wi
     assert [t for t, _ in fixes if onset_s + 0.5 < t < onset_s + duration_s] and all(
         fix < 3 for t, fix in fixes if onset_s + 0.5 < t < onset_s + duration_s)
     assert all(fix >= 3 for t, fix in fixes if onset_s + duration_s + 1.0 < t < onset_s + duration_s + 5.0)
+
+
+def arducopters(pids: list[int]) -> list[str]:
+    """Those of the processes that run arducopter, described."""
+    found = []
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as handle:
+                argv = handle.read().split(b"\0")
+        except OSError:
+            continue
+        if alive(pid) and os.path.basename(argv[0]) == b"arducopter":
+            found.append(f"{pid}: {b' '.join(argv).decode(errors='replace')[:200]}")
+    return found
+
+
+def described(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as handle:
+            argv = handle.read().split(b"\0")
+        return f"{pid}: {b' '.join(argv).decode(errors='replace')[:200]}"
+    except OSError:
+        return f"{pid}: gone"
+
+
+def family_of(pid: int) -> list[int]:
+    family, found = [pid], []
+    while family:
+        kids = children(family.pop())
+        found += kids
+        family += kids
+    return found
+
+
+@pytest.mark.parametrize("moment", ["starting", "flying"])
+def test_kill_9_of_an_ardupilot_campaign_leaves_no_arducopter(tmp_path, moment):
+    """kill -9 of a two-worker campaign while ArduPilot starts up (its first seconds) or flies:
+    the arducopters its workers started go with it (PR_SET_PDEATHSIG, then their workers' going)."""
+    command = [sys.executable, "-m", "harness.tools.cli", "campaign", SCENARIO, "--sut", "ardupilot", "--algorithm", "NSGAII", "--evaluations", "4",
+               "--population", "2", "--seed", "5", "--workers", "2", "--store", str(tmp_path / "killed.db"), "--json"]
+    campaign = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not arducopters(family_of(campaign.pid)):
+            assert campaign.poll() is None and time.monotonic() < deadline, "the campaign started no arducopter"
+            time.sleep(0.05)
+        if moment == "flying":
+            time.sleep(20.0)  # through ArduPilot's set-up (25 s of simulated time) into its flight
+        # Frozen first, so that the processes seen are those the kill leaves.
+        os.killpg(campaign.pid, signal.SIGSTOP)
+        family = family_of(campaign.pid)
+        assert arducopters(family), "no arducopter ran at the kill"
+        os.kill(campaign.pid, signal.SIGKILL)  # the campaign alone: what it started must follow by itself
+        os.killpg(campaign.pid, signal.SIGCONT)
+        campaign.wait(timeout=10)
+        deadline = time.monotonic() + 15
+        while any(alive(pid) for pid in family) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert arducopters(family) == []
+        assert [described(pid) for pid in family if alive(pid)] == []
+    finally:
+        if campaign.poll() is None:
+            campaign.kill()
