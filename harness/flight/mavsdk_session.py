@@ -28,6 +28,8 @@ log = logging.getLogger(__name__)
 ACCEPTANCE_RADIUS_M = 2.0
 # A SUT that denies arming is asked again this often, within the caller's window.
 ARM_RETRY_INTERVAL_S = 0.1
+# How a SUT refuses an arming its pre-arm checks fail: PX4 says DENIED, ArduPilot FAILED.
+REFUSED_FOR_NOW = (ActionResult.COMMAND_DENIED, ActionResult.FAILED)
 # MAVSDK's health is polled this often: health usually comes within one poll of the hold, and
 # each poll is a call into MAVSDK's memory, so a coarse poll only adds to every set-up.
 HEALTH_POLL_S = 0.005
@@ -203,7 +205,9 @@ class MavsdkSession:
         """Arm, asking again while the SUT denies it, for up to retry_for_s. PX4's position
         estimate or heading can turn invalid for a second or two just after MAVSDK first reported
         it healthy and armable, so that it denies arming then (its own MAVSDK tests ask again
-        for 30 s; here up to half of PX4 main's flights did, 2026-11)."""
+        for 30 s; here up to half of PX4 main's flights did, 2026-11). ArduCopter answers an
+        arming its pre-arm checks fail with MAV_RESULT_FAILED: on a loaded machine MAVSDK can
+        call it healthy a second before its AHRS has settled ("Arm: Gyros inconsistent")."""
         deadline = time.monotonic() + retry_for_s
         denials = 0
         while True:
@@ -211,7 +215,7 @@ class MavsdkSession:
                 self.action.arm()
                 break
             except ActionError as error:
-                if error.result != ActionResult.COMMAND_DENIED or time.monotonic() >= deadline:
+                if error.result not in REFUSED_FOR_NOW or time.monotonic() >= deadline:
                     raise
             denials += 1
             time.sleep(ARM_RETRY_INTERVAL_S)
