@@ -22,6 +22,8 @@ from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
 from harness.tools.cli import main
+from simlink.failures import UNIT_BY_NAME
+from sut_adapter.ardupilot_failures import failure_params
 
 pytestmark = [
     pytest.mark.slow,
@@ -71,6 +73,9 @@ def test_ardupilot_flies_a_table3_mission_with_a_finite_fitness_and_its_dataflas
     assert dataflash and dataflash[0].stat().st_size > 0
     logged = dataflash_params(dataflash[0])
     assert (logged["FENCE_RADIUS"], logged["FENCE_ALT_MAX"]) == (150.0, 120.0)
+    # Every parameter a failure sets is ArduPilot's, and the end of a failure sets back its own value.
+    unfailed = {name: value for unit in UNIT_BY_NAME for name, value in (failure_params(unit, "ok") or {}).items()}
+    assert {name: logged.get(name) for name in unfailed} == pytest.approx(unfailed)
     # Every servo frame was one, each step answered in lockstep.
     assert logs.json_metadata(Path(result["log_path"]), "bridge_summary")["bad_frames"] == 0
     # Armed and started once its AHRS settled (25 s of simulated time; 42 s at ArduPilot's default EK3_YAW_M_NSE).
