@@ -127,6 +127,12 @@ def runs_inline(system: "SystemUnderTest") -> bool:
     return callable(getattr(system, "inline_arguments", None))
 
 
+def instance_count(system: "SystemUnderTest") -> int | None:
+    """How many instances of the SUT can run side by side on one host (None: as many as there
+    are port blocks); an evaluation's instance number is its port block's slot."""
+    return getattr(system, "instance_count", None)
+
+
 def hold_pace(system: "SystemUnderTest") -> float:
     """Simulated seconds per wall-clock second in the SUT's paced hold (real time unless it says)."""
     pace = getattr(system, "hold_pace", 1.0)

@@ -146,7 +146,8 @@ def cli_refusal(tmp_path, capsys, options: list[str]) -> str:
 
 
 @pytest.mark.parametrize("changes, options, field", [
-    ({"sut": "ardupilot"}, ["--sut", "ardupilot"], "sut"),
+    ({"sut": "betaflight"}, ["--sut", "betaflight"], "sut"),
+    ({"sut": "ardupilot", "ardupilot_bin": "/nonexistent/arducopter"}, ["--sut", "ardupilot", "--ardupilot-bin", "/nonexistent/arducopter"], "sut"),
     ({"sut": "px4", "px4_bin": "/nonexistent/px4"}, ["--sut", "px4", "--px4-bin", "/nonexistent/px4"], "sut"),
     ({"sut": "command", "sut_command": "my_autopilot --id {instance}"}, ["--sut", "command", "--sut-command", "my_autopilot --id {instance}"], "sut"),
     ({"sut": "px4", "sut_fault": "cp_ignores_delay"}, ["--sut", "px4", "--sut-fault", "cp_ignores_delay"], "sut_fault"),
@@ -443,6 +444,8 @@ def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a
     page.select_option("#executor", "sequential")
     page.select_option("#sut", "px4")  # each SUT shows its own options only
     assert page.is_visible("#px4-bin") and not page.is_visible("#sut-fault") and not page.is_visible("#sut-command")
+    page.select_option("#sut", "ardupilot")
+    assert page.is_visible("#ardupilot-bin") and not page.is_visible("#px4-bin")
     page.select_option("#sut", "bundled")
     assert page.is_visible("#sut-fault") and not page.is_visible("#px4-bin")
     page.select_option("#sut-fault", "cp_ignores_delay")

@@ -381,7 +381,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
            world: WorldSpec | None = None) -> Stack:
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
     run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
-    ports = contexts.enter_context(PortLease())
+    limited = sut_adapter.instance_count(system)
+    ports = contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
     transport = placed_transport(options, system)
     inline = transport == "memory"
     # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
@@ -22,6 +22,9 @@ from pymavlink.dialects.v20.common import (
 from harness.errors import InfrastructureError
 from sim_bridge.geo import geodetic_from_local
 from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
+
+if TYPE_CHECKING:
+    from sim_bridge.spec import WorldSpec
 
 log = logging.getLogger(__name__)
 

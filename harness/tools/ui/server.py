@@ -57,7 +57,8 @@ def setup_choices(campaigns: Campaigns) -> dict[str, Any]:
             "params_files": campaigns.uploads.choices("params"), "profiles": ["default"], "executors": ["local", "sequential", "dask", "docker"],
             "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES),
             "faults": [{"name": f.name, "breaks": f.breaks} for f in seeded_faults().values()],
-            "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "max_upload_bytes": MAX_UPLOAD_BYTES}
+            "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "ardupilot_bin_default": os.environ.get("STELLA_ARDUPILOT_BIN"),
+            "max_upload_bytes": MAX_UPLOAD_BYTES}
 
 
 def create_app(store_dir: Path, token: str | None = None) -> FastAPI:

@@ -75,6 +75,7 @@ async function loadSetup(chosen = {}) {
     fillSelect($("sut-fault"), setup.faults.map((f) => ({ value: f.name, text: f.name, title: f.breaks })), "none");
     fillSelect($("drive"), setup.drives, "the scenario's own");
     if (setup.px4_bin_default) $("px4-bin").placeholder = `$STELLA_PX4_BIN: ${setup.px4_bin_default}`;
+    if (setup.ardupilot_bin_default) $("ardupilot-bin").placeholder = `$STELLA_ARDUPILOT_BIN: ${setup.ardupilot_bin_default}`;
     showSutFields();
   }
 }
@@ -110,7 +111,7 @@ async function launch(event) {
     algorithms: $("algorithms").value.split(","),
     evaluations: $("evaluations").value, population: $("population").value, runs: $("runs").value, seed: $("seed").value,
     executor: $("executor").value, workers: $("workers").value || null,
-    sut: $("sut").value, px4_bin: shown("px4-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
+    sut: $("sut").value, px4_bin: shown("px4-bin"), ardupilot_bin: shown("ardupilot-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
     sut_fault: shown("sut-fault"), autopilot_dir: shown("autopilot-dir"), drive: $("drive").value, mission_plan: $("mission-plan").value,
     sut_params_file: $("sut-params-file").value, sut_params: $("sut-params").value.split("\n").map((line) => line.trim()).filter(Boolean),
   };
