@@ -27,7 +27,8 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sut-fault", metavar="NAME", help="switch on one of the bundled autopilot's seeded faults (`stella faults list`)")
     p.add_argument("--autopilot-dir", metavar="DIR", help="with --sut bundled: fly the `autopilot` package in DIR instead (a mutant's folder from "
                                                           "`stella mutants build`, or a build of `stella sut build --source .`)")
-    p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export or a NAME,VALUE CSV (the UAV Testing Competition's)")
+    p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export, a NAME,VALUE CSV (the UAV Testing Competition's) "
+                                                            "or ArduPilot's .parm/.param (NAME VALUE)")
     p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home becomes the origin; "
                                                       "takeoff, waypoint, land, return, change speed, delay)")
     p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
