@@ -44,13 +44,14 @@ def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
     with Store.existing(store_path) as store:
         sut = store.campaign_sut()
         sources = store.campaign_sources()
+        config = store.campaign_config()
         worst = [store.evaluation(mode["worst"]["id"]) for mode in report["modes"]]
     out_dir.mkdir(parents=True, exist_ok=True)
     folders = []
     for number, (mode, case) in enumerate(zip(report["modes"], worst), start=1):
         folder = out_dir / f"{number:02d}-{slug(mode['mode'])[:80]}"
         folder.mkdir(exist_ok=True)
-        _bundle(folder, mode, case, sut, sources, store_path)
+        _bundle(folder, mode, case, sut, sources, config, store_path)
         folders.append(folder)
     index = ["# Findings", "", f"From `{store_path}`: {report['violations']} violations in {len(report['modes'])} failure modes.", "",
              "| # | failure mode | violations | contacts | worst f | folder |", "| --- | --- | --- | --- | --- | --- |"]
@@ -61,13 +62,15 @@ def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
 
 
 def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None, sut: Mapping[str, Any], sources: Mapping[str, Any],
-            store_path: Path) -> None:
+            config: Mapping[str, Any], store_path: Path) -> None:
     if case is None or case.concrete is None or not case.log_path:
         raise InputError([Problem(str(store_path), "", f"the worst violation of mode {mode['mode']!r} has no concrete scenario or log")])
     log = Path(case.log_path)
     name = slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}")
     regression = folder / f"case{SUFFIX}"
-    regression.write_text(json.dumps(case_document(name, case, sut, store_path, "safe"), indent=2) + "\n")
+    # A differential campaign's case holds the subject to the reference's clearance instead.
+    expect = "as_reference" if "reference" in config else "safe"
+    regression.write_text(json.dumps(case_document(name, case, sut, store_path, expect), indent=2) + "\n")
     (folder / "concrete.json").write_text(json.dumps(case.concrete, indent=2) + "\n")
     shutil.copyfile(log, folder / "flight.mcap")
     artifacts = log.with_suffix(".artifacts")
@@ -78,40 +81,58 @@ def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None
     (folder / "explanation.txt").write_text(explain_text(explanation) + "\n")
     (folder / "explanation.json").write_text(json.dumps(explanation, indent=2, default=str) + "\n")
     sut_files = sorted(str(path.relative_to(folder)) for path in (folder / "sut").rglob("*") if path.is_file()) if (folder / "sut").is_dir() else []
-    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, regression.name, sut_files, str(store_path.resolve())))
+    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, config, regression.name, sut_files, str(store_path.resolve())))
 
 
-def _sut_options(sut: Mapping[str, Any], build: Mapping[str, Any]) -> str:
-    options = [] if sut["name"] == "bundled" else [f"--sut {sut['name']}"]
+def _sut_options(sut: Mapping[str, Any], build: Mapping[str, Any], prefix: str = "") -> str:
+    """The command-line options that name this SUT (prefix "reference-" for a reference); a
+    build whose path the store does not hold (made before it kept one) is left to fill in."""
+    options = [] if sut["name"] == "bundled" and not prefix else [f"--{prefix}sut {sut['name']}"]
+    placeholder = "REFERENCE_BUILD" if prefix else "SUBJECT_BUILD"
     if "px4_sha256" in build:
-        options.append(f"--px4-bin {build.get('path', 'PATH')}")
+        options.append(f"--{prefix}px4-bin {build.get('path', placeholder)}")
     if "ardupilot_sha256" in build:
-        options.append(f"--ardupilot-bin {build.get('path', 'PATH')}")
+        options.append(f"--{prefix}ardupilot-bin {build.get('path', placeholder)}")
     if sut.get("fault"):
-        options.append(f"--sut-fault {sut['fault']}")
-    options += [f"--sut-param {name}={value}" for name, value in sorted(sut.get("params", {}).items())]
+        options.append(f"--{prefix}sut-fault {sut['fault']}")
+    options += [f"--{prefix}sut-param {name}={value}" for name, value in sorted(sut.get("params", {}).items())]
     return " ".join(options)
 
 
-def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], regression: str,
-                  sut_files: list[str], store_hint: str) -> str:
-    build = sources.get("sut_build", {})
-    options = _sut_options(sut, build)
-    clearance = f"{case.min_clearance_m:.2f} m" if case.min_clearance_m is not None else "none recorded"
-    identity = [f"* SUT: {sut['name']}" + (f", seeded fault {sut['fault']}" if sut.get("fault") else "")]
+def _identity(title: str, sut: Mapping[str, Any], build: Mapping[str, Any]) -> list[str]:
+    lines = [f"* {title}: {sut['name']}" + (f", seeded fault {sut['fault']}" if sut.get("fault") else "")]
     for key, label in (("px4_sha256", "PX4 binary sha256"), ("ardupilot_sha256", "ArduCopter binary sha256"), ("path", "build"),
                        ("git_describe", "`git describe` of its tree")):
         if key in build:
-            identity.append(f"* {label}: `{build[key]}`")
+            lines.append(f"  * {label}: `{build[key]}`")
     params = sut.get("params", {})
-    identity.append("* parameters the campaign set (the adapter's own defaults aside): "
-                    + (", ".join(f"`{k}={v}`" for k, v in sorted(params.items())) if params else "none"))
+    lines.append("  * parameters the campaign set (the adapter's own defaults aside): "
+                 + (", ".join(f"`{k}={v}`" for k, v in sorted(params.items())) if params else "none"))
+    return lines
+
+
+def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], config: Mapping[str, Any],
+                  regression: str, sut_files: list[str], store_hint: str) -> str:
+    # Stores made before the sources kept the builds still have their digests in the identity.
+    build = sources.get("sut_build") or config.get("subject", {})
+    options = subject_options = _sut_options(sut, build)
+    clearance = f"{case.min_clearance_m:.2f} m" if case.min_clearance_m is not None else "none recorded"
+    identity = _identity("SUT" if "reference" not in config else "subject", sut, build)
+    outcome = f"fitness {case.fitness:.3f}, least clearance {clearance}" + (f": {case.why}" if case.why else "")
+    expectation = "fails while the SUT violates the safety distance here"
+    if "reference" in config:
+        reference = config["reference"]
+        reference_build = sources.get("reference_build") or reference
+        options += " " + _sut_options(reference, reference_build, prefix="reference-") + f" --confirm {max(1, config.get('confirm', 0))}"
+        identity += _identity("reference", reference, reference_build)
+        outcome = f"least clearance {clearance}" + (f" ({case.why})" if case.why else "") + f"; against the reference: {case.differential['why']}"
+        expectation = "fails unless the SUT keeps the reference's clearance here (run it with either build)"
     return "\n".join([
         f"# {mode['mode']}",
         "",
         f"{mode['count']} violations of this mode in the campaign ({mode['contacts']} contacts, {mode['near_misses']} near misses). "
         f"The worst: scenario {case.scenario!r}, found by {case.algorithm} (run {case.run_index}, evaluation {case.ordinal}), "
-        f"fitness {case.fitness:.3f}, least clearance {clearance}" + (f": {case.why}" if case.why else "") + ".",
+        f"{outcome}.",
         "",
         "* obstacle: " + str(mode["obstacle"]) + "; approach: " + str(mode["approach"]) + "; phase: " + str(mode["phase"])
         + "; closing speed: " + str(mode["speed"]) + "; " + str(mode["wind"]) + "; " + str(mode["visibility"]),
@@ -126,7 +147,7 @@ def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[
         "",
         "```",
         f"stella run --concrete concrete.json --seed {case.seed} {options}".rstrip(),
-        f"pytest {regression}    # the regression case: fails while the SUT violates the safety distance here",
+        f"pytest {regression}    # the regression case: {expectation}",
         "```",
         "",
         "## Shrink it",
@@ -134,10 +155,10 @@ def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[
         "The smallest, simplest version of this scenario that still violates (docs/shrink.md; `export-findings --shrink` runs it into `shrunk/`):",
         "",
         "```",
-        f"stella shrink {store_hint} --evaluation {case.id} --out shrunk {options}".rstrip(),
+        f"stella shrink {store_hint} --evaluation {case.id} --out shrunk {subject_options}".rstrip(),
         "```",
         "",
-        "## The SUT",
+        "## The SUT" + ("s" if "reference" in config else ""),
         "",
         *identity,
         "",
