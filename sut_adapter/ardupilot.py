@@ -15,10 +15,12 @@ the world's origin (`--home`), where the bridge's positions are measured from.
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping
 
 from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
+from sut_adapter.ardupilot_failures import SUT_FAILURE_UNITS, failure_params
 from sut_adapter.base import SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess, non_empty
 
@@ -56,6 +58,13 @@ DEFAULT_PARAMS: dict[str, float] = {
     **{key: value for n, orientation in enumerate(RANGEFINDER_ORIENTATION, start=1)
        for key, value in ((f"RNGFND{n}_TYPE", 100), (f"RNGFND{n}_ORIENT", orientation), (f"RNGFND{n}_MIN", 0.1))},
     "PRX1_TYPE": 4,
+    # The compass heading's noise as the EKF weighs it while it fuses heading alone: on the ground
+    # and in the climb until its in-flight yaw alignment (3-axis fusion with EK3_MAG_M_NSE after
+    # it). At the default 0.5 rad its yaw gyro bias takes 37 s of simulated time to learn, and it
+    # uses no GPS, so it cannot arm, until then; at 0.2 rad (11 degrees, still far more than the
+    # SITL compass's error, SIM_MAG_RND 0) it has learned it when its AHRS settles, 20 s after
+    # its EKF started, the earliest ArduCopter arms (docs/suts.md, "Set-up time").
+    "EK3_YAW_M_NSE": 0.2,
     # Simple avoidance's margin as PX4's CP_DIST: the paper's 1 m safety distance.
     "AVOID_MARGIN": 1.0,
     # The simulated pilot's mode slots (sim_bridge/pilot.py: 1 hold, 2 position, 3 land) on
@@ -105,9 +114,12 @@ class ArduPilotSitl:
     pilot_params: dict[str, float] = {}
     takeoff_altitude_param = None
     pilot_flight_mode = "HOLD"
-    # ArduPilot has no MAV_CMD_INJECT_FAILURE: failures it is to be told of are refused (its SITL
-    # fails sensors through SIM_* parameters instead, which no scenario maps to yet).
+    # ArduPilot has no MAV_CMD_INJECT_FAILURE: its SITL fails its sensors through SIM_* parameters,
+    # set at the failure's onset (sut_adapter/ardupilot_failures.py); a failure without one is
+    # refused. Its GPS is its own (the JSON backend carries none), so GPS failures go to it too.
     injects_failures = False
+    failure_params = staticmethod(failure_params)
+    sut_failure_units = SUT_FAILURE_UNITS
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"ardupilot_bin"})
@@ -137,7 +149,10 @@ class ArduPilotSitl:
         (ardupilot_dir / PARAMS_FILE).write_text(format_params({**DEFAULT_PARAMS, **world_params(world), **params}))
         origin = (world.origin.lat_deg, world.origin.lon_deg, world.start_msl_m)
         argv = self.command(sim_port=sim_port, api_port=api_port, instance=instance, workdir=ardupilot_dir, origin=origin)
-        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir)
+        # Its SIGTERM handler only sets a flag its scheduler reads, on the clock our steps advance:
+        # once the flight or the harness is gone nothing reads it (2 s lost at each stop, an
+        # arducopter left after kill -9 of a campaign). Its dataflash log is written as it goes.
+        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir, end_signal=signal.SIGKILL)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(ardupilot_dir, [process.stdout_path, process.stderr_path]),
                              mavlink_params=dict(params))
 

@@ -39,7 +39,12 @@ how to treat it without knowing which SUT it is:
 * `rate_hz` (optional, 250): the lockstep rate it wants unless the user chose one; ArduPilot's
   SITL samples its gyros at the physics rate and refuses to arm below 1.8 times its 400 Hz loop.
 * `injects_failures` (optional, True): False for a SUT without MAV_CMD_INJECT_FAILURE
-  (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`.
+  (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`,
+  unless its `failure_params(unit, type)` (optional) gives parameters that fail the unit (set
+  over MAVLink at the onset; type "ok" gives their values without a failure); None: refused.
+* `sut_failure_units` (optional, none): units whose failures the SUT makes itself although the
+  simulator would fail their readings on the way for others (ArduPilot's GPS, which it makes
+  from the true position): they are told to it instead.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -47,11 +52,14 @@ how to treat it without knowing which SUT it is:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Mapping, Protocol
+from typing import TYPE_CHECKING, Callable, Mapping, Protocol
 
 from sut_adapter.processes import ManagedProcess
+
+if TYPE_CHECKING:
+    from sim_bridge.spec import WorldSpec
 
 HOLD_MODES = ("frozen", "paced")
 
@@ -119,6 +127,12 @@ def runs_inline(system: "SystemUnderTest") -> bool:
     return callable(getattr(system, "inline_arguments", None))
 
 
+def instance_count(system: "SystemUnderTest") -> int | None:
+    """How many instances of the SUT can run side by side on one host (None: as many as there
+    are port blocks); an evaluation's instance number is its port block's slot."""
+    return getattr(system, "instance_count", None)
+
+
 def hold_pace(system: "SystemUnderTest") -> float:
     """Simulated seconds per wall-clock second in the SUT's paced hold (real time unless it says)."""
     pace = getattr(system, "hold_pace", 1.0)
@@ -162,6 +176,20 @@ def physics_rate(system: "SystemUnderTest") -> float:
 def injects_failures(system: "SystemUnderTest") -> bool:
     """Whether the SUT takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled autopilot do."""
     return getattr(system, "injects_failures", True) is not False
+
+
+def failure_params(system: "SystemUnderTest") -> Callable[[str, str], Mapping[str, float] | None] | None:
+    """How a SUT without MAV_CMD_INJECT_FAILURE fails a unit through its parameters (None: it cannot)."""
+    means = getattr(system, "failure_params", None)
+    return means if callable(means) else None
+
+
+def with_failure_deliveries(system: "SystemUnderTest", world: "WorldSpec") -> "WorldSpec":
+    """The world with the failures of units the SUT fails itself told to it, not made by the simulator."""
+    units = tuple(getattr(system, "sut_failure_units", ()))
+    if not any(f.unit in units and f.delivery != "sut" for f in world.failures or ()):
+        return world
+    return replace(world, failures=tuple(replace(f, delivery="sut") if f.unit in units else f for f in world.failures))
 
 
 def rc_port(system: "SystemUnderTest", instance: int) -> int | None:

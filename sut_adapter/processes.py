@@ -19,10 +19,16 @@ log = logging.getLogger(__name__)
 
 
 class ManagedProcess:
-    """A context manager around Popen: stdout/stderr to files, SIGTERM then SIGKILL to the group."""
+    """A context manager around Popen: stdout/stderr to files, SIGTERM then SIGKILL to the group.
 
-    def __init__(self, name: str, argv: Sequence[str], *, log_dir: Path, cwd: Path | None = None, env: dict[str, str] | None = None):
+    `end_signal` SIGKILL is for a program that acts on SIGTERM only on its simulated clock, which
+    nothing advances once its simulator stopped (ArduPilot SITL): it would wait out the grace
+    time at every stop and never go when the harness dies."""
+
+    def __init__(self, name: str, argv: Sequence[str], *, log_dir: Path, cwd: Path | None = None, env: dict[str, str] | None = None,
+                 end_signal: int = signal.SIGTERM):
         self.name = name
+        self.end_signal = end_signal
         self.argv = list(argv)
         self.stdout_path = log_dir / f"{name}.stdout.log"
         self.stderr_path = log_dir / f"{name}.stderr.log"
@@ -34,7 +40,8 @@ class ManagedProcess:
         log.info("starting %s: %s", self.name, " ".join(self.argv))
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
             self.process = subprocess.Popen(
-                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True, preexec_fn=dies_with_this_process()
+                self.argv, stdout=out, stderr=err, stdin=subprocess.DEVNULL, cwd=self._cwd, env=self._env, start_new_session=True,
+                preexec_fn=dies_with_this_process(self.end_signal)
             )
         return self
 
@@ -55,12 +62,12 @@ class ManagedProcess:
             return None
 
     def stop(self, grace_s: float = 2.0) -> int | None:
-        """SIGTERM the process group, then SIGKILL what is left; returns the exit code."""
+        """SIGTERM (its end_signal) to the process group, then SIGKILL what is left; returns the exit code."""
         if self.process is None:
             return None
         group = self.process.pid
         if self.process.poll() is None:
-            _signal_group(group, signal.SIGTERM)
+            _signal_group(group, self.end_signal)
             if self.wait(grace_s) is None:
                 _signal_group(group, signal.SIGKILL)
                 self.wait(grace_s)

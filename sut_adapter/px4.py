@@ -55,6 +55,7 @@ class Px4Sitl:
     hold_mode = "paced"
     hold_pace = float(SPEED_FACTOR)
     range_messages = ("DISTANCE_SENSOR",)
+    instance_count = MAX_INSTANCE + 1
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"px4_bin"})

@@ -19,11 +19,13 @@ from conftest import ROOT
 from fake_ardupilot import parse_like_ardupilot
 from harness.flight import logs
 from harness.flight.ports import PortLease
-from sim_bridge import ardupilot_json
+from sim_bridge import ardupilot_json, geo
 from sim_bridge.ardupilot_json import FrameCounter, FrameError, decode_servo_frame, encode_servo_frame, motor_commands, rangefinder_distances_m, state_line
 from sim_bridge.spec import WorldSpec
-from sut_adapter import SutError, get
+from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
+from sut_adapter import SutError, get, with_failure_deliveries
 from sut_adapter.ardupilot import DEFAULT_PARAMS, PARAMS_FILE
+from sut_adapter.ardupilot_failures import failure_params
 from test_bridge_lockstep import world
 
 FAKE_ARDUPILOT = ROOT / "tests" / "fake_ardupilot.py"
@@ -237,3 +239,33 @@ def test_a_gps_failure_the_simulator_would_deliver_is_recorded_as_refused_and_a_
     assert seen["ranges_seen"] == 0
     events = [m for _t, _ns, m in logs.messages(tmp_path / "run.mcap", ["/events"])]
     assert [e["detail"]["unit"] for e in events if e["event"] == "failure_refused"] == ["gps"]
+
+
+# -- failures through ArduPilot SITL's parameters ---------------------------------------------
+
+def test_each_failure_ardupilot_sitl_can_make_is_a_parameter_set_its_end_sets_back_and_the_rest_are_refused():
+    mapped = {(unit, kind): failure_params(unit, kind) for unit in UNIT_BY_NAME for kind in TYPE_BY_NAME}
+    assert sorted(key for key, params in mapped.items() if params is not None) == sorted([
+        ("gyro", "off"), ("gyro", "wrong"), ("accelerometer", "off"), ("accelerometer", "wrong"), ("magnetometer", "off"),
+        ("magnetometer", "stuck"), ("magnetometer", "wrong"), ("barometer", "off"), ("barometer", "stuck"), ("barometer", "wrong"),
+        ("gps", "off"), ("gps", "wrong"), ("gps", "slow")])
+    for (unit, _kind), params in mapped.items():
+        if params is not None:
+            unfailed = failure_params(unit, "ok")
+            assert set(params) <= set(unfailed) and all(unfailed[name] != value for name, value in params.items())
+    # The distance sensor's failures are the simulator's, for ArduPilot as for every SUT.
+    assert failure_params("distance sensor", "off") is None
+    # The meanings are simlink/failures.py's: 20 m north, 10 m high, +0.05 rad/s of yaw rate, one reading in five.
+    north_m = geo.local_from_geodetic(47.0, 8.0, 47.0 + failure_params("gps", "wrong")["SIM_GPS1_GLTCH_X"], 8.0)[0]
+    assert north_m == pytest.approx(20.0, abs=0.1)
+    assert failure_params("barometer", "wrong")["SIM_BARO_GLITCH"] == 10.0 and failure_params("gyro", "wrong")["SIM_GYR1_BIAS_Z"] == 0.05
+    assert failure_params("gps", "slow")["SIM_GPS1_HZ"] * 5 == failure_params("gps", "ok")["SIM_GPS1_HZ"]
+
+
+def test_ardupilots_gps_failures_are_told_to_it_and_the_distance_sensors_stay_the_simulators(arducopter):
+    failures = [{"unit": "gps", "type": "off", "onset_s": 1.0, "duration_s": 1.0, "delivery": "simulator"},
+                {"unit": "distance sensor", "type": "off", "onset_s": 0.0, "duration_s": 10.0, "delivery": "simulator"}]
+    spec = WorldSpec.from_dict({**world(), "failures": failures})
+    placed = with_failure_deliveries(get("ardupilot", {"ardupilot_bin": str(arducopter)}), spec)
+    assert [(f.unit, f.delivery) for f in placed.failures] == [("gps", "sut"), ("distance sensor", "simulator")]
+    assert with_failure_deliveries(get("bundled"), spec) is spec

@@ -56,6 +56,7 @@ CORPUS = [
     (["bench", "--transport", "memory", "--sut", "command", "--sut-command", "x {sim_port} {api_port}"], "memory carries the bundled autopilot only"),
     (["bench", "--transport", "memory", "--cores", "2"], "no placement has --cores 2 with --transport memory"),
     (["bench", "--cold-start"], "--cold-start: only the campaign benchmark takes it (--campaign)"),
+    (["bench", "--limit", "--campaign"], "--limit: the SUT-alone replay goes with the flight benchmark; leave out --campaign and --executor"),
     (["validate", "BROKEN_JSON"], "invalid JSON at line 1"),
     (["validate", "ARRAY_JSON"], "expected object, got array"),
     (["validate", "EMPTY_FOLDER"], "a folder without *.json or *.plan files"),

@@ -76,6 +76,7 @@ def test_a_record_keeps_both_sides_flights_and_the_verdict():
     (["--reference-sut-param", "CP_DIST=1.0", "--sut-param", "CP_DIST=1.0"], "the reference is the subject itself"),
     (["--reference-sut", "px4", "--reference-px4-bin", "/nonexistent/px4"], "is not an executable px4 binary"),
     (["--reference-sut-param", "CP_DISTANCE=2"], "unknown parameter"),
+    (["--reference-sut", "ardupilot", "--reference-ardupilot-bin", "/nonexistent/arducopter"], "no executable arducopter"),
 ])
 def test_a_bad_reference_is_refused_with_the_option_named(argv, message, capsys, tmp_path):
     assert main(["campaign", "scenarios/examples/wall.json", "--algorithm", "RANDOM", "--evaluations", "2", "--store", str(tmp_path / "c.db"), *argv]) == 2

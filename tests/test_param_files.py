@@ -90,11 +90,47 @@ def test_a_refused_parameter_is_put_on_the_option_it_came_from(tmp_path, in_file
     assert [problem.file for problem in refused.value.problems] == [blamed]
 
 
+# ArduPilot's own layouts: its SITL defaults (Tools/autotest/default_params/copter.parm, with a
+# tab-separated line and an inline comment as in its other .parm files), MAVProxy's `param save`
+# and Mission Planner's .param export.
+ARDUPILOT_PARM = """FRAME_TYPE\t0
+FS_THR_ENABLE   1
+FENCE_RADIUS    150
+FLTMODE6\t\t0
+# we need small INS_ACC offsets so INS is recognised as being calibrated
+INS_ACCOFFS_X   0.001
+TECS_SPDWEIGHT 1.7 # allow some altitude control
+"""
+MAVPROXY = "FENCE_ALT_MAX    120.000000\nAVOID_MARGIN     1.500000\n"
+MISSION_PLANNER = "#NOTE: 4/7/2017 9:02:52 PM Plane: Vee-gull 005\nACRO_LOCKING,0\nACRO_PITCH_RATE,180\n"
+
+
+@pytest.mark.parametrize("text, values", [
+    (ARDUPILOT_PARM, {"FRAME_TYPE": 0, "FS_THR_ENABLE": 1, "FENCE_RADIUS": 150, "FLTMODE6": 0, "INS_ACCOFFS_X": 0.001, "TECS_SPDWEIGHT": 1.7}),
+    (MAVPROXY, {"FENCE_ALT_MAX": 120.0, "AVOID_MARGIN": 1.5}),
+    (MISSION_PLANNER, {"ACRO_LOCKING": 0, "ACRO_PITCH_RATE": 180}),
+    ("OA_TYPE=1\n", {"OA_TYPE": 1}),
+])
+def test_ardupilot_parameter_files_read_as_ardupilot_reads_them(tmp_path, text, values):
+    path = tmp_path / "vehicle.parm"
+    path.write_text(text)
+    assert load_params_file(path) == values
+
+
+def test_ardupilots_read_only_flag_is_said_to_be_ignored(tmp_path, caplog):
+    path = tmp_path / "locked.parm"
+    path.write_text("AVOID_MARGIN 2 @READONLY\n")
+    with caplog.at_level(logging.WARNING):
+        assert load_params_file(path) == {"AVOID_MARGIN": 2}
+    assert "AVOID_MARGIN is set to 2; stella does not make it read-only (@READONLY ignored)" in caplog.text
+
+
 @pytest.mark.parametrize("text, line, message", [
     ("CP_DIST\n", "line 1", "expected NAME,VALUE"),
     ("CP_DIST,near\n", "line 1", "not a finite number"),
     ("CP_DIST,nan\n", "line 1", "not a finite number"),
     ("CP_DIST,2\nCP_DIST,3\n", "line 2", "set twice"),
+    ("AVOID_MARGIN 2 3\n", "line 1", "ArduPilot's NAME VALUE"),
     ("1\t1\tCP_GO_NO_DATA\t0.5\t6\n", "line 1", "not a finite number of the right type"),
     ("1\t1\tCP_DIST\t2\t42\n", "line 1", "unknown MAV_PARAM_TYPE 42"),
     ("THIS_NAME_IS_FAR_TOO_LONG,1\n", "line 1", "is not a parameter name"),

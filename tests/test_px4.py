@@ -143,3 +143,13 @@ def test_an_injected_range_sensor_failure_reaches_px4_and_px4_answers_a_baromete
                for message in parser.parse_buffer(bytes.fromhex(m["hex"])) or [] if message.get_type() == "DISTANCE_SENSOR"]
     assert [t for t in relayed if 2.0 < t < 4.0] and [t for t in relayed if 9.0 < t < 11.0]
     assert not [t for t in relayed if 5.0 < t < 8.0]
+
+
+def test_bench_limit_replays_a_px4_flight_to_px4_alone_in_lockstep_and_reports_the_flight_as_a_share_of_it(capsys):
+    assert main(["bench", "--sut", "px4", "--limit", "--runs", "1", "--cores", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    alone = report["sut_alone"]
+    assert alone["in_step"], "PX4 answered a replayed step with another step's time"
+    [placement] = report["placements"]
+    assert alone["timed_steps"] > 0.8 * placement["median"]["sim_time_s"] * report["rate_hz"]
+    assert 0.0 < placement["median"]["flight_speed_of_sut_alone"] < math.inf

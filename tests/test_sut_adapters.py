@@ -189,9 +189,11 @@ def test_sut_check_passes_every_stage_for_the_bundled_autopilot(capsys):
     assert times == sorted(times)
 
 
-def late_armable(late_s: float) -> list[str]:
-    """A paced SUT (as PX4) that denies arming for late_s of simulated time after MAVSDK reports it healthy."""
-    return ["--sut", "command", "--sut-command", f"{sys.executable} {ROOT / 'tests' / 'late_armable_sut.py'} {{sim_port}} {{api_port}} {late_s}"]
+def late_armable(late_s: float, refusal: str = "denied") -> list[str]:
+    """A paced SUT (as PX4) that denies arming for late_s of simulated time after MAVSDK reports
+    it healthy; refusal "failed" answers as ArduPilot does, MAV_RESULT_FAILED."""
+    return ["--sut", "command", "--sut-command",
+            f"{sys.executable} {ROOT / 'tests' / 'late_armable_sut.py'} {{sim_port}} {{api_port}} {late_s} {refusal}"]
 
 
 @pytest.mark.slow
@@ -205,6 +207,15 @@ def test_sut_check_judges_armability_as_a_flight_does_and_says_how_long_arming_t
     # ... and a flight of the same SUT arms too
     assert main(["run", str(ROOT / "scenarios" / "examples" / "fig4.json"), "--seed", "1", *late_armable(1.0), "--out", str(tmp_path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["status"] in ("ok", "violation")
+
+
+@pytest.mark.slow
+def test_an_arming_refused_as_arducopter_refuses_it_is_asked_again_too(capsys):
+    # GIVEN a SUT that answers MAV_RESULT_FAILED while its pre-arm checks fail, as ArduCopter does
+    code = main(["sut", "check", *late_armable(1.0, "failed"), "--json"])
+    stages = json.loads(capsys.readouterr().out)["stages"]
+    # THEN it is armed once its checks pass, as one answering DENIED is
+    assert code == 0 and stages[5]["name"] == "armable" and stages[5]["ok"], stages
 
 
 @pytest.mark.slow

@@ -77,7 +77,8 @@ def test_scenario_paths_outside_scenarios_and_uploads_are_refused(client, choice
 
 
 @pytest.mark.parametrize("path", ["/static/..%2F..%2Fcli.py", "/static/index.html", "/api/campaigns/..%2F..%2Fetc/report.html",
-                                  "/api/campaigns/nope/evaluations/1/log.mcap", "/api/campaigns/nope/evaluations/..%2F1/plot.png"])
+                                  "/api/campaigns/nope/evaluations/1/log.mcap", "/api/campaigns/nope/evaluations/..%2F1/plot.png",
+                                  "/api/campaigns/nope/evaluations/1/explain"])
 def test_nothing_outside_the_store_directory_is_served(client, path):
     assert client.get(path).status_code in (404, 422)
 
@@ -96,6 +97,7 @@ def test_a_log_path_pointing_outside_the_store_directory_is_not_served(client, t
     assert "Test Scenario #1 RANDOM run 0: best fitness" in details["console"]  # the campaign's own output, shown on the page
     [evaluation_id] = [e["id"] for e in details["evaluations"]][:1]
     assert client.get(f"/api/campaigns/c1/evaluations/{evaluation_id}/log.mcap").status_code == 404
+    assert client.get(f"/api/campaigns/c1/evaluations/{evaluation_id}/explain").status_code == 404
 
 
 def test_triage_of_an_unknown_campaign_is_not_found(client):
@@ -146,7 +148,8 @@ def cli_refusal(tmp_path, capsys, options: list[str]) -> str:
 
 
 @pytest.mark.parametrize("changes, options, field", [
-    ({"sut": "ardupilot"}, ["--sut", "ardupilot"], "sut"),
+    ({"sut": "betaflight"}, ["--sut", "betaflight"], "sut"),
+    ({"sut": "ardupilot", "ardupilot_bin": "/nonexistent/arducopter"}, ["--sut", "ardupilot", "--ardupilot-bin", "/nonexistent/arducopter"], "sut"),
     ({"sut": "px4", "px4_bin": "/nonexistent/px4"}, ["--sut", "px4", "--px4-bin", "/nonexistent/px4"], "sut"),
     ({"sut": "command", "sut_command": "my_autopilot --id {instance}"}, ["--sut", "command", "--sut-command", "my_autopilot --id {instance}"], "sut"),
     ({"sut": "px4", "sut_fault": "cp_ignores_delay"}, ["--sut", "px4", "--sut-fault", "cp_ignores_delay"], "sut_fault"),
@@ -339,6 +342,9 @@ def test_set_up_launch_watch_and_browse_a_campaign_in_the_browser(server, page, 
     page.locator("a.open-worst").first.click()
     page.wait_for_function("document.getElementById('evaluation-title').textContent.includes('violation')")
     page.wait_for_function("document.getElementById('plot').complete && document.getElementById('plot').naturalWidth > 0", timeout=60_000)
+    # Its explanation, read from its log: the mechanism that is also the mode's first column.
+    page.wait_for_function("document.getElementById('explanation').textContent.includes('mechanism: ')", timeout=60_000)
+    assert f"mechanism: {page.locator('#modes tr.mode td').nth(1).inner_text()}" in page.locator("#explanation").inner_text()
     page.screenshot(path=str(ARTIFACTS / "5-failure-modes.png"), full_page=True)
     with page.expect_download() as download:
         page.click("#mcap-link")
@@ -443,6 +449,8 @@ def test_the_sut_choices_in_the_browser_refuse_a_bad_parameter_and_launch_with_a
     page.select_option("#executor", "sequential")
     page.select_option("#sut", "px4")  # each SUT shows its own options only
     assert page.is_visible("#px4-bin") and not page.is_visible("#sut-fault") and not page.is_visible("#sut-command")
+    page.select_option("#sut", "ardupilot")
+    assert page.is_visible("#ardupilot-bin") and not page.is_visible("#px4-bin")
     page.select_option("#sut", "bundled")
     assert page.is_visible("#sut-fault") and not page.is_visible("#px4-bin")
     page.select_option("#sut-fault", "cp_ignores_delay")

@@ -15,10 +15,11 @@ import json
 import logging
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
@@ -55,6 +56,7 @@ class CampaignConfig:
     mission_plan: str | None = None  # a .plan flown instead of each scenario's route
     # Differential: every candidate flown against this SUT too (harness/campaigns/pairs.py), and
     # the search minimising the subject's f ("subject") or f_subject - f_reference ("difference").
+    # Without a reference, "diverse": f shared over failure modes (harness/campaigns/diversity.py).
     reference: SutConfig | None = None
     objective: str = "subject"
     stop_at_reveal: bool = False  # end each run at its first confirmed revealing candidate
@@ -83,8 +85,11 @@ class CampaignConfig:
 
     def sources(self) -> dict[str, Any]:
         """Where the campaign's documents were read from: information, not identity."""
+        from harness.campaigns.pairs import build_record
+
         return {"scenario_files": [str(Path(s).resolve()) for s in self.scenarios], "profile": self.profile,
-                **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {})}
+                **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {}),
+                "sut_build": build_record(self.sut), **({"reference_build": build_record(self.reference)} if self.reference else {})}
 
     def _identity(self, *, scenarios: list[str], profile: str) -> dict[str, Any]:
         overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}
@@ -98,6 +103,8 @@ class CampaignConfig:
             from harness.campaigns.pairs import build_identity
 
             overrides.update(reference=build_identity(self.reference), objective=self.objective, subject=build_identity(self.sut))
+        elif self.objective != "subject":  # the optimizer hears other values, so it asks other candidates
+            overrides["objective"] = self.objective
         if self.stop_at_reveal:
             overrides["stop_at_reveal"] = True
         return {
@@ -236,7 +243,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
-                                          confirm=config.confirm, pairs=pairs)
+                                          confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best

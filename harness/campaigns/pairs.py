@@ -5,14 +5,17 @@ Both sides of a batch go to the executor together, so they fly in parallel where
 workers. A pair that reveals a difference is flown `confirm` more times on both sides and judged
 again on all flights: with SUTs that do not repeat bit for bit, only a difference that survives
 the measured spread counts. Reference flights are kept in a ReferenceCache by concrete scenario,
-seed and reference build, so a case flown against many subjects (mutants) costs its reference
-flights once.
+seed and reference build, so a case flown against many subjects (mutants) costs its first
+reference flight once. The confirming reference flights are always flown afresh, beside the
+subject's: a SUT's timing depends on the machine's load (PX4 lands up to 40 cm apart on one wall),
+and a reference cached in a quieter sitting must not make a loaded subject look different.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
@@ -26,18 +29,53 @@ from sut_adapter import SutConfig
 
 def build_identity(config: SutConfig) -> dict[str, object]:
     """What tells two reference configurations apart, builds included: the SUT's identity plus a
-    digest of the PX4 binary's bytes (the same build from another folder is the same build) or the
-    bundled autopilot's source folder."""
+    digest of the firmware binary's bytes (the same build from another folder is the same build) or
+    the bundled autopilot's source folder."""
     identity: dict[str, object] = {**config.identity()}
     if config.px4_bin:
         from sut_adapter.px4 import resolve_binary
 
         binary, _etc = resolve_binary(config.px4_bin)
         identity["px4_sha256"] = _file_digest(binary)
+    if config.ardupilot_bin:
+        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+
+        identity["ardupilot_sha256"] = _file_digest(resolve_arducopter(config.ardupilot_bin))
     for name in ("autopilot_dir", "command", "hold"):
         if getattr(config, name):
             identity[name] = str(getattr(config, name))
     return identity
+
+
+def build_record(config: SutConfig) -> dict[str, object]:
+    """Where the SUT's build lay and what it was, for a person reading a finding later: its
+    identity, the binary's or source folder's path, and `git describe` of the tree it lies in."""
+    record = build_identity(config)
+    where: Path | None = None
+    if config.px4_bin:
+        from sut_adapter.px4 import resolve_binary
+
+        where = resolve_binary(config.px4_bin)[0]
+    elif config.ardupilot_bin:
+        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+
+        where = resolve_arducopter(config.ardupilot_bin)
+    elif config.name == "bundled":
+        where = Path(config.autopilot_dir) if config.autopilot_dir else Path(__file__).resolve().parents[2]
+    if where is not None:
+        record["path"] = str(where)
+        described = _git_describe(where if where.is_dir() else where.parent)
+        if described:
+            record["git_describe"] = described
+    return record
+
+
+def _git_describe(folder: Path) -> str | None:
+    try:
+        found = subprocess.run(["git", "-C", str(folder), "describe", "--always", "--dirty", "--tags"], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return found.stdout.strip() if found.returncode == 0 and found.stdout.strip() else None
 
 
 _DIGESTS: dict[tuple[str, float, int], str] = {}
@@ -110,15 +148,13 @@ class PairedFlights:
         revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None]
         if self.confirm and revealing:
             again = [replace(job, name=f"{job.name}-confirm{i}") for job in revealing for i in range(1, self.confirm + 1)]
-            again += [self._reference_job(job, i) for job in revealing for i in range(len(references[job.name]), self.confirm + 1)]
+            again += [self._reference_job(job, i) for job in revealing for i in range(1, self.confirm + 1)]
             flown = self._fly(again)
             for job in revealing:
                 subjects[job.name] += [flown[f"{job.name}-confirm{i}"] for i in range(1, self.confirm + 1)]
-                extra = [Outcome.of(flown[name]) for i in range(len(references[job.name]), self.confirm + 1)
-                         if (name := f"{job.name}-reference-confirm{i}") in flown]
-                if extra:
-                    references[job.name] = references[job.name] + extra
-                    self._remember(keys[job.name], references[job.name])
+                references[job.name] = references[job.name] + [Outcome.of(flown[f"{job.name}-reference-confirm{i}"])
+                                                                for i in range(1, self.confirm + 1)]
+                self._remember(keys[job.name], references[job.name])
         for job in jobs:
             flights = subjects[job.name]
             differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])

@@ -26,6 +26,7 @@ from harness.scenario.space import SearchSpace
 from harness.search.termination import Progress, Termination
 
 if TYPE_CHECKING:
+    from harness.campaigns.diversity import FailureModes
     from harness.campaigns.pairs import PairedFlights
 
 
@@ -49,6 +50,7 @@ class Trial:
     fitness: float
     status: Status
     reveals: Reveal | None = None
+    log_path: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,7 @@ class CampaignProblem:
     on_result: Callable[[EvaluationResult], None] = lambda result: None
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
     pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
+    diversity: FailureModes | None = None  # the optimizer is told fitness shared over failure modes (--objective diverse)
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
@@ -159,7 +162,7 @@ class CampaignProblem:
             stored = self._stored.get(candidate.key)
             if stored is not None:
                 self.replayed += 1
-                self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals))
+                self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path))
                 continue
             refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
             if refused is not None:
@@ -177,10 +180,13 @@ class CampaignProblem:
                 self._finish(job.key, to_fly[job.key][0], result, job.concrete)
         for job, result in self._confirmed(to_confirm):
             self._finish(job.key, to_fly[job.key][0], result, job.concrete)
-        results = [self._trials[c.key].fitness if c.key in self._trials else None for c in candidates]
-        if stop is not None or any(r is None for r in results):
+        if stop is not None or any(c.key not in self._trials for c in candidates):
             raise stop or StopSearch(campaign_done=True)
-        return results  # type: ignore[return-value]
+        return [self._told(self._trials[c.key]) for c in candidates]
+
+    def _told(self, trial: Trial) -> float:
+        """The fitness the optimizer hears of (the stored one is the flight's own)."""
+        return trial.fitness if self.diversity is None else self.diversity.shared(trial, self._trials.values())
 
     def _confirmed(self, violations: list[tuple[Job, EvaluationResult]]) -> list[tuple[Job, EvaluationResult]]:
         """Each violation with the outcome of flying it `confirm` more times (same scenario and
@@ -205,5 +211,6 @@ class CampaignProblem:
                                   result=result, concrete=concrete)
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
-        self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None))
+        self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,
+                           result.log_path))
         self.on_result(result)

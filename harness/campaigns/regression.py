@@ -196,25 +196,31 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:
-        document = {
-            "format": FORMAT,
-            "name": name,
-            "expect": expect,
-            "seed": case.seed,
-            "sut": sut,
-            "found": {
-                "fitness": case.fitness, "status": str(case.status), "min_clearance_m": case.min_clearance_m, "store": str(store_path.resolve()),
-                "run": case.run_index, "algorithm": case.algorithm, "evaluation": case.ordinal, "log": case.log_path,
-                **({"confirmations": case.confirmations, "flaky": case.flaky} if case.confirmations else {}),
-            },
-            "note": f"{EXPECTATIONS[expect]}; found by {case.algorithm} with fitness {case.fitness:.3f} ({case.status})"
-                    + ("; FLAKY: it did not violate in every re-flight" if case.flaky else "")
-                    + (f"; reveals {case.reveals}: {case.differential['why']}" if revealing else ""),
-            "concrete_scenario": case.concrete,
-        }
-        if revealing:
-            document["reference"] = revealing_case(case)
         path = out_dir / f"{name}{SUFFIX}"
-        path.write_text(json.dumps(document, indent=2) + "\n")
+        path.write_text(json.dumps(case_document(name, case, sut, store_path, expect), indent=2) + "\n")
         written.append(path)
     return written
+
+
+def case_document(name: str, case: StoredEvaluation, sut: Mapping[str, Any], store_path: Path, expect: str) -> dict[str, Any]:
+    """A stored evaluation as a regression case that pytest flies (expect: what must hold)."""
+    revealing = expect == "as_reference"
+    document = {
+        "format": FORMAT,
+        "name": name,
+        "expect": expect,
+        "seed": case.seed,
+        "sut": dict(sut),
+        "found": {
+            "fitness": case.fitness, "status": str(case.status), "min_clearance_m": case.min_clearance_m, "store": str(store_path.resolve()),
+            "run": case.run_index, "algorithm": case.algorithm, "evaluation": case.ordinal, "log": case.log_path,
+            **({"confirmations": case.confirmations, "flaky": case.flaky} if case.confirmations else {}),
+        },
+        "note": f"{EXPECTATIONS[expect]}; found by {case.algorithm} with fitness {case.fitness:.3f} ({case.status})"
+                + ("; FLAKY: it did not violate in every re-flight" if case.flaky else "")
+                + (f"; reveals {case.reveals}: {case.differential['why']}" if revealing else ""),
+        "concrete_scenario": case.concrete,
+    }
+    if revealing:
+        document["reference"] = revealing_case(case)
+    return document

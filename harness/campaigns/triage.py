@@ -1,8 +1,9 @@
 """Triage: a campaign's violations grouped into failure modes by what happened, not by how close
 their vectors are.
 
-A violation's mode is read from its log at the moment of least clearance: the obstacle involved
-(kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle's
+A violation's mode is read from its log at the moment of least clearance: the mechanism `stella
+explain` finds (harness/campaigns/explain.py: unseen, seen_late, braked_too_little, outrun,
+pushed, other), the obstacle involved (kind and form), the flight phase (climb, cruise, braking, hover, descent), where the obstacle's
 centre was relative to the direction of flight (ahead, beside, behind; the vehicle hovering; or
 inside the obstacle, for a contact), the
 closing speed band, and the environment: the wind and visibility categories of the profile the
@@ -95,6 +96,7 @@ def features(log_path: Path) -> dict[str, Any]:
     weather = space_from_concrete(logs.json_metadata(log_path, "concrete_scenario"), str(log_path)).logical.weather
     wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
     return {
+        "mechanism": _mechanism(log_path),
         "obstacle": f"{spec['kind']} {spec['form']}",
         "phase": _phase(before, at),
         # Inside the obstacle, where its centre lies says nothing of how the vehicle got there.
@@ -107,11 +109,22 @@ def features(log_path: Path) -> dict[str, Any]:
     }
 
 
-MODE_KEYS = ("obstacle", "phase", "approach", "speed", "wind", "visibility")
+def _mechanism(log_path: Path) -> str:
+    """How the flight came too close (`stella explain`); "unexplained" where its log cannot say."""
+    from harness.campaigns.explain import explain
+
+    try:
+        return explain(log_path)["mechanism"]
+    except (InputError, KeyError):  # KeyError: a log from a recorder older than a field explain reads
+        return "unexplained"
+
+
+MODE_KEYS = ("mechanism", "obstacle", "phase", "approach", "speed", "wind", "visibility")
 
 
 def mode_name(entry: Mapping[str, Any]) -> str:
-    return f"{entry['obstacle']}, {entry['approach']}, {entry['phase']}, {entry['speed']}, {entry['wind']}, {entry['visibility']}"
+    return (f"{entry['mechanism']}: {entry['obstacle']}, {entry['approach']}, {entry['phase']}, {entry['speed']}, {entry['wind']}, "
+            f"{entry['visibility']}")
 
 
 def triage(store_path: Path) -> dict[str, Any]:

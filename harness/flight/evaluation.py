@@ -179,9 +179,14 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
 
     try:
         system = sut_adapter.system_for(options.sut)
+        world = sut_adapter.with_failure_deliveries(system, world)
+        started = time.monotonic()
         with simulation_stack(world, options, system, workdir) as stack:
+            timings["start_s"] = time.monotonic() - started
             outcome = _fly(world, options, stack, timings, system)
             stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
+            stopping = time.monotonic()
+        timings["stop_s"] = time.monotonic() - stopping
         failure = outcome.failure
         if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
             failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {stack.sut.stderr_tail()[-500:]}")
@@ -262,6 +267,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             session.set_params(sut.mavlink_params)
             if not sut_adapter.injects_failures(system):
                 session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events
+                session.failure_params = sut_adapter.failure_params(system)  # unless it fails the unit through its parameters
             elif any(f.delivery == "sut" for f in world.failures or ()):
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action import Action
@@ -23,11 +23,16 @@ from harness.errors import InfrastructureError
 from sim_bridge.geo import geodetic_from_local
 from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
 
+if TYPE_CHECKING:
+    from sim_bridge.spec import WorldSpec
+
 log = logging.getLogger(__name__)
 
 ACCEPTANCE_RADIUS_M = 2.0
 # A SUT that denies arming is asked again this often, within the caller's window.
 ARM_RETRY_INTERVAL_S = 0.1
+# How a SUT refuses an arming its pre-arm checks fail: PX4 says DENIED, ArduPilot FAILED.
+REFUSED_FOR_NOW = (ActionResult.COMMAND_DENIED, ActionResult.FAILED)
 # MAVSDK's health is polled this often: health usually comes within one poll of the hold, and
 # each poll is a call into MAVSDK's memory, so a coarse poll only adds to every set-up.
 HEALTH_POLL_S = 0.005
@@ -112,6 +117,10 @@ class MavsdkSession:
         # The answer to an injection while the failure plugin is off: a SUT without
         # MAV_CMD_INJECT_FAILURE (ArduPilot) says UNSUPPORTED.
         self.answer_without_injection = "NOT_ENABLED"
+        # A SUT that fails its units through parameters instead (ArduPilot's SITL): (unit, type)
+        # -> parameters, None where it has no means; and what each unit's failure set.
+        self.failure_params: Callable[[str, str], Mapping[str, float] | None] | None = None
+        self._failed_params: dict[str, Mapping[str, float]] = {}
 
     def restart(self) -> None:
         """A new flight with the same connection (a warm stack's next evaluation): forget what the
@@ -120,6 +129,7 @@ class MavsdkSession:
             self.status_texts = []
             self.mission_progress = (0, 0)
         self.failure = None
+        self._failed_params = {}
 
     def discover(self, timeout_s: float = 20.0, alive=lambda: True) -> "MavsdkSession":
         """Wait for the autopilot's heartbeat, giving up early when alive() turns false; with a
@@ -198,7 +208,9 @@ class MavsdkSession:
         """Arm, asking again while the SUT denies it, for up to retry_for_s. PX4's position
         estimate or heading can turn invalid for a second or two just after MAVSDK first reported
         it healthy and armable, so that it denies arming then (its own MAVSDK tests ask again
-        for 30 s; here up to half of PX4 main's flights did, 2026-11)."""
+        for 30 s; here up to half of PX4 main's flights did, 2026-11). ArduCopter answers an
+        arming its pre-arm checks fail with MAV_RESULT_FAILED: on a loaded machine MAVSDK can
+        call it healthy a second before its AHRS has settled ("Arm: Gyros inconsistent")."""
         deadline = time.monotonic() + retry_for_s
         denials = 0
         while True:
@@ -206,7 +218,7 @@ class MavsdkSession:
                 self.action.arm()
                 break
             except ActionError as error:
-                if error.result != ActionResult.COMMAND_DENIED or time.monotonic() >= deadline:
+                if error.result not in REFUSED_FOR_NOW or time.monotonic() >= deadline:
                     raise
             denials += 1
             time.sleep(ARM_RETRY_INTERVAL_S)
@@ -222,12 +234,32 @@ class MavsdkSession:
         """MAV_CMD_INJECT_FAILURE for a scenario's unit and type ("ok" clears it); the SUT's
         answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
         failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
+        if self.failure is None and self.failure_params is not None:
+            return self._fail_by_params(unit, kind)
         if self.failure is None:
             return self.answer_without_injection
         try:
             self.failure.inject(FailureUnit(int(UNIT_BY_NAME[unit])), failure_type, 0)
         except Exception as error:  # MAVSDK's FailureError carries the SUT's answer
             return getattr(getattr(error, "result", None), "name", str(error))
+        return "SUCCESS"
+
+    def _fail_by_params(self, unit: str, kind: str) -> str:
+        """A failure through the SUT's parameters; its end sets back those its onset set."""
+        if kind == "ok":
+            failed = self._failed_params.pop(unit, None)
+            unfailed = self.failure_params(unit, "ok") if failed is not None else None
+            params = None if unfailed is None else {name: unfailed[name] for name in failed}
+        else:
+            params = self.failure_params(unit, kind)
+        if params is None:
+            return self.answer_without_injection
+        try:
+            self.set_params(params)
+        except InfrastructureError as error:
+            return f"DENIED: {error}"
+        if kind != "ok":
+            self._failed_params[unit] = params
         return "SUCCESS"
 
     def close(self) -> None:

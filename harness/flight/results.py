@@ -22,7 +22,7 @@ class RunOptions:
     setup_timeout_s: float = 60.0
     min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
     keep_workdir: bool = False
-    # Pin the simulator and the SUT to the evaluation's cores (harness/flight/stack.py: _pin).
+    # Pin the simulator and the SUT to the evaluation's cores (harness/flight/stack.py: pin_to_cores).
     pin_cpu: bool = True
     # Cores one evaluation may keep busy. 1: the simulator and the SUT share a core and sleep
     # while the other works (a lockstep round trip costs about 20 us there; waking a process on

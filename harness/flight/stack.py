@@ -117,7 +117,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
            world: WorldSpec | None = None) -> Stack:
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
     run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
-    ports = contexts.enter_context(PortLease())
+    limited = sut_adapter.instance_count(system)
+    ports = contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
     transport = placed_transport(options, system)
     inline = transport == "memory"
     # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
@@ -167,7 +168,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
 
     contexts.callback(stop)
     if options.pin_cpu:
-        _pin(bridge.pid, sut.pids, ports.slot, cores)
+        pin_to_cores(bridge.pid, sut.pids, ports.slot, cores)
     placement = {"cores": cores, "transport": transport}
     return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
 
@@ -212,7 +213,7 @@ class _ServingStack:
         self._contexts.close()
 
 
-def _pin(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
+def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
     """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
     the SUT on the next one."""
     available = sorted(os.sched_getaffinity(0))

@@ -1,12 +1,18 @@
-"""SUT parameter files: QGroundControl's `.params` export and the UAV Testing Competition's
-`NAME,VALUE` CSV, read into the same name -> number mapping as `--sut-param`.
+"""SUT parameter files: QGroundControl's `.params` export, the UAV Testing Competition's
+`NAME,VALUE` CSV and ArduPilot's `.parm`/`.param` files, read into the same name -> number
+mapping as `--sut-param`.
 
 QGroundControl writes one parameter per line, tab-separated, after `#` comment lines:
 `vehicle-id  component-id  NAME  VALUE  MAV_PARAM_TYPE` (type 9 is a float, 1-8 integers).
+ArduPilot reads `NAME VALUE` with any of space, tab, `,` or `=` between them (its
+AP_Param::parse_param_line), `#` comment lines, and ignores what follows the value: a `# comment`
+in its own default files, the `@READONLY` flag (which stella does not carry: logged). MAVProxy's
+`param save` and Mission Planner's `.param` (`NAME,VALUE`) are of that kind.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from pathlib import Path
@@ -16,7 +22,12 @@ from harness.scenario.documents import read_text
 
 FLOAT_TYPES = (9, 10)  # MAV_PARAM_TYPE_REAL32, REAL64
 INTEGER_TYPES = range(1, 9)
-NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,15}$")  # PX4's names: at most 16 characters
+NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,15}$")  # PX4's and ArduPilot's names: at most 16 characters
+# ArduPilot's separators between name and value (AP_Param::parse_param_line's strtok set).
+SEPARATORS = re.compile(r"[\s,=]+")
+READONLY = "@READONLY"
+
+log = logging.getLogger(__name__)
 
 
 def _number(text: str, as_int: bool | None) -> int | float:
@@ -47,18 +58,21 @@ def load_params_file(path: Path) -> dict[str, int | float]:
         if not text or text.startswith("#"):
             continue
         tabbed = [field.strip() for field in line.split("\t")]
-        csv = [field.strip() for field in text.split(",")]
+        # NAME,VALUE (the competition's, Mission Planner's) or NAME VALUE (ArduPilot's), a comment after it
+        fields = SEPARATORS.split(text.split("#", 1)[0].strip())
         try:
             if len(tabbed) == 5:
                 name, value = _qgc_line(tabbed)
-            elif len(csv) == 2:
-                if number == 1 and csv[0].lower() in ("name", "param", "parameter"):
+            elif len(fields) == 2 or (len(fields) == 3 and fields[2] == READONLY):
+                if number == 1 and fields[0].lower() in ("name", "param", "parameter"):
                     continue  # a header row
-                name, value = csv[0], _number(csv[1], None)
+                name, value = fields[0], _number(fields[1], None)
+                if fields[2:]:
+                    log.warning("%s: line %d: %s is set to %s; stella does not make it read-only (%s ignored)", path, number, name, fields[1], READONLY)
             else:
                 raise ValueError("layout")
         except ValueError as error:
-            what = ("expected NAME,VALUE or QGroundControl's tab-separated `vehicle component NAME VALUE TYPE`"
+            what = ("expected NAME,VALUE, ArduPilot's NAME VALUE or QGroundControl's tab-separated `vehicle component NAME VALUE TYPE`"
                     if str(error) == "layout" else f"not a finite number of the right type ({error})")
             problems.append(Problem(str(path), f"line {number}", what))
             continue

@@ -10,6 +10,10 @@ HIL_SENSOR to receiving HIL_ACTUATOR_CONTROLS, less the bridge's own work in bet
 both socket hops and, on one core, the SUT's whole computation), building the sensor messages,
 JSBSim, and the bridge's world work (obstacles, clearance, recording, done while the SUT
 computes); the rest is the loop itself and its timers.
+
+With `limit`, a SUT in a process of its own is also measured alone after each flight
+(harness/tools/sut_alone.py): the first flight's simulator link replayed to it in lockstep, the
+yardstick a flight through the bridge is reported against ("PX4 alone").
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.flight.stack import transport_problem
 import sut_adapter
+from sut_adapter import SutConfig
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
@@ -51,9 +56,12 @@ PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float | None = None, pin_cpu: bool = True,
               sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str, bool], ...] = PLACEMENTS, drive: str | None = None,
-              mission_plan: Path | None = None) -> dict[str, Any]:
+              mission_plan: Path | None = None, limit: bool = False) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
-    default. `drive` overrides the scenario's drive, `mission_plan` its route."""
+    default. `drive` overrides the scenario's drive, `mission_plan` its route. `limit`: after
+    each flight, the SUT alone on the placement's cores (harness/tools/sut_alone.py, replaying
+    the first flight), and each flight's speed as a share of the replay beside it: paired, the
+    ratio holds while the machine's load drifts."""
     profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile, drive, mission_plan), profile)
@@ -62,6 +70,10 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     report_placements = []
     autopilot = None
     physics_alone = None
+    first_log = None
+    sut_alone = None
+    if limit:
+        from harness.tools.sut_alone import sut_alone as replay_alone
     with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
@@ -84,6 +96,11 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     if index < 0:
                         continue
                     rows.append(_run_figures(result, rate_hz, wall))
+                    first_log = first_log or Path(result.log_path)
+                    if limit:
+                        alone = replay_alone(first_log, sut.sut, cores, 1, pin_cpu)
+                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"], "in_step": alone["in_step"] and (sut_alone or alone)["in_step"]}
+                        rows[-1].update(sut_alone_real_time_factor=alone["real_time_factor"], flight_speed_of_sut_alone=rows[-1]["real_time_factor"] / alone["real_time_factor"])
                     if autopilot is None and sut.sut.name == "bundled":
                         autopilot = autopilot_step_bench(Path(result.log_path))
                     if physics_alone is None:
@@ -111,6 +128,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         "deterministic": len(fitnesses) == 1,
         "autopilot_step": autopilot,
         "jsbsim_alone": physics_alone,
+        "sut_alone": sut_alone,
     }
 
 
@@ -121,7 +139,9 @@ def _run_figures(result, rate_hz: float, wall_time_s: float) -> dict[str, Any]:
     figures = {
         "real_time_factor": result.real_time_factor,
         "wall_time_s": wall_time_s,
+        "start_s": timings.get("start_s", 0.0),
         "setup_s": timings.get("setup_s", 0.0),
+        "stop_s": timings.get("stop_s", 0.0),
         "score_s": timings.get("score_s", 0.0),
         "sut_wait_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / run_steps,
         "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
@@ -181,14 +201,21 @@ def bench_text(report: dict[str, Any]) -> str:
     alone = report["jsbsim_alone"]
     lines.append(f"  JSBSim's F450 alone           {alone['real_time_factor']:.0f}x real time ({alone['step_us']:.0f} us per step; the flight's "
                  f"motor commands replayed, nothing else)")
+    alone = report.get("sut_alone")
+    if alone:
+        lines.append(f"  {report['sut'] + ' alone':<30}the first flight's simulator link replayed to it after each flight ({alone['timed_steps']} steps timed, "
+                     f"{'every answer in step' if alone['in_step'] else 'ANSWERS OUT OF STEP: not a lockstep figure'})")
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]
         lines += [
             f"  {PLACEMENT_NAMES[(placement['cores_per_evaluation'], placement['transport'], placement['warm'])]}:",
             f"    real-time factor (flight)   {m['real_time_factor']:.1f}x, {placement['flight_speed_of_jsbsim_alone']:.3f} of JSBSim alone's",
-            f"    wall time per evaluation    {m['wall_time_s']:.2f} s (setup {m['setup_s']:.2f} s, scoring {m['score_s']:.2f} s), "
+            f"    wall time per evaluation    {m['wall_time_s']:.2f} s (start {m['start_s']:.2f} s, setup {m['setup_s']:.2f} s, stop {m['stop_s']:.2f} s, "
+            f"scoring {m['score_s']:.2f} s), "
             f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
+            *([f"    {report['sut']} alone{' ' * (22 - len(report['sut']))}{m['sut_alone_real_time_factor']:.1f}x; the flight at "
+               f"{m['flight_speed_of_sut_alone']:.3f} of it (median of the paired ratios)"] if "flight_speed_of_sut_alone" in m else []),
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
             f"      waiting for the SUT       {m['sut_wait_us']:.0f} us",
@@ -204,8 +231,8 @@ def bench_text(report: dict[str, Any]) -> str:
 
 
 def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | None = None, seed: int = 0, population: int = 50,
-                       transport: str = "auto", warm: bool = True, on_run=lambda run: None) -> dict[str, Any]:
-    """A one-run NSGA-II campaign: wall time, evaluations per hour, and where the time went."""
+                       transport: str = "auto", warm: bool = True, on_run=lambda run: None, sut: SutConfig = SutConfig()) -> dict[str, Any]:
+    """A one-run NSGA-II campaign against `sut`: wall time, evaluations per hour, and where the time went."""
 
     from harness.campaigns.campaign import CampaignConfig, run_campaign
     from harness.execution.local import LocalExecutor
@@ -213,7 +240,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
 
     path = scenario or scenarios_dir() / "table3" / "scenario_09.json"
     executor = LocalExecutor(workers)
-    config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population, batch=executor.workers)
+    config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population, batch=executor.workers, sut=sut)
     with tempfile.TemporaryDirectory(prefix="stella-bench-campaign-") as folder:
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
@@ -227,6 +254,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
     busy = sum(r.wall_time_s or 0.0 for r in flown)
     return {
         "scenario": str(path),
+        "sut": sut.name,
         "evaluations": len(rows),
         "flown": len(flown),
         "workers": executor.workers,
@@ -244,7 +272,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
 def campaign_bench_text(report: dict[str, Any]) -> str:
     return "\n".join(
         [
-            f"NSGA-II campaign on {report['scenario']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers, "
+            f"NSGA-II campaign on {report['scenario']} against {report['sut']}: {report['evaluations']} evaluations ({report['flown']} flown) with {report['workers']} workers, "
             f"transport {report['transport']}, {'warm workers' if report['warm'] else 'cold starts'}",
             f"  wall time                   {report['wall_time_s']:.0f} s",
             f"  evaluations per hour        {report['evaluations_per_hour']:.0f}",

@@ -284,6 +284,16 @@ class Store:
         return {"name": config.get("sut", "bundled"), "params": config.get("sut_params", {}),
                 **({"fault": config["sut_fault"]} if config.get("sut_fault") else {})}
 
+    def campaign_config(self) -> dict[str, Any]:
+        """The campaign's identity as stored: scenarios, algorithms, budget, SUT, reference, ..."""
+        row = self.db.execute("SELECT config FROM campaigns").fetchone()
+        return json.loads(row[0]) if row else {}
+
+    def campaign_sources(self) -> dict[str, Any]:
+        """Where the campaign's documents and SUT build lay when it began (information, not identity)."""
+        row = self.db.execute("SELECT sources FROM campaigns").fetchone()
+        return json.loads(row[0]) if row and row[0] else {}
+
     def is_differential(self) -> bool:
         """Whether the campaign flew every candidate against a reference SUT too."""
         row = self.db.execute("SELECT config FROM campaigns").fetchone()

@@ -4,6 +4,7 @@ and what is read from its store afterwards."""
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
@@ -54,7 +55,7 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
     p.add_argument("--stop-at-reveal", action="store_true", help="with a reference: end each run at its first (confirmed) revealing candidate")
-    add_reference_options(p)
+    add_reference_options(p, campaign=True)
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
 
@@ -232,4 +233,27 @@ def _export_aerialist(args: argparse.Namespace) -> int:
     lines = written + [f"not expressible in the competition's format: {s['name']}: {'; '.join(s['reasons'])}" for s in skipped]
     lines.append(f"wrote {len(written)} competition test(s) (YAML and .plan) to {out}; {len(skipped)} not expressible")
     emit(args, {"out": str(out), "files": written, "not_expressible": skipped}, "\n".join(lines))
+    return 0
+
+
+def _findings_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store", help="SQLite campaign store")
+    p.add_argument("--out", required=True, help="folder for one bundle per failure mode and FINDINGS.md")
+    p.add_argument("--shrink", action="store_true", help="also shrink each mode's case into its bundle's shrunk/ (flies; `stella shrink` with the campaign's SUT)")
+    p.add_argument("--shrink-evaluations", type=positive_int, default=100, help="with --shrink: flights per case (default 100)")
+
+
+@command("export-findings", "write one bug-report bundle per failure mode of a campaign: case, logs, plot, FINDING.md", _findings_options)
+def cmd_export_findings(args: argparse.Namespace) -> int:
+    from harness.campaigns.findings import export_findings
+
+    bundles = export_findings(Path(args.store), Path(args.out))
+    for folder, evaluation in bundles if args.shrink else ():
+        # As a user would run it (its progress on stderr), with the SUT the store records.
+        shrunk = subprocess.run([sys.executable, "-m", "harness.tools.cli", "shrink", args.store, "--evaluation", str(evaluation), "--out", str(folder / "shrunk"),
+                                 "--name", "minimal", "--max-evaluations", str(args.shrink_evaluations)], stdout=subprocess.DEVNULL)
+        if shrunk.returncode not in (0, 1):
+            return shrunk.returncode
+    text = "\n".join(str(f) for f, _ in bundles) + f"\nwrote {len(bundles)} finding(s) to {args.out}: start with {Path(args.out) / 'FINDINGS.md'}"
+    emit(args, {"out": args.out, "findings": [str(f) for f, _ in bundles]}, text)
     return 0

@@ -24,12 +24,24 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cores", type=int, choices=(1, 2), help="measure only placements with this many cores per evaluation (default: all)")
     p.add_argument("--transport", choices=TRANSPORTS[1:], help="measure only placements with this transport (default: all; memory, unix and shm: the bundled autopilot only)")
     add_sut_options(p)
+    p.add_argument("--limit", action="store_true", help="also the SUT alone: the first flight's simulator link replayed to it --runs times per placement's cores, "
+                                                        "and each flight's speed as a share of that (the SUT in its own process, over PX4's simulator protocol)")
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
     # Sequential flies in this process: it has no overhead of its own to measure.
     p.add_argument("--executor", choices=[name for name in executors.names() if name != "sequential"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
     p.add_argument("--evaluations", type=positive_int, help="with --campaign (default 500) or --executor (default 10)")
     p.add_argument("--workers", type=positive_int, help="with --campaign (default: cores) or --executor (default 1)")
     p.add_argument("--cold-start", action="store_true", help="with --campaign: every evaluation starts its processes afresh (as `stella campaign --cold-start`)")
+
+
+def check_limit(sut) -> None:
+    """The replay speaks PX4's simulator protocol to a SUT process: refuse the others here, before any flight."""
+    import sut_adapter
+
+    system = sut_adapter.system_for(sut)
+    if sut_adapter.sim_protocol(system) != "mavlink":
+        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {sut_adapter.sim_protocol(system)}, not PX4's MAVLink protocol, "
+                                                 f"which the replay speaks: measure it without --limit")])
 
 
 @command("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes", _bench_options)
@@ -40,6 +52,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
         if given and (args.executor or args.campaign):
             raise InputError([Problem(option, "", f"the executor and campaign benchmarks fly the standard scenario's own mission; leave {option} out")])
+    if args.limit and (args.executor or args.campaign):
+        raise InputError([Problem("--limit", "", "the SUT-alone replay goes with the flight benchmark; leave out --campaign and --executor")])
     if args.cold_start and not args.campaign:
         raise InputError([Problem("--cold-start", "", "only the campaign benchmark takes it (--campaign); the flight benchmark measures cold and warm starts both")])
     if args.executor:
@@ -52,12 +66,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from harness.tools.bench import campaign_bench_text, run_campaign_bench
 
         report = run_campaign_bench(args.evaluations or 500, args.workers, Path(args.scenario) if args.scenario else None,
-                                    transport=args.transport or "auto", warm=not args.cold_start, on_run=print_run_line)
+                                    transport=args.transport or "auto", warm=not args.cold_start, on_run=print_run_line, sut=sut_spec(args))
         emit(args, report, campaign_bench_text(report))
         return 0
     sut = sut_spec(args)
     if args.transport:
         check_transport(args.transport, sut)
+    if args.limit:
+        check_limit(sut)
     placements = tuple(p for p in PLACEMENTS if args.cores in (None, p[0]) and args.transport in (None, p[1]))
     if not placements:
         measured = sorted({cores for cores, transport, _warm in PLACEMENTS if transport == args.transport})
@@ -65,7 +81,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                                      f"(it is measured with --cores {' or '.join(map(str, measured))}): leave one of them out")])
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
                        sut=RunOptions(sut=sut), placements=placements,
-                       drive=args.drive, mission_plan=mission_plan(args))
+                       drive=args.drive, mission_plan=mission_plan(args), limit=args.limit)
     emit(args, report, bench_text(report))
     return 0
 

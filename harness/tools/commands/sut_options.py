@@ -27,22 +27,29 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sut-fault", metavar="NAME", help="switch on one of the bundled autopilot's seeded faults (`stella faults list`)")
     p.add_argument("--autopilot-dir", metavar="DIR", help="with --sut bundled: fly the `autopilot` package in DIR instead (a mutant's folder from "
                                                           "`stella mutants build`, or a build of `stella sut build --source .`)")
-    p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export or a NAME,VALUE CSV (the UAV Testing Competition's)")
+    p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from QGroundControl's .params export, a NAME,VALUE CSV (the UAV Testing Competition's) "
+                                                            "or ArduPilot's .parm/.param (NAME VALUE)")
     p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home becomes the origin; "
                                                       "takeoff, waypoint, land, return, change speed, delay)")
     p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
                                                    "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
 
 
-def add_reference_options(p: argparse.ArgumentParser) -> None:
+def add_reference_options(p: argparse.ArgumentParser, *, campaign: bool = False) -> None:
     group = p.add_argument_group("differential", "fly every scenario against a reference SUT too, and say where the subject (the --sut) differs")
     group.add_argument("--reference-sut", metavar="NAME", help="the reference SUT (default: the subject's, with the changes below)")
     group.add_argument("--reference-px4-bin", metavar="PATH", help="the reference's px4 binary or build folder (e.g. main's, against your branch's --px4-bin)")
+    group.add_argument("--reference-ardupilot-bin", metavar="PATH", help="the reference's arducopter binary or build folder")
     group.add_argument("--reference-autopilot-dir", metavar="DIR", help="the reference's bundled autopilot folder")
     group.add_argument("--reference-sut-param", action="append", metavar="NAME=VALUE", help="a reference parameter (over the subject's); repeatable")
     group.add_argument("--reference-sut-fault", metavar="NAME", help="a seeded fault of the reference's bundled autopilot")
-    group.add_argument("--objective", choices=["subject", "difference"], default="subject",
-                       help="what a campaign minimises: the subject's fitness (default), or f_subject - f_reference (where the subject is worse)")
+    if campaign:
+        p.add_argument("--objective", choices=["subject", "difference", "diverse"], default="subject",
+                       help="what the search minimises: the fitness (default); with a reference, f_subject - f_reference (difference: where the "
+                            "subject is worse); without one, the fitness shared over failure modes (diverse: new failures before repeats; docs/diversity.md)")
+    else:
+        group.add_argument("--objective", choices=["subject", "difference"], default="subject",
+                           help="the pair's fitness: the subject's (default), or f_subject - f_reference (where the subject is worse)")
 
 
 def mission_plan(args: argparse.Namespace) -> Path | None:
@@ -123,10 +130,15 @@ def reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | 
     --reference-* options change (another build, another SUT, other parameters); None without them."""
     import sut_adapter
 
-    given = {name: getattr(args, f"reference_{name}") for name in ("sut", "px4_bin", "autopilot_dir", "sut_param", "sut_fault")}
+    given = {name: getattr(args, f"reference_{name}") for name in ("sut", "px4_bin", "ardupilot_bin", "autopilot_dir", "sut_param", "sut_fault")}
+    if args.objective == "diverse":
+        if any(value is not None for value in given.values()):
+            raise InputError([Problem("--objective", "", "diverse searches one SUT's failures: drop the --reference-* options, or use "
+                                                         "--objective difference to search where the subject is worse than the reference")])
+        return None
     if not any(value is not None for value in given.values()):
         if args.objective != "subject":
-            raise InputError([Problem("--objective", "", "difference needs a reference SUT: add --reference-px4-bin, --reference-sut or --reference-sut-param")])
+            raise InputError([Problem("--objective", "", "difference needs a reference SUT: add --reference-px4-bin, --reference-ardupilot-bin, --reference-sut or --reference-sut-param")])
         return None
     name = given["sut"] or subject.name
     same = name == subject.name
@@ -134,10 +146,11 @@ def reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | 
         name, {**(subject.params if same else {}), **sut_param_values(given["sut_param"])},
         given["sut_fault"], given["px4_bin"] or (subject.px4_bin if same else None),
         subject.command if same else None, subject.hold if same else None,
-        given["autopilot_dir"] or (subject.autopilot_dir if same and given["sut_fault"] is None else None))
+        given["autopilot_dir"] or (subject.autopilot_dir if same and given["sut_fault"] is None else None),
+        given["ardupilot_bin"] or (subject.ardupilot_bin if same else None))
     if reference == subject:
         raise InputError([Problem("--reference-sut", "", "the reference is the subject itself: give another build (--reference-px4-bin, "
-                                                         "--reference-autopilot-dir), SUT or parameters")])
+                                                         "--reference-ardupilot-bin, --reference-autopilot-dir), SUT or parameters")])
     return checked_sut(reference, "--reference-sut", "--reference-sut-param")
 
 

@@ -59,7 +59,8 @@ def setup_choices(campaigns: Campaigns) -> dict[str, Any]:
             "executors": sorted(executors.names(), key=lambda name: name != "local"),  # the form's first is its default
             "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES),
             "faults": [{"name": f.name, "breaks": f.breaks} for f in seeded_faults().values()],
-            "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "max_upload_bytes": MAX_UPLOAD_BYTES}
+            "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "ardupilot_bin_default": os.environ.get("STELLA_ARDUPILOT_BIN"),
+            "max_upload_bytes": MAX_UPLOAD_BYTES}
 
 
 def create_app(store_dir: Path, token: str | None = None) -> FastAPI:
@@ -320,6 +321,18 @@ def plot(name: str, evaluation: int, log_path: Path = Depends(log_of), campaigns
         target.parent.mkdir(exist_ok=True)
         draw(log_path, target)
     return FileResponse(target, media_type="image/png")
+
+
+@evaluation_routes.get("/api/campaigns/{name}/evaluations/{evaluation}/explain")
+def explanation(name: str, log_path: Path = Depends(log_of)) -> dict[str, Any]:
+    """`stella explain` of the evaluation's log: its closest approach's timeline and mechanism."""
+    from harness.campaigns.explain import explain, explain_text
+
+    try:
+        report = explain(log_path)
+    except InputError as error:
+        raise HTTPException(422, str(error)) from None
+    return {**report, "text": explain_text(report)}
 
 
 def serve(store_dir: Path, host: str, port: int, token: str | None) -> None:

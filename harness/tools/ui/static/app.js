@@ -75,6 +75,7 @@ async function loadSetup(chosen = {}) {
     fillSelect($("sut-fault"), setup.faults.map((f) => ({ value: f.name, text: f.name, title: f.breaks })), "none");
     fillSelect($("drive"), setup.drives, "the scenario's own");
     if (setup.px4_bin_default) $("px4-bin").placeholder = `$STELLA_PX4_BIN: ${setup.px4_bin_default}`;
+    if (setup.ardupilot_bin_default) $("ardupilot-bin").placeholder = `$STELLA_ARDUPILOT_BIN: ${setup.ardupilot_bin_default}`;
     showSutFields();
   }
 }
@@ -110,7 +111,7 @@ async function launch(event) {
     algorithms: $("algorithms").value.split(","),
     evaluations: $("evaluations").value, population: $("population").value, runs: $("runs").value, seed: $("seed").value,
     executor: $("executor").value, workers: $("workers").value || null,
-    sut: $("sut").value, px4_bin: shown("px4-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
+    sut: $("sut").value, px4_bin: shown("px4-bin"), ardupilot_bin: shown("ardupilot-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
     sut_fault: shown("sut-fault"), autopilot_dir: shown("autopilot-dir"), drive: $("drive").value, mission_plan: $("mission-plan").value,
     sut_params_file: $("sut-params-file").value, sut_params: $("sut-params").value.split("\n").map((line) => line.trim()).filter(Boolean),
   };
@@ -226,7 +227,7 @@ async function triage() {
     const worst = element("td"), typical = element("td");
     worst.append(evaluationLink(name, m.worst, `f ${number(m.worst.fitness)}`, "open-worst"));
     typical.append(evaluationLink(name, m.typical, `f ${number(m.typical.fitness)}`, "open-typical"));
-    row.append(element("td", m.count, { class: "number count" }), element("td", m.obstacle), element("td", m.approach), element("td", m.phase),
+    row.append(element("td", m.count, { class: "number count" }), element("td", m.mechanism), element("td", m.obstacle), element("td", m.approach), element("td", m.phase),
       element("td", m.speed), element("td", m.wind), element("td", m.visibility), element("td", m.contacts, { class: "number" }),
       element("td", m.near_misses, { class: "number" }), worst, typical);
     return row;
@@ -240,6 +241,16 @@ function showEvaluation(name, e) {
   $("mcap-link").href = `${base}/log.mcap`;
   $("plot").src = `${base}/plot.png`;
   $("concrete").textContent = JSON.stringify(e.concrete, null, 2);
+  explainEvaluation(base, e.id);
+}
+
+async function explainEvaluation(base, id) {
+  $("explanation").dataset.id = id;
+  $("explanation").textContent = "reading the log...";
+  const response = await api(`${base}/explain`);
+  const answer = await response.json();
+  if ($("explanation").dataset.id !== String(id)) return;  // another evaluation was opened meanwhile
+  $("explanation").textContent = response.ok ? answer.text : answer.detail;
 }
 
 function open(name) {

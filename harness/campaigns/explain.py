@@ -1,0 +1,446 @@
+"""`stella explain`: why a flight came as close as it did, from its log alone.
+
+The log holds the world (obstacles and their motion, the range sensor's reach and field of view,
+wind, gust and failures), the ground truth every physics step, what the range sensor delivered
+to the SUT (/sensor/obstacle_distance: what the SUT's collision prevention got, after any
+failure), the wind the vehicle flew in (/wind), the pilot's sticks (/pilot) and the run's
+events. From these, at the closest approach to its obstacle, the timeline:
+
+* in view: the obstacle first inside the sensor's field of view and reach, computed from the
+  world as an ideal sensor would see it (the final sighting: an earlier glimpse that was lost
+  again does not count);
+* reported: the first delivered reading that shows it (a sector holding a distance no farther
+  than the ideal one); a failed sensor delivers nothing, or values that do not show it;
+* entered: the clearance fell below the safety distance; closest: the least clearance.
+
+and the mechanism, the first of these that holds (docs/explain.md argues each):
+
+* outrun: over the final approach the obstacle's own motion closed the gap faster than the
+  vehicle's (collision prevention does not predict moving obstacles);
+* unseen: never reported before the closest approach; why: the sensor had failed, the obstacle
+  was never inside the field of view, or never within reach;
+* seen_late: reported closer than the vehicle needed to stop from its speed towards it then;
+* pushed: reported in time and the vehicle slowed down, yet at the entry into the safety distance
+  the air moved towards the obstacle faster than the vehicle did: wind or gust carried it in;
+* braked_too_little: reported in time, nothing pushed, and the vehicle itself flew in;
+* other: none of these (a vehicle drifting in without wind, no obstacle at the closest point).
+
+A flight that kept the safety distance has mechanism "none".
+
+The stopping distance is the bundled autopilot's (PX4's jerk-limited stop plus CP_DIST and
+CP_DELAY at the current speed) with the SUT's parameters from the log's `sut` metadata, else
+the bundled defaults; the report names which values it assumed.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from harness.errors import InputError, Problem
+from harness.flight import logs
+from harness.flight.fitness import min_clearance
+from sim_bridge.obstacles import Obstacle, ray_distances
+
+MECHANISMS = ("unseen", "seen_late", "braked_too_little", "outrun", "pushed", "other", "none")
+SECTOR_DEG = 5.0  # OBSTACLE_DISTANCE's sectors as sim_bridge/world.py reads them (its SECTOR_DEG)
+FULL_CIRCLE = np.radians(np.arange(0.0, 360.0, 1.0))
+# A delivered sector shows the obstacle when it is no farther than the ideal reading by more
+# than the vehicle moves between a reading and the pose it is compared with (25 Hz states).
+SHOWS_TOLERANCE_M = 0.5
+# Readings or views apart by more than this belong to different sightings: collision prevention
+# drops range data this old (autopilot/collision.py STALE_AFTER_S).
+SIGHTING_GAP_S = 0.5
+SLOWED_M_S = 0.5  # for the timeline only: a drop in speed towards the obstacle that is braking, not jitter
+TOPICS = ["/clearance", "/uav/state", "/events", "/sensor/obstacle_distance", "/wind", "/pilot"]
+FINAL_APPROACH_S = 1.0  # before entering the safety distance: who closed the gap
+# Limits collision prevention plans its stop with: PX4's names, the bundled autopilot's defaults
+# (autopilot/params.py), used where the log's SUT metadata does not set them.
+LIMIT_DEFAULTS = {"CP_DIST": 1.0, "CP_DELAY": 0.4, "MPC_ACC_HOR": 3.0, "MPC_JERK_AUTO": 4.0}
+
+
+@dataclass(frozen=True)
+class Limits:
+    cp_dist_m: float
+    cp_delay_s: float
+    acc_m_s2: float
+    jerk_m_s3: float
+    assumed: tuple[str, ...]  # the parameters taken from the defaults, not from the log
+
+    @classmethod
+    def of(cls, sut: Mapping[str, Any] | None) -> "Limits":
+        params = dict((sut or {}).get("params") or {})
+        value = {name: float(params.get(name, default)) for name, default in LIMIT_DEFAULTS.items()}
+        return cls(value["CP_DIST"], value["CP_DELAY"], value["MPC_ACC_HOR"], value["MPC_JERK_AUTO"],
+                   tuple(name for name in LIMIT_DEFAULTS if name not in params))
+
+    def stopping_distance_m(self, speed_m_s: float) -> float:
+        """From a reading to standing still CP_DIST before the obstacle: the delay flown at this
+        speed, then PX4's jerk-limited stop (the inverse of math::computeMaxSpeedFromDistance).
+        With collision prevention off (CP_DIST < 0) the same stop to the obstacle itself."""
+        v = max(0.0, speed_m_s)
+        braking = (v * v + v * 4.0 * self.acc_m_s2 ** 2 / self.jerk_m_s3) / (2.0 * self.acc_m_s2)
+        return max(0.0, self.cp_dist_m) + self.cp_delay_s * v + braking
+
+
+@dataclass(frozen=True)
+class Moment:
+    """The geometry at one instant: horizontal distance from the vehicle's hull to the obstacle's
+    cut at the vehicle's height (None when the obstacle is not at that height), the unit vector
+    towards its nearest point (horizontal at that height; else vertical over or under it, or
+    towards its centre), and the speeds towards each other along it."""
+
+    t_s: float
+    distance_m: float | None
+    towards: tuple[float, float, float]  # north, east, up
+    own_closing_m_s: float
+    obstacle_closing_m_s: float
+    in_fov: bool
+    in_view: bool  # in the field of view and within the sensor's reach
+
+
+def _hull_offset(body: Any, relative_rad: float) -> float:
+    half_l, half_w = body.length_m / 2.0, body.width_m / 2.0
+    c, s = abs(math.cos(relative_rad)), abs(math.sin(relative_rad))
+    return min(half_l / c if c > 1e-9 else math.inf, half_w / s if s > 1e-9 else math.inf)
+
+
+class Geometry:
+    """The obstacle of the closest approach seen from the vehicle, as the world spec moves it."""
+
+    def __init__(self, world: Any, spec: Mapping[str, Any], run_start_s: float):
+        self.world, self.run_start_s = world, run_start_s
+        self.obstacle = Obstacle.from_spec(spec)
+        self.half_fov_rad = math.radians(world.sensor.fov_deg / 2.0 + SECTOR_DEG / 2.0)
+        half = world.sensor.fov_deg / 2.0
+        self.sectors = [i for i in range(int(360 / SECTOR_DEG)) if min(i * SECTOR_DEG, 360.0 - i * SECTOR_DEG) <= half + 1e-9]
+        self.sector_angles = np.radians(np.array(self.sectors) * SECTOR_DEG)
+
+    def placed(self, t_s: float) -> Obstacle:
+        self.obstacle.move_to(max(0.0, t_s - self.run_start_s))
+        return self.obstacle
+
+    def velocity(self, t_s: float) -> np.ndarray:
+        run = max(0.0, t_s - self.run_start_s)
+        return (self.obstacle.position_at(run + 0.05) - self.obstacle.position_at(max(0.0, run - 0.05))) / (run + 0.05 - max(0.0, run - 0.05))
+
+    def moment(self, state: Mapping[str, Any]) -> Moment:
+        t, yaw = state["t"], state["rpy_rad"][2]
+        obstacle = self.placed(t)
+        cut = obstacle.cross_section(state["up_m"])
+        distance, towards = None, None
+        if cut is not None:
+            rays = ray_distances(state["north_m"], state["east_m"], FULL_CIRCLE, cut)
+            nearest = int(np.argmin(rays))
+            if math.isfinite(rays[nearest]):
+                bearing = float(FULL_CIRCLE[nearest])
+                towards = (math.cos(bearing), math.sin(bearing), 0.0)
+                distance = max(0.0, float(rays[nearest]) - _hull_offset(self.world.uav.body, bearing - yaw))
+        if towards is None:  # above or below the vehicle (landing on it, climbing into it)
+            towards = self._vertical_or_centre(obstacle, state)
+        vn, ve, vd = state["v_ned_m_s"]
+        own = vn * towards[0] + ve * towards[1] - vd * towards[2]
+        moving = self.velocity(t)
+        relative = (math.atan2(towards[1], towards[0]) - yaw + math.pi) % (2.0 * math.pi) - math.pi
+        in_fov = cut is not None and abs(relative) <= self.half_fov_rad
+        in_view = in_fov and distance is not None and distance <= self.world.sensor.range_m
+        return Moment(t, distance, towards, own, -float(np.dot(moving, towards)), in_fov, in_view)
+
+    @staticmethod
+    def _vertical_or_centre(obstacle: Obstacle, state: Mapping[str, Any]) -> tuple[float, float, float]:
+        """Straight up or down over or under its footprint, else towards its centre."""
+        n, e, u = obstacle.position.tolist()
+        middle = obstacle.cross_section(u)
+        if middle is not None and ray_distances(state["north_m"], state["east_m"], np.zeros(1), middle)[0] == 0.0:
+            return (0.0, 0.0, 1.0 if u > state["up_m"] else -1.0)
+        dn, de, du = n - state["north_m"], e - state["east_m"], u - state["up_m"]
+        norm = math.sqrt(dn * dn + de * de + du * du) or 1.0
+        return (dn / norm, de / norm, du / norm)
+
+    def ideal_sectors(self, state: Mapping[str, Any]) -> dict[int, float]:
+        """Sector -> the distance from the hull at which an ideal sensor would read this obstacle
+        alone, for the sectors that reach it."""
+        cut = self.placed(state["t"]).cross_section(state["up_m"])
+        if cut is None:
+            return {}
+        rays = ray_distances(state["north_m"], state["east_m"], self.sector_angles + state["rpy_rad"][2], cut)
+        found = {}
+        for sector, angle, distance in zip(self.sectors, self.sector_angles.tolist(), rays.tolist()):
+            distance -= _hull_offset(self.world.uav.body, angle)
+            if distance <= self.world.sensor.range_m:
+                found[sector] = max(0.0, distance)
+        return found
+
+
+def _sightings(times: Sequence[float]) -> list[tuple[float, float]]:
+    """Times grouped into (first, last) runs without a gap longer than SIGHTING_GAP_S."""
+    runs: list[tuple[float, float]] = []
+    for t in times:
+        if runs and t - runs[-1][1] <= SIGHTING_GAP_S:
+            runs[-1] = (runs[-1][0], t)
+        else:
+            runs.append((t, t))
+    return runs
+
+
+def _final_sighting_start(times: Sequence[float]) -> float | None:
+    runs = _sightings(times)
+    return runs[-1][0] if runs else None
+
+
+def _nearest(states: Sequence[Mapping[str, Any]], times: Sequence[float], t: float) -> Mapping[str, Any]:
+    index = min(bisect.bisect_left(times, t), len(states) - 1)
+    if index > 0 and abs(times[index - 1] - t) < abs(times[index] - t):
+        index -= 1
+    return states[index]
+
+
+def _first_report(readings: Sequence[Mapping[str, Any]], geometry: Geometry, states: Sequence[Mapping[str, Any]], times: Sequence[float],
+                  run_start_s: float, t_closest: float) -> tuple[float | None, float | None]:
+    """When the final sighting in the delivered readings began, and the distance they showed then."""
+    shown = []
+    for reading in readings:
+        if not run_start_s <= reading["t"] <= t_closest:
+            continue
+        ideal = geometry.ideal_sectors(_nearest(states, times, reading["t"]))
+        # range_m + 1 cm is "nothing in reach" (and 65535 no reading): never a sighting.
+        delivered = {i: reading["distances_cm"][i] / 100.0 for i in ideal if reading["distances_cm"][i] / 100.0 <= reading["range_m"]}
+        seen = [value for i, value in delivered.items() if value <= ideal[i] + SHOWS_TOLERANCE_M]
+        if seen:
+            shown.append((reading["t"], min(seen)))
+    started = _final_sighting_start([t for t, _d in shown])
+    return started, next((d for t, d in shown if t == started), None)
+
+
+def _active(events: Sequence[Mapping[str, Any]], t: float, run_start_s: float) -> dict[str, Any]:
+    """The failures in force and the gust blowing at simulation time t."""
+    failures: dict[tuple[str, str], float] = {}
+    gust = None
+    for event in events:
+        if event["t"] > t:
+            break
+        detail = event.get("detail") or {}
+        if event["event"] == "failure":
+            failures[(detail["unit"], detail["type"])] = event["t"]
+        elif event["event"] == "failure_cleared":
+            failures.pop((detail["unit"], detail["type"]), None)
+        elif event["event"] == "gust" and t - event["t"] <= detail.get("duration_s", 0.0):
+            gust = {**detail, "onset_s": event["t"] - run_start_s}
+    return {"failures": [{"unit": unit, "type": kind, "since_s": round(since - run_start_s, 3)} for (unit, kind), since in failures.items()],
+            "gust": gust}
+
+
+def _drive(world: Any, state: Mapping[str, Any], pilot: Mapping[str, Any] | None, towards: tuple[float, float, float], obstacle: Obstacle) -> dict[str, Any]:
+    """What the drive asked at this instant, and whether it led into the obstacle."""
+    n, e = state["north_m"], state["east_m"]
+    if world.drive == "pilot" and pilot is not None:
+        yaw = state["rpy_rad"][2]
+        fwd, right = pilot["pitch"], pilot["roll"]
+        stick_n, stick_e = fwd * math.cos(yaw) - right * math.sin(yaw), fwd * math.sin(yaw) + right * math.cos(yaw)
+        into = stick_n * towards[0] + stick_e * towards[1]
+        return {"drive": "pilot", "stick_towards_obstacle": round(into, 3), "stick": round(math.hypot(stick_n, stick_e), 3),
+                "phase": pilot.get("phase"), "into_obstacle": into > 0.0}
+    route = [(world.uav.start.north_m, world.uav.start.east_m)] + [(w.north_m, w.east_m) for w in world.mission.waypoints]
+    legs = list(zip(route, route[1:]))
+    if not legs:
+        return {"drive": world.drive, "leg": None, "into_obstacle": False}
+
+    def off_leg(leg) -> float:
+        (an, ae), (bn, be) = leg
+        length2 = (bn - an) ** 2 + (be - ae) ** 2 or 1e-9
+        f = min(1.0, max(0.0, ((n - an) * (bn - an) + (e - ae) * (be - ae)) / length2))
+        return math.hypot(n - an - f * (bn - an), e - ae - f * (be - ae))
+
+    index = min(range(len(legs)), key=lambda i: off_leg(legs[i]))
+    (_an, _ae), (bn, be) = legs[index]
+    remaining = math.hypot(bn - n, be - e)
+    cut = obstacle.cross_section(state["up_m"])
+    into = False
+    if cut is not None and remaining > 1e-6:
+        along = ray_distances(n, e, np.array([math.atan2(be - e, bn - n)]), cut)[0]
+        into = bool(along <= remaining)
+    return {"drive": world.drive, "leg": index + 1, "leg_to": {"north_m": bn, "east_m": be}, "remaining_m": round(remaining, 2),
+            "into_obstacle": into}
+
+
+def explain(path: Path) -> dict[str, Any]:
+    """The causal timeline of the log's closest approach and its mechanism, with the numbers."""
+    world = logs.world_of(path)
+    if world is None:
+        raise InputError([Problem(str(path), "", "no world metadata: not an evaluation log of this tool (give a log of `stella run` or a campaign)")])
+    recorded: dict[str, list[Any]] = {topic: [] for topic in TOPICS}
+    # One pass: each pass over a log decompresses every chunk, whichever topics it wants.
+    for topic, _ns, message in logs.messages(path, TOPICS):
+        recorded[topic].append(message)
+    clearance = min_clearance(recorded["/clearance"])
+    states, events = recorded["/uav/state"], recorded["/events"]
+    run_start_s = next((e["t"] for e in events if e["event"] == "run"), states[0]["t"] if states else 0.0)
+    base = {"log": str(path), "scenario": world.scenario, "safety_distance_m": world.safety_distance_m,
+            "min_clearance_m": clearance.min_clearance_m, "obstacle": clearance.obstacle}
+    if not states or clearance.obstacle is None or clearance.at_s is None:
+        return {**base, "mechanism": "other", "evidence": ["no obstacle at the closest approach (or no trajectory in the log)"], "timeline": []}
+    spec = next((o for o in world.obstacles if o["id"] == clearance.obstacle), None)
+    if spec is None:
+        return {**base, "mechanism": "other", "evidence": [f"{clearance.obstacle} is not in the world spec: an injection added it"], "timeline": []}
+    sut = logs.json_metadata(path, "sut") or {}
+    limits = Limits.of(sut)
+    geometry = Geometry(world, spec, run_start_s)
+    times = [s["t"] for s in states]
+    t_closest = clearance.at_s
+    flown = [s for s in states if run_start_s <= s["t"] <= t_closest]
+    moments = [geometry.moment(s) for s in flown]
+    in_view_at = _final_sighting_start([m.t_s for m in moments if m.in_view])
+    reported_at, reported_distance = _first_report(recorded["/sensor/obstacle_distance"], geometry, states, times, run_start_s, t_closest)
+    if reported_at is not None and (in_view_at is None or reported_at < in_view_at):
+        # A reading that shows it was taken in view: the poses, 25 a second, fell either side of it.
+        in_view_at = reported_at
+    entered_at = _entry(recorded["/clearance"], world.safety_distance_m, t_closest)
+    wind = {m["t"]: m["wind_ned_m_s"] for m in recorded["/wind"]}
+    pilots = recorded["/pilot"]
+
+    def at(t: float) -> Moment:
+        return geometry.moment(_nearest(states, times, t))
+
+    def wind_towards(t: float, towards: tuple[float, float, float]) -> tuple[float, list[float]]:
+        if wind:
+            keys = sorted(wind)
+            air = wind[keys[min(bisect.bisect_left(keys, t), len(keys) - 1)]]
+        else:
+            air = [world.atmosphere.wind_north_m_s, world.atmosphere.wind_east_m_s, 0.0]
+        return air[0] * towards[0] + air[1] * towards[1] - air[2] * towards[2], air
+
+    closest = at(t_closest)
+    first = at(reported_at) if reported_at is not None else None
+    needed = limits.stopping_distance_m(first.own_closing_m_s) if first else None
+    window = [m for m in moments if m.t_s >= (entered_at if entered_at is not None else t_closest) - FINAL_APPROACH_S]
+    own_final = float(np.mean([m.own_closing_m_s for m in window])) if window else closest.own_closing_m_s
+    obstacle_final = float(np.mean([m.obstacle_closing_m_s for m in window])) if window else closest.obstacle_closing_m_s
+    entry = at(entered_at) if entered_at is not None else closest
+    wind_in, air = wind_towards(entry.t_s, entry.towards)
+    pilot_then = None
+    if pilots:
+        pilot_then = pilots[min(bisect.bisect_left([p["t"] for p in pilots], t_closest), len(pilots) - 1)]
+    situation = _active(events, t_closest, run_start_s)
+    context = {
+        "drive": _drive(world, _nearest(states, times, t_closest), pilot_then, closest.towards, geometry.placed(t_closest)),
+        "obstacle_kind": spec.get("kind"), "obstacle_form": spec.get("form"),
+        "obstacle_velocity_m_s": [round(v, 3) for v in geometry.velocity(t_closest).tolist()],
+        "wind_ned_m_s": [round(v, 3) for v in air], "wind_towards_obstacle_m_s": round(wind_in, 3), **situation,
+        "sut": {"name": sut.get("name"), "fault": sut.get("fault"), "params": dict(sut.get("params") or {})},
+        "limits": {**asdict(limits), "assumed": list(limits.assumed)},
+        "sensor": {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg},
+    }
+    numbers = {
+        "own_closing_at_report_m_s": first.own_closing_m_s if first else None, "distance_at_report_m": reported_distance,
+        "stopping_distance_needed_m": needed, "own_closing_at_entry_m_s": entry.own_closing_m_s,
+        "own_closing_final_m_s": own_final, "obstacle_closing_final_m_s": obstacle_final, "wind_towards_obstacle_at_entry_m_s": wind_in,
+    }
+    mechanism, evidence = _classify(clearance.min_clearance_m, world, moments, in_view_at, reported_at, numbers, situation, limits)
+    # The SUT's reaction as its flight shows it (the bundled autopilot publishes no collision
+    # prevention state): its speed towards the obstacle first SLOWED_M_S below that at the report.
+    slowed_at = next((m.t_s for m in moments if first is not None and m.t_s > first.t_s
+                      and m.own_closing_m_s < first.own_closing_m_s - SLOWED_M_S), None)
+    timeline = [entry_ for entry_ in (
+        ("run", run_start_s, None),
+        ("in view", in_view_at, at(in_view_at).distance_m if in_view_at is not None else None),
+        ("reported to the SUT", reported_at, reported_distance),
+        ("the vehicle slowed towards it", slowed_at, at(slowed_at).distance_m if slowed_at is not None else None),
+        ("entered the safety distance", entered_at, None),
+        ("closest approach", t_closest, clearance.min_clearance_m),
+    ) if entry_[1] is not None]
+    return {
+        **base, "status": (logs.json_metadata(path, "result") or {}).get("status"), "mechanism": mechanism, "evidence": evidence,
+        "timeline": [{"what": what, "t_s": round(t, 3), "run_time_s": round(t - run_start_s, 3),
+                      **({"distance_m": round(d, 3)} if d is not None else {})} for what, t, d in sorted(timeline, key=lambda e: e[1])],
+        "numbers": {key: None if value is None else round(value, 3) for key, value in numbers.items()}, "context": context,
+    }
+
+
+def _entry(batches: Sequence[Mapping[str, Any]], safety_distance_m: float, t_closest: float) -> float | None:
+    """The last time before the closest approach that the clearance fell below the safety distance."""
+    entered, outside = None, True
+    for batch in batches:
+        for t, d in zip(batch["t"], batch["d"]):
+            if t > t_closest:
+                return entered
+            inside = d is not None and d < safety_distance_m
+            if inside and outside:
+                entered = t
+            outside = not inside
+    return entered
+
+
+def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_view_at: float | None, reported_at: float | None,
+              numbers: Mapping[str, Any], situation: Mapping[str, Any], limits: Limits) -> tuple[str, list[str]]:
+    s = world.safety_distance_m
+    if min_clearance_m >= s:
+        return "none", [f"least clearance {min_clearance_m:.2f} m kept the safety distance {s:.2f} m"]
+    own, theirs = numbers["own_closing_final_m_s"], numbers["obstacle_closing_final_m_s"]
+    if theirs > 0.0 and theirs > own:
+        return "outrun", [f"over the final approach the obstacle closed at {theirs:.2f} m/s, the vehicle at {own:.2f} m/s "
+                          "(collision prevention does not predict a moving obstacle)"]
+    sensor_failed = [f for f in situation["failures"] if f["unit"] == "distance sensor"]
+    if reported_at is None:
+        if in_view_at is not None and sensor_failed:
+            why = f"the range sensor had failed ({sensor_failed[0]['type']} since run time {sensor_failed[0]['since_s']:.1f} s)"
+        elif in_view_at is not None:
+            why = "it was in view but no delivered reading showed it"
+        elif all(m.distance_m is None for m in moments):
+            why = "it was never at the height the sensor scans: it passed above or below it"
+        elif any(m.distance_m is not None and m.distance_m <= world.sensor.range_m for m in moments):
+            why = f"it was within reach but never inside the {world.sensor.fov_deg:.0f} degree field of view"
+        else:
+            why = f"it never came within the sensor's reach of {world.sensor.range_m:.1f} m"
+        seen = f"while in view from run time {in_view_at - moments[0].t_s:.1f} s" if in_view_at is not None and moments else "it was never in view"
+        return "unseen", [f"never reported to the SUT before the closest approach: {why}", seen]
+    distance, needed, first = numbers["distance_at_report_m"], numbers["stopping_distance_needed_m"], numbers["own_closing_at_report_m_s"]
+    if distance < needed:
+        return "seen_late", [f"first reported {distance:.2f} m away at {first:.2f} m/s towards it; stopping needed {needed:.2f} m"]
+    in_time = f"first reported {distance:.2f} m away at {first:.2f} m/s towards it; stopping needed only {needed:.2f} m"
+    entry, wind_in = numbers["own_closing_at_entry_m_s"], numbers["wind_towards_obstacle_at_entry_m_s"]
+    if entry < first and wind_in > 0.0 and wind_in >= entry:
+        gust = situation["gust"]
+        carried = f"gust of {gust['amplitude_m_s']:.1f} m/s from {gust['from_deg']:.0f} deg" if gust else "wind"
+        return "pushed", [in_time, f"the vehicle slowed from {first:.2f} to {entry:.2f} m/s towards it, but the air moved towards it at "
+                          f"{wind_in:.2f} m/s when the safety distance was entered ({carried})"]
+    if own > 0.0:
+        cp = "collision prevention off (CP_DIST < 0)" if limits.cp_dist_m < 0 else f"CP_DIST {limits.cp_dist_m:.2f} m"
+        return "braked_too_little", [in_time, f"the vehicle itself still closed at {entry:.2f} m/s when it entered the safety distance "
+                                     f"({own:.2f} m/s over the final approach); {cp}"]
+    return "other", [in_time, f"neither the vehicle ({own:.2f} m/s), the obstacle ({theirs:.2f} m/s) nor the wind ({wind_in:.2f} m/s) "
+                     "closed the gap over the final approach"]
+
+
+def explain_text(report: Mapping[str, Any]) -> str:
+    lines = [f"{report['log']}: {report['scenario']}",
+             f"closest approach {report['min_clearance_m']:.2f} m to {report['obstacle']} (safety distance {report['safety_distance_m']:.2f} m)",
+             f"mechanism: {report['mechanism']}"]
+    lines += [f"  because {line}" for line in report["evidence"]]
+    if report["timeline"]:
+        lines.append("timeline (run time):")
+        for entry in report["timeline"]:
+            distance = f"  {entry['distance_m']:.2f} m" if "distance_m" in entry else ""
+            lines.append(f"  {entry['run_time_s']:8.2f} s  {entry['what']}{distance}")
+    context = report.get("context")
+    if context:
+        drive = context["drive"]
+        asked = (f"pilot stick {drive['stick']:.2f}, {drive['stick_towards_obstacle']:+.2f} towards the obstacle" if drive["drive"] == "pilot"
+                 else f"mission leg {drive.get('leg')}" + (", straight into the obstacle" if drive["into_obstacle"] else ", not into the obstacle"))
+        lines.append(f"at the closest approach: drive {asked}; obstacle {context['obstacle_kind']} {context['obstacle_form']} moving "
+                     f"{math.hypot(*context['obstacle_velocity_m_s'][:2]):.2f} m/s; wind {math.hypot(*context['wind_ned_m_s'][:2]):.2f} m/s "
+                     f"({context['wind_towards_obstacle_m_s']:+.2f} towards it)" + (f"; gust {context['gust']['amplitude_m_s']:.1f} m/s" if context["gust"] else ""))
+        failures = ", ".join(f"{f['unit']} {f['type']} since {f['since_s']:.1f} s" for f in context["failures"]) or "none"
+        lines.append(f"failures active: {failures}")
+        sut = context["sut"]
+        lines.append(f"SUT: {sut['name']}" + (f", seeded fault {sut['fault']}" if sut["fault"] else "")
+                     + (f", parameters {', '.join(f'{k}={v}' for k, v in sut['params'].items())}" if sut["params"] else ""))
+        limits = context["limits"]
+        assumed = f" (assumed defaults: {', '.join(limits['assumed'])})" if limits["assumed"] else ""
+        lines.append(f"stopping model: CP_DIST {limits['cp_dist_m']} m, CP_DELAY {limits['cp_delay_s']} s, MPC_ACC_HOR {limits['acc_m_s2']} m/s^2, "
+                     f"MPC_JERK_AUTO {limits['jerk_m_s3']} m/s^3{assumed}")
+    return "\n".join(lines)

@@ -1,0 +1,105 @@
+"""`stella shrink`: the smallest, simplest concrete scenario that still violates, from a case, a log
+or a campaign's evaluation."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from harness.campaigns.regression import EXPECTATIONS
+from harness.tools.commands.common import command, emit, non_negative_int, positive_float, positive_int, seed_int
+from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
+from sim_bridge.sut_link import TRANSPORTS
+
+
+def _shrink_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", metavar="CASE|LOG|DB", help="a concrete scenario or regression case (JSON), an evaluation log (.mcap), "
+                                                         "or a campaign store with --evaluation")
+    p.add_argument("--evaluation", type=non_negative_int, metavar="N", help="with a campaign store: the id of the evaluation to shrink")
+    p.add_argument("--out", default="shrunk", help="folder for the shrunk case, its regression case, its log and the journal (default: shrunk/)")
+    p.add_argument("--name", help="stem of the files written (default: from the source)")
+    p.add_argument("--confirm", type=positive_int, default=1,
+                   help="flights that must all violate for a step to be kept (default 1: the bundled stack repeats itself bit for bit; "
+                        "give 3 or more for PX4 or ArduPilot, whose timing differs run to run)")
+    p.add_argument("--max-evaluations", type=positive_int, default=300, help="flights this session may make (default 300); the journal's are free")
+    p.add_argument("--time-budget-s", type=positive_float, help="wall time this session may take (default: no limit)")
+    p.add_argument("--seed", type=seed_int, help="sensor-noise seed of the flights (default: the source's; 0 for a concrete scenario)")
+    p.add_argument("--expect", choices=[e for e in EXPECTATIONS if e != "as_reference"], default="safe",
+                   help="what the regression case written expects: safe (it fails until the SUT is fixed; the default) or violation")
+    add_sut_options(p)
+    p.set_defaults(sut=None)  # the source's SUT where it records one, else the bundled autopilot
+    p.add_argument("--rate-hz", type=positive_float, help="lockstep rate (default: the SUT's own)")
+    p.add_argument("--cores", type=int, choices=(1, 2), default=1,
+                   help="1 (default): the simulator and the SUT share one core, which a long series of flights leaves to other work; 2: a core each")
+    p.add_argument("--transport", choices=TRANSPORTS, default="auto", help="as for `stella run`")
+
+
+def _with_recorded_sut(args: argparse.Namespace, recorded) -> argparse.Namespace:
+    """The command line's SUT, or where it names none, the one the source records (its parameters
+    and seeded fault too, unless the command line gives its own)."""
+    if args.sut is not None:
+        return args
+    if not recorded:
+        return argparse.Namespace(**{**vars(args), "sut": "bundled"})
+    changes = {"sut": recorded["name"]}
+    if not args.sut_param and not args.sut_params_file:
+        changes["sut_param"] = [f"{name}={value}" for name, value in recorded.get("params", {}).items()]
+    if args.sut_fault is None and recorded.get("fault"):
+        changes["sut_fault"] = recorded["fault"]
+    return argparse.Namespace(**{**vars(args), **changes})
+
+
+@command("shrink", "the smallest, simplest version of a violating case that still violates (a regression case of it too)", _shrink_options,
+         description="Shrink a violating concrete scenario: drop obstacles, failures and gusts, calm the wind, clear the air, move each searched "
+                     "value to its neutral value and round it, keeping a step only if the re-flown case still violates. Resumable: run the "
+                     "same command again after a stop and it replays its journal. See docs/shrink.md.")
+def cmd_shrink(args: argparse.Namespace) -> int:
+    from harness.campaigns import shrink
+    from harness.flight import warm
+    from harness.flight.evaluation import RunOptions
+
+    case = shrink.load_case(Path(args.source), args.evaluation, args.seed)
+    args = _with_recorded_sut(args, case.sut)
+    sut = sut_spec(args)
+    check_transport(args.transport, sut)
+    start = shrink.start_document(case, args.drive, mission_plan(args))
+    name = args.name or f"{case.name}-shrunk"
+    out = Path(args.out)
+    header = {"format": shrink.JOURNAL_FORMAT, "start": shrink.key_of(start), "seed": case.seed, "sut": sut.identity(), "confirm": args.confirm}
+    journal = shrink.Journal(out / f"{name}.journal.jsonl", header)
+    options = replace(RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport), warm=True)
+
+    def progress(step: shrink.StepRecord, shrinker: shrink.Shrinker) -> None:
+        if not args.json:
+            print(f"[{shrinker.flown} flown, {shrinker.replayed} from the journal, {shrinker.elapsed_s:.0f} s] {shrink.step_line(step)}", file=sys.stderr)
+
+    shrinker = shrink.Shrinker(shrink.flyer(options, case.seed, out / f"{name}-flights"), journal, confirm=args.confirm,
+                               budget=shrink.Budget(args.max_evaluations, args.time_budget_s), on_step=progress)
+    try:
+        report = shrinker.shrink(start, case.label)
+    finally:
+        warm.close_all()
+    written = shrink.write_outputs(report, case, out, name, sut.identity(), args.expect)
+    if not report.stopped:
+        shutil.rmtree(out / f"{name}-flights", ignore_errors=True)
+    result = {"source": case.label, "sut": sut.identity(), "seed": case.seed, **shrink.summary(report), **written, "journal": str(journal.path)}
+    emit(args, result, _text(report, written, case.label, journal.path))
+    return 3 if report.unfinished_flight else 0
+
+
+def _text(report, written: dict[str, str], label: str, journal: Path) -> str:
+    from harness.campaigns.shrink import elements_text, summary
+
+    counted = summary(report)
+    lines = [f"shrunk {label}: fitness {report.f_start:.3f} -> {report.f_result:.3f} in {len(report.kept)} kept steps of {len(report.steps)} tried "
+             f"({report.flown} flown, {report.replayed} from the journal, {report.wall_s:.0f} s)"]
+    lines += [f"  {index}. {step.description}: f {step.f_before:.3f} -> {step.f_after:.3f}" for index, step in enumerate(report.kept, 1)]
+    lines.append(f"before: {elements_text(counted['before']['elements'])}")
+    lines.append(f"after:  {elements_text(counted['after']['elements'])}")
+    if report.stopped:
+        lines.append(f"stopped early: {report.stopped}; run the same command again to go on (the journal {journal} keeps every flight)")
+    lines.append("wrote " + ", ".join(written.values()))
+    return "\n".join(lines)

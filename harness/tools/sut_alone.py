@@ -1,0 +1,165 @@
+"""`stella bench --limit`: a SUT alone, the yardstick for flights through the bridge.
+
+A minimal stand-in for the simulator replays the simulator-link bytes of a recorded flight
+(the HIL_SENSOR, HIL_GPS, ... frames the bridge sent, cut into its steps and held in memory
+before timing) to a fresh SUT process over TCP, and only reads its answers: one step's frames
+per HIL_ACTUATOR_CONTROLS once the SUT answers in lockstep, as the bridge paces them. No
+physics, sensors, scoring or recording, so its real-time factor is what the SUT's own
+computation per step allows on this machine ("PX4 alone"); a flight through the bridge is
+reported as a share of it.
+
+What the replay does not give the SUT: its API link. Nobody uploads a mission or arms it, so it
+computes every step on the recorded flight's sensors but stays disarmed (for PX4: the same
+estimator and controllers run, its logger does not write, as it logs from arming; a replay that
+force-armed it ran no slower: docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from harness.flight import logs
+from harness.flight.ports import PortLease
+from sim_bridge.__main__ import listen
+from sim_bridge.sut_link import SocketLink
+from simlink import codec
+import sut_adapter
+from sut_adapter import SutConfig
+
+_CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
+# With a core of its own the stand-in polls for the answer this long before sleeping, as the bridge does (evaluation.LOCKSTEP_SPIN_S).
+SPIN_S = 0.002
+CONNECT_TIMEOUT_S = 60.0
+STALL_TIMEOUT_S = 10.0
+
+
+def link_steps(stream: bytes) -> tuple[list[bytes], list[int]]:
+    """A recorded simulator-to-SUT stream cut into the bridge's steps: each step's frames, its
+    HIL_SENSOR last (the bridge sends it last, so the SUT has seen the rest when it steps on
+    it), and each step's time (its HIL_SENSOR's, in us), which the SUT's answer carries back."""
+    splitter = codec.FrameSplitter(_CRC_EXTRAS)
+    steps: list[bytes] = []
+    times: list[int] = []
+    pending: list[bytes] = []
+    for msgid, payload, frame in splitter.feed(stream):
+        pending.append(frame)
+        if msgid == codec.HIL_SENSOR_ID:
+            steps.append(b"".join(pending))
+            times.append(codec.decode_hil_sensor(payload)[0])
+            pending = []
+    if splitter.bad_frames or splitter.skipped_bytes:
+        raise ValueError(f"the recorded simulator link has {splitter.bad_frames} bad frames and {splitter.skipped_bytes} stray bytes: not a bridge's recording")
+    return steps, times
+
+
+def recorded_link(log_path: Path) -> dict[str, Any]:
+    """What a replay needs of a flight's log: its steps, their period, and the step its run
+    began at (the flight's real-time factor counts from there)."""
+    stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
+    steps, times = link_steps(stream)
+    summary = logs.json_metadata(log_path, "bridge_summary")
+    dt_s = summary["sim_time_s"] / summary["steps"]
+    run_at_s = next((m["t"] for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "run"), 0.0)
+    return {"steps": steps, "times_us": times, "dt_s": dt_s, "run_step": min(len(steps) - 1, round(run_at_s / dt_s))}
+
+
+def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
+    """Send the steps as the bridge does: at real-time pace until the SUT's first answer, then
+    each step once the last one is answered. Times the steps from `timed_from` on, and says
+    whether each timed step's answer carried that step's time (`in_step`: the replay and the SUT
+    kept in lockstep)."""
+    splitter = codec.FrameSplitter(_CRC_EXTRAS)
+    answer_times: list[int] = []
+    lockstep_from = None
+    started = None
+    perf = time.perf_counter
+    for index, frames in enumerate(steps):
+        if index == timed_from:
+            started = perf()
+        sent = perf()
+        link.send(frames)
+        if lockstep_from is None:
+            # Before lockstep the SUT may or may not answer a step: wait out the step's period.
+            if link.readable(dt_s) and _answers(splitter, link.receive(0.0), answer_times):
+                lockstep_from = index
+            time.sleep(max(0.0, dt_s - (perf() - sent)))
+            continue
+        while not _answers(splitter, link.receive(spin_s), answer_times):
+            pass
+    if started is None or lockstep_from is None or lockstep_from > timed_from:
+        raise RuntimeError(f"the SUT answered in lockstep from step {lockstep_from}, not by step {timed_from} where timing starts")
+    wall_s = perf() - started
+    timed = len(steps) - timed_from
+    return {"steps": len(steps), "timed_steps": timed, "lockstep_from": lockstep_from, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
+            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:]}
+
+
+def _answers(splitter: codec.FrameSplitter, data: bytes, answer_times: list[int]) -> bool:
+    """Whether `data` completes an actuator answer (recording each one's time)."""
+    if not data:
+        raise ConnectionResetError("the SUT closed its simulator link")
+    answered = False
+    for msgid, payload, _frame in splitter.feed(data):
+        if msgid == codec.HIL_ACTUATOR_CONTROLS_ID:
+            answer_times.append(codec.decode_hil_actuator_controls(payload)[0])
+            answered = True
+    return answered
+
+
+def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu: bool = True) -> dict[str, Any]:
+    """The SUT alone on `cores` cores (2: the stand-in and the SUT a core each, the stand-in
+    polling; 1: both on one core, sleeping while the other works), replaying the flight in
+    `log_path` `repeats` times, each into a fresh SUT process: the median and each run."""
+    from harness.flight.stack import pin_to_cores
+
+    recorded = recorded_link(log_path)
+    system = sut_adapter.system_for(sut)
+    if sut_adapter.sim_protocol(system) != "mavlink":
+        raise ValueError(f"{system.name}'s simulator link is not PX4's MAVLink protocol; the replay speaks only that")
+    runs = []
+    own_cores = os.sched_getaffinity(0)
+    for _ in range(max(1, repeats)):
+        workdir = Path(tempfile.mkdtemp(prefix="stella-alone-"))
+        try:
+            # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
+            limited = sut_adapter.instance_count(system)
+            with (PortLease(slots=limited, wait_s=CONNECT_TIMEOUT_S) if limited else PortLease()) as ports:
+                listener = listen(ports.sim)
+                handle = None
+                try:
+                    handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={},
+                                          spin_s=SPIN_S if cores >= 2 else 0.0)
+                    if pin_cpu:
+                        pin_to_cores(os.getpid(), handle.pids, ports.slot, cores)
+                    listener.settimeout(CONNECT_TIMEOUT_S)
+                    try:
+                        sock, _ = listener.accept()
+                    except TimeoutError:
+                        raise RuntimeError(f"{system.name} did not connect to the stand-in within {CONNECT_TIMEOUT_S:.0f} s: {handle.stderr_tail()}") from None
+                    link = SocketLink(sock, STALL_TIMEOUT_S)
+                    try:
+                        runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], SPIN_S if cores >= 2 else 0.0))
+                    except (BlockingIOError, OSError) as error:
+                        raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
+                    finally:
+                        handle.stop()  # before its link closes: PX4 spins on a closed simulator link and heeds SIGTERM late
+                        link.close()
+                finally:
+                    os.sched_setaffinity(0, own_cores)
+                    listener.close()
+                    if handle is not None:
+                        handle.stop()
+        finally:
+            shutil.rmtree(workdir, ignore_errors=True)
+    rtf = statistics.median(r["real_time_factor"] for r in runs)
+    return {"log": str(log_path), "cores": cores, "timed_steps": runs[0]["timed_steps"], "real_time_factor": rtf,
+            "step_us": statistics.median(r["step_us"] for r in runs), "per_run": [r["real_time_factor"] for r in runs],
+            "in_step": all(r["in_step"] for r in runs)}
