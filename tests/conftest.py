@@ -89,6 +89,26 @@ def alive(pid: int) -> bool:
         return False
 
 
+def descendants(pid: int) -> list[int]:
+    family, found = [pid], []
+    while family:
+        kids = children(family.pop())
+        found += kids
+        family += kids
+    return found
+
+
+def described(pid: int) -> str:
+    """pid, state and command line, for a failure message."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as handle:
+            argv = b" ".join(handle.read().split(b"\0")).decode(errors="replace")
+        with open(f"/proc/{pid}/stat") as handle:
+            return f"{pid} ({handle.read().rsplit(')', 1)[1].split()[0]}): {argv[:200]}"
+    except OSError:
+        return f"{pid}: gone"
+
+
 def flying(pid: int) -> bool:
     """Whether process pid, or a process it started, runs an evaluation: has the bridge and the
     SUT as its children, or the bridge with the SUT inside (--transport memory)."""

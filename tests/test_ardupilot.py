@@ -17,7 +17,7 @@ import pytest
 from pymavlink import DFReader
 from pymavlink.dialects.v20 import common as mavlink
 
-from conftest import ROOT, alive, children
+from conftest import ROOT, alive, described, descendants
 from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
@@ -151,24 +151,6 @@ def arducopters(pids: list[int]) -> list[str]:
     return found
 
 
-def described(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as handle:
-            argv = handle.read().split(b"\0")
-        return f"{pid}: {b' '.join(argv).decode(errors='replace')[:200]}"
-    except OSError:
-        return f"{pid}: gone"
-
-
-def family_of(pid: int) -> list[int]:
-    family, found = [pid], []
-    while family:
-        kids = children(family.pop())
-        found += kids
-        family += kids
-    return found
-
-
 @pytest.mark.parametrize("moment", ["starting", "flying"])
 def test_kill_9_of_an_ardupilot_campaign_leaves_no_arducopter(tmp_path, moment):
     """kill -9 of a two-worker campaign while ArduPilot starts up (its first seconds) or flies:
@@ -178,14 +160,14 @@ def test_kill_9_of_an_ardupilot_campaign_leaves_no_arducopter(tmp_path, moment):
     campaign = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while not arducopters(family_of(campaign.pid)):
+        while not arducopters(descendants(campaign.pid)):
             assert campaign.poll() is None and time.monotonic() < deadline, "the campaign started no arducopter"
             time.sleep(0.05)
         if moment == "flying":
             time.sleep(20.0)  # through ArduPilot's set-up (25 s of simulated time) into its flight
         # Frozen first, so that the processes seen are those the kill leaves.
         os.killpg(campaign.pid, signal.SIGSTOP)
-        family = family_of(campaign.pid)
+        family = descendants(campaign.pid)
         assert arducopters(family), "no arducopter ran at the kill"
         os.kill(campaign.pid, signal.SIGKILL)  # the campaign alone: what it started must follow by itself
         os.killpg(campaign.pid, signal.SIGCONT)

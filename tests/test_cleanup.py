@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from conftest import ROOT, alive, children, port_bound
+from conftest import ROOT, alive, described, descendants, port_bound
 from harness.flight.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
@@ -66,26 +66,6 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
         assert not port_bound(CONTROL_BASE + slot, socket.SOCK_STREAM)
         assert not port_bound(API_BASE + slot, socket.SOCK_DGRAM)
     assert outcomes.count("ok") + outcomes.count("violation") == 10
-
-
-def descendants(pid: int) -> list[int]:
-    family, found = [pid], []
-    while family:
-        kids = children(family.pop())
-        found += kids
-        family += kids
-    return found
-
-
-def described(pid: int) -> str:
-    """pid, state and command line, for a failure message."""
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as handle:
-            argv = b" ".join(handle.read().split(b"\0")).decode(errors="replace")
-        with open(f"/proc/{pid}/stat") as handle:
-            return f"{pid} ({handle.read().rsplit(')', 1)[1].split()[0]}): {argv[:200]}"
-    except OSError:
-        return f"{pid}: gone"
 
 
 def stored(store) -> list[tuple]:
