@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import Mapping
 
-from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess, non_empty
 
 AIRFRAME = "10016"
@@ -52,10 +52,7 @@ def resolve_binary(given: str | None) -> tuple[Path, Path]:
 
 class Px4Sitl:
     name = "px4"
-    hold_mode = "paced"
-    hold_pace = float(SPEED_FACTOR)
-    range_messages = ("DISTANCE_SENSOR",)
-    instance_count = MAX_INSTANCE + 1
+    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1)
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"px4_bin"})

@@ -21,7 +21,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
 import sut_adapter
-from sut_adapter import SutConfig
+from sut_adapter import SutConfig, registry
 from sut_adapter.command import CommandSut
 from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 
@@ -49,7 +49,7 @@ def test_a_template_is_split_like_a_shell_and_filled_word_by_word(tmp_path):
     workdir = tmp_path / "with space"
     assert sut.argv(sim_port=4561, api_port=14541, instance=1, workdir=workdir) == [
         "ap", "--sim", "tcp:127.0.0.1:4561", "--gcs", "udp:127.0.0.1:14541", "--id", "1", "--dir", str(workdir)]
-    assert sut.hold_mode == "paced" and sut_adapter.hold_pace(sut) == 1.0  # an unknown SUT is held at real time
+    assert sut.capabilities.hold_mode == "paced" and sut.capabilities.hold_pace == 1.0  # an unknown SUT is held at real time
 
 
 @pytest.mark.parametrize(("config", "message"), [
@@ -95,9 +95,9 @@ def test_px4_command_line_airframe_and_instance_ports(tmp_path, monkeypatch):
     argv, env = px4.command(instance=3, workdir=tmp_path / "w")
     assert argv == [str(build / "bin" / "px4"), "-i", "3", "-d", "-w", str(tmp_path / "w"), str(build / "etc")]
     assert (env["PX4_SYS_AUTOSTART"], env["PX4_SIM_MODEL"]) == ("10016", "none_iris")
-    assert px4.hold_mode == "paced"
+    assert px4.capabilities.hold_mode == "paced"
     # Its hold runs as fast as its timeouts were stretched for.
-    assert sut_adapter.hold_pace(px4) == float(env["PX4_SIM_SPEED_FACTOR"]) > 1.0
+    assert px4.capabilities.hold_pace == float(env["PX4_SIM_SPEED_FACTOR"]) > 1.0
     with pytest.raises(sut_adapter.SutError, match="instance 10 is out of range"):
         px4.command(instance=10, workdir=tmp_path)
     with pytest.raises(sut_adapter.SutError, match="uses simulator port 4563 and API port 14543"):
@@ -237,10 +237,27 @@ def test_sut_check_names_the_stage_a_silent_sut_fails_at(capsys):
 
 
 @pytest.mark.parametrize("pace", [0, -1.0, float("nan"), float("inf"), "20"])
-def test_a_sut_adapter_with_a_bad_hold_pace_is_a_sut_error(pace):
+def test_a_sut_adapter_with_a_bad_hold_pace_is_a_sut_error(pace, monkeypatch):
     class Adapter:
         name = "custom"
-        hold_pace = pace
+        capabilities = sut_adapter.Capabilities(hold_mode="paced", range_messages=("DISTANCE_SENSOR",), hold_pace=pace)
 
+        def __init__(self, config):
+            pass
+
+    monkeypatch.setattr(registry, "_REGISTRY", {**registry._REGISTRY, "custom": Adapter})
     with pytest.raises(sut_adapter.SutError, match="custom: its hold_pace"):
-        sut_adapter.hold_pace(Adapter())
+        sut_adapter.get("custom")
+
+
+def test_a_sut_adapter_that_declares_no_capabilities_is_told_how_to_declare_them(monkeypatch):
+    class Adapter:
+        name = "custom"
+        hold_mode = "paced"  # the attributes adapters had before capabilities were declared in one record
+
+        def __init__(self, config):
+            pass
+
+    monkeypatch.setattr(registry, "_REGISTRY", {**registry._REGISTRY, "custom": Adapter})
+    with pytest.raises(sut_adapter.SutError, match=r"custom: its adapter declares no capabilities: give it `capabilities = sut_adapter.Capabilities\("):
+        sut_adapter.get("custom")

@@ -47,7 +47,7 @@ ARM_RETRY_S = 10.0
 
 def arm_retry_for(system: SystemUnderTest) -> float:
     """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
-    return ARM_RETRY_S if system.hold_mode == "paced" else 0.0
+    return ARM_RETRY_S if system.capabilities.hold_mode == "paced" else 0.0
 
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
@@ -179,7 +179,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
 
     try:
         system = sut_adapter.system_for(options.sut)
-        world = sut_adapter.with_failure_deliveries(system, world)
+        world = system.capabilities.with_failure_deliveries(world)
         started = time.monotonic()
         with simulation_stack(world, options, system, workdir) as stack:
             timings["start_s"] = time.monotonic() - started
@@ -231,7 +231,7 @@ def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
 def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:
     """Set the SUT up while the simulation holds, release it and see the flight to its end."""
     arm_retry_s = arm_retry_for(system)
-    pilot_params, takeoff_altitude_param, _mode = sut_adapter.pilot_setup(system)
+    pilot_params, takeoff_altitude_param, _mode = system.capabilities.pilot_setup()
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
     control = BridgeControl(stack.ports.control)
@@ -265,9 +265,9 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                 return FlightOutcome(failure, control_summary(control), {})
         try:
             session.set_params(sut.mavlink_params)
-            if not sut_adapter.injects_failures(system):
+            if not system.capabilities.injects_failures:
                 session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events
-                session.failure_params = sut_adapter.failure_params(system)  # unless it fails the unit through its parameters
+                session.failure_params = system.capabilities.failure_params  # unless it fails the unit through its parameters
             elif any(f.delivery == "sut" for f in world.failures or ()):
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":
@@ -277,7 +277,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if world.drive == "pilot":
                 session.arm_and_take_off(world.mission.takeoff_altitude_m, arm_retry_s, takeoff_altitude_param)
             else:
-                session.upload_and_start(mission_items(world, sut_adapter.mission_home_item(system)), arm_retry_s)
+                session.upload_and_start(mission_items(world, system.capabilities.mission_home_item), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
             return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {})
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result

@@ -63,12 +63,9 @@ def cores_for(options: RunOptions) -> int:
 
 def transport_problem(transport: str, system: SystemUnderTest) -> str | None:
     """Why this SUT cannot fly over this transport (None: it can)."""
-    if transport == "memory" and not sut_adapter.runs_inline(system):
-        return f"memory carries the bundled autopilot only; {system.name} runs in a process of its own: use --transport tcp"
-    if transport == "unix" and not sut_adapter.connects_to_unix_socket(system):
-        return f"unix carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
-    if transport == "shm" and not sut_adapter.connects_to_shared_memory(system):
-        return f"shm carries the bundled autopilot only; {system.name} connects to the simulator over TCP: use --transport tcp"
+    if transport in ("memory", "unix", "shm") and transport not in system.capabilities.transports:
+        how = "runs in a process of its own" if transport == "memory" else "connects to the simulator over TCP"
+        return f"{transport} carries the bundled autopilot only; {system.name} {how}: use --transport tcp"
     if transport == "shm" and not shared_memory.AVAILABLE:
         return "shm needs Linux on x86-64, which this machine is not: use --transport unix"
     return None
@@ -117,19 +114,21 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
            world: WorldSpec | None = None) -> Stack:
     """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
     run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
-    limited = sut_adapter.instance_count(system)
+    capabilities = system.capabilities
+    limited = capabilities.instance_count
     ports = contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
     transport = placed_transport(options, system)
     inline = transport == "memory"
     # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
     cores = 1 if inline else cores_for(options)
     spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
+    rc_port = capabilities.rc_port(ports.slot)
     bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                   "--rate-hz", str(options.rate_hz or sut_adapter.physics_rate(system)), "--hold-after-s", str(options.hold_after_s), "--hold-mode", system.hold_mode,
-                   "--hold-pace", str(sut_adapter.hold_pace(system)),
-                   "--range-messages", ",".join(system.range_messages), "--spin-us", str(spin_s * 1e6),
-                   "--sim-protocol", sut_adapter.sim_protocol(system),
-                   *(["--rc-port", str(sut_adapter.rc_port(system, ports.slot))] if sut_adapter.rc_port(system, ports.slot) is not None else []),
+                   "--rate-hz", str(options.rate_hz or capabilities.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", capabilities.hold_mode,
+                   "--hold-pace", str(capabilities.hold_pace),
+                   "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
+                   "--sim-protocol", capabilities.sim_protocol,
+                   *(["--rc-port", str(rc_port)] if rc_port is not None else []),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
                    "--mcap-compression", "none",
                    # stop() stops the SUT before the simulator, with the simulator link still open.
@@ -152,7 +151,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
         sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
     else:
         extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
-        if sut_adapter.needs_world(system):
+        if capabilities.needs_world:
             extra["world"] = world
         if transport == "shm":
             extra["sim_shared_memory"] = True

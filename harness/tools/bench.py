@@ -78,7 +78,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
         system = sut_adapter.system_for(sut.sut)
-        rate_hz = rate_hz or sut_adapter.physics_rate(system)
+        rate_hz = rate_hz or system.capabilities.rate_hz
         can = {transport: transport_problem(transport, system) is None for transport in TRANSPORTS[1:]}
         for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and can[t]]:
             rows = []

@@ -122,7 +122,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
 
     recorded = recorded_link(log_path)
     system = sut_adapter.system_for(sut)
-    if sut_adapter.sim_protocol(system) != "mavlink":
+    if system.capabilities.sim_protocol != "mavlink":
         raise ValueError(f"{system.name}'s simulator link is not PX4's MAVLink protocol; the replay speaks only that")
     runs = []
     own_cores = os.sched_getaffinity(0)
@@ -130,7 +130,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
         workdir = Path(tempfile.mkdtemp(prefix="stella-alone-"))
         try:
             # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
-            limited = sut_adapter.instance_count(system)
+            limited = system.capabilities.instance_count
             with (PortLease(slots=limited, wait_s=CONNECT_TIMEOUT_S) if limited else PortLease()) as ports:
                 listener = listen(ports.sim)
                 handle = None

@@ -63,7 +63,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
 
 
 def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float, system) -> None:
-    pilot_params, _altitude_param, pilot_mode = sut_adapter.pilot_setup(system)
+    pilot_params, _altitude_param, pilot_mode = system.capabilities.pilot_setup()
     sut, session = stack.sut, stack.session
     alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
 
@@ -90,7 +90,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, sut_adapter.mission_home_item(system)))) if world.drive == "mission" else
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, system.capabilities.mission_home_item))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s, pilot_params, pilot_mode)),
         ]
         for index, _name, action in steps:

@@ -39,8 +39,8 @@ def check_limit(sut) -> None:
     import sut_adapter
 
     system = sut_adapter.system_for(sut)
-    if sut_adapter.sim_protocol(system) != "mavlink":
-        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {sut_adapter.sim_protocol(system)}, not PX4's MAVLink protocol, "
+    if system.capabilities.sim_protocol != "mavlink":
+        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {system.capabilities.sim_protocol}, not PX4's MAVLink protocol, "
                                                  f"which the replay speaks: measure it without --limit")])
 
 
