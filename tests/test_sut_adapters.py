@@ -23,7 +23,7 @@ from harness.tools.cli import main
 import sut_adapter
 from sut_adapter import SutConfig, registry
 from sut_adapter.command import CommandSut
-from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
+from sut_adapter.px4 import API_STREAM_RATES_HZ, DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
 AUTOPILOT = f"{sys.executable} -m autopilot --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}"
@@ -122,6 +122,28 @@ def test_px4_is_started_in_a_fresh_directory_with_its_parameters_for_mavlink(tmp
     assert (px4_dir / "env.txt").read_text().split() == ["10016", "none_iris"]
     assert (px4_dir / "cwd.txt").read_text().strip() == str(px4_dir)
     assert handle.mavlink_params == {**DEFAULT_PARAMS, "CP_DIST": 2.5, "MPC_XY_CRUISE": 4.0}
+
+
+def test_px4s_rcs_sources_its_own_mavlink_start_up_and_then_the_adapters_lower_api_rates(tmp_path):
+    # As PX4 starts rcS: its bin/ first on PATH, its init.d-posix/ appended last, then `. px4-rc.mavlink`.
+    build = fake_px4_build(tmp_path, """\
+        mavlink() { echo "mavlink $*" >> streams.txt; }
+        PATH="$(dirname "$0"):$PATH:$(dirname "$0")/../etc/init.d-posix"
+        . px4-rc.mavlink
+        """)
+    (build / "etc" / "init.d-posix" / "px4-rc.mavlink").write_text('echo "PX4\'s own MAVLink start-up" >> streams.txt\n')
+    workdir = tmp_path / "evaluation"
+    workdir.mkdir()
+    handle = Px4Sitl({"px4_bin": str(build)}).start(sim_port=4562, api_port=14542, instance=2, workdir=workdir, params={})
+    deadline = time.monotonic() + 10.0
+    while handle.alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert handle.stop() == 0
+    streams = (workdir / "px4" / "streams.txt").read_text().splitlines()
+    assert streams[0] == "PX4's own MAVLink start-up"
+    # PX4 instance 2's API link listens on UDP 14582 (px4-rc.mavlink's udp_offboard_port_local).
+    assert streams[1:] == [f"mavlink stream -u 14582 -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()]
+    assert API_STREAM_RATES_HZ["ATTITUDE"] < 100 and "DISTANCE_SENSOR" not in API_STREAM_RATES_HZ  # its relayed ranges stay as PX4 sends them
 
 
 def test_px4_ulogs_and_console_are_its_artifacts(tmp_path):
