@@ -201,14 +201,17 @@ def test_each_servo_frame_is_answered_by_one_step_and_the_lines_are_what_ardupil
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 4 * 400
     # One line per frame, one step apart in simulated time, each whole to ArduPilot's parser.
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
-    assert seen["ranges_seen"] == seen["parsed"] and seen["resent"] == 0 and summary["bad_frames"] == 0
+    # No frame was sent again but one whose line was still on the way (a second's wait on a loaded machine).
+    assert seen["ranges_seen"] == seen["parsed"] and seen["resent"] == seen["duplicates"] and summary["bad_frames"] == 0
 
 
 @pytest.mark.slow
 def test_a_lost_line_is_sent_again_without_a_second_step_and_skipped_or_restarted_counts_fly_on(tmp_path):
     code, summary, seen = fly_fake(tmp_path, "--ignore-every", "200", "--skip-every", "300", "--restart-at", "700")
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 4 * 400
-    assert seen["ignored"] >= 7 and seen["resent"] == seen["ignored"]
+    # Each lost line was answered again when its frame came again; on a loaded machine a frame can
+    # also come again while its line is on the way, and then its second answer is a duplicate.
+    assert seen["ignored"] >= 7 and seen["resent"] == seen["ignored"] + seen["duplicates"]
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
 
 
