@@ -149,6 +149,7 @@ def _run_figures(result, rate_hz: float, wall_time_s: float) -> dict[str, Any]:
         "world_us": 1e6 * timings["world_s"] / run_steps,
         "step_us": 1e6 * in_run / run_steps,
         "sim_time_s": result.sim_time_s,
+        "run_steps": round(run_steps),
         "fitness": result.fitness,
     }
     figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "world_us"))
