@@ -32,6 +32,7 @@ COMPILED = [
     "simlink/codec.py",
     "simlink/shared_memory.py",
     "sim_bridge/bridge.py",
+    "sim_bridge/frames.py",
     "sim_bridge/obstacles.py",
     "sim_bridge/physics.py",
     "sim_bridge/sensors.py",

@@ -1,6 +1,7 @@
-"""The API link (what MAVSDK talks to): PX4's heartbeat and custom modes, parameters, missions,
-commands and telemetry. Telemetry rates are wall-clock rates: at 40x real time, sim-time rates
-would flood the client with thousands of messages a second.
+"""The API link (what MAVSDK talks to): its UDP socket and partner, what it receives and the
+commands it answers (COMMAND_LONG/INT: arming, modes, takeoff, land, return, speed, message
+requests and intervals, failure injection). Its telemetry (telemetry.py) and its parameter and
+mission protocols (microservices.py) send through it.
 """
 
 from __future__ import annotations
@@ -15,56 +16,14 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.commander import MAIN_AUTO, SUB_AUTO_LAND, SUB_AUTO_LOITER, SUB_AUTO_RTL, Commander, MissionItem, VehicleEstimate
 from autopilot.estimator import Estimator
-from autopilot.params import BY_NAME, ParamError, Params
+from autopilot.microservices import MissionProtocol, ParameterProtocol
+from autopilot.params import Params
+from autopilot.telemetry import MESSAGE_STREAMS, Telemetry
 from simlink.failures import MAV_CMD_INJECT_FAILURE, SUPPORTED_TYPES, SUPPORTED_UNITS, FailureType, FailureUnit, failure_text
 
 log = logging.getLogger(__name__)
 
-SENSORS = (
-    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
-    | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
-    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
-)
-CAPABILITIES = (
-    mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-)
-FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255  # reported as 1.15.0 release
 FORCE_DISARM_MAGIC = 21196
-# Wall-clock periods of the telemetry streams, seconds.
-STREAMS = {
-    "heartbeat": 1.0,
-    "sys_status": 0.1,  # the health a client checks before arming: it should not wait for it
-    "extended_sys_state": 0.5,
-    "attitude": 0.1,
-    "position": 0.1,
-    "gps_raw": 0.2,
-    "home": 1.0,
-    "battery": 1.0,
-    "vfr_hud": 0.2,
-    "altitude": 0.2,
-    "mission_current": 1.0,
-}
-MESSAGE_STREAMS = {
-    mavlink.MAVLINK_MSG_ID_ATTITUDE: "attitude",
-    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: "attitude",
-    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: "position",
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "position",
-    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: "gps_raw",
-    mavlink.MAVLINK_MSG_ID_HOME_POSITION: "home",
-    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: "battery",
-    mavlink.MAVLINK_MSG_ID_VFR_HUD: "vfr_hud",
-    mavlink.MAVLINK_MSG_ID_ALTITUDE: "altitude",
-    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: "extended_sys_state",
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS: "sys_status",
-}
-MIN_STREAM_PERIOD_S = 0.02
 SENSOR_INSTANCES = 1  # of each unit failures can be injected into (MAV_CMD_INJECT_FAILURE's param3: 0 all, 1 the first)
 
 
@@ -105,14 +64,12 @@ class ApiLink:
         self.sock.setblocking(False)
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=mavlink.MAV_COMP_ID_AUTOPILOT1)
         self.mav.robust_parsing = True
-        self.periods = dict(STREAMS)
-        self._next = {name: 0.0 for name in STREAMS}
-        self._upload: dict | None = None
         self.last_gcs_heartbeat = None
         self.link_lost_reported = False
-        self._reported_health = -1
-        self._home_reported = False
         self._client_greeted = False
+        self.streams = Telemetry(self)
+        self._handlers = {**ParameterProtocol(self).handlers(), **MissionProtocol(self).handlers(),
+                          "COMMAND_LONG": self._command, "COMMAND_INT": self._command, "TIMESYNC": self._timesync}
 
     # -- sending ------------------------------------------------------------------------------
 
@@ -125,134 +82,11 @@ class ApiLink:
     def statustext(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
         self.send(self.mav.statustext_encode(severity, text.encode()[:50]))
 
-    def _time_boot_ms(self) -> int:
-        return int(self.ap.now_s * 1000) & 0xFFFFFFFF
-
     def heartbeat(self) -> None:
-        c = self.ap.commander
-        main, sub = c.mode
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED
-        if c.armed:
-            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        state = mavlink.MAV_STATE_ACTIVE if c.armed else mavlink.MAV_STATE_STANDBY
-        self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, (sub << 24) | (main << 16), state))
-
-    def _health_bits(self) -> int:
-        ap = self.ap
-        health = 0
-        if ap.sensors_seen:
-            health |= SENSORS & ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        if ap.estimator.healthy(ap.now_s):
-            health |= mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        ready, _ = ap.ready_to_arm()
-        if ready or ap.commander.armed:
-            health |= mavlink.MAV_SYS_STATUS_PREARM_CHECK
-        return health
-
-    def _sys_status(self) -> None:
-        health = self._health_bits()
-        self._reported_health = health
-        present = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK
-        self.send(self.mav.sys_status_encode(present, present, health, 200, 16000, 500, 90, 0, 0, 0, 0, 0, 0))
-
-    def _position(self) -> None:
-        ap, est = self.ap, self.ap.estimator
-        if not est.position_ready:
-            return
-        n, e, d = est.pos
-        vn, ve, vd = est.vel
-        lat, lon = est.geodetic_from_local(n, e)
-        home_d = ap.commander.home[2] if ap.commander.home else 0.0
-        yaw = ap.yaw_rad()
-        heading = int(math.degrees(yaw) % 360.0 * 100)
-        t = self._time_boot_ms()
-        self.send(self.mav.global_position_int_encode(t, int(lat * 1e7), int(lon * 1e7), int(est.altitude_msl() * 1000), int((home_d - d) * 1000), int(vn * 100), int(ve * 100), int(vd * 100), heading))
-        self.send(self.mav.local_position_ned_encode(t, n, e, d, vn, ve, vd))
-
-    def _attitude(self) -> None:
-        est = self.ap.estimator
-        roll, pitch, yaw = self.ap.euler()
-        t = self._time_boot_ms()
-        self.send(self.mav.attitude_encode(t, roll, pitch, yaw, *est.rates))
-        self.send(self.mav.attitude_quaternion_encode(t, *est.q, *est.rates, [0.0, 0.0, 0.0, 0.0]))
-
-    def _gps_raw(self) -> None:
-        fix = self.ap.estimator.last_gps
-        if fix is None:
-            return
-        course = int(math.degrees(math.atan2(fix.v_east_m_s, fix.v_north_m_s)) % 360.0 * 100)
-        speed = int(math.hypot(fix.v_north_m_s, fix.v_east_m_s) * 100)
-        self.send(self.mav.gps_raw_int_encode(int(self.ap.now_s * 1e6), fix.fix_type, int(fix.lat_deg * 1e7), int(fix.lon_deg * 1e7), int(fix.alt_m * 1000), 30, 40, speed, course, fix.satellites))
-
-    def _home(self) -> None:
-        home = self.ap.home_geodetic()
-        if home is None:
-            return
-        lat, lon, alt = home
-        n, e, d = self.ap.commander.home
-        self.send(self.mav.home_position_encode(int(lat * 1e7), int(lon * 1e7), int(alt * 1000), n, e, d, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.ap.now_s * 1e6)))
-
-    def _extended_sys_state(self) -> None:
-        c = self.ap.commander
-        if not c.armed or c.landed:
-            landed = mavlink.MAV_LANDED_STATE_ON_GROUND
-        elif c.mode == (MAIN_AUTO, SUB_AUTO_LAND):
-            landed = mavlink.MAV_LANDED_STATE_LANDING
-        else:
-            landed = mavlink.MAV_LANDED_STATE_IN_AIR
-        self.send(self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, landed))
-
-    def _battery(self) -> None:
-        voltages = [4000, 4000, 4000, 4000] + [65535] * 6
-        self.send(self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 2500, voltages, 500, -1, -1, 90))
-
-    def _vfr_hud(self) -> None:
-        est = self.ap.estimator
-        speed = math.hypot(est.vel[0], est.vel[1])
-        heading = int(math.degrees(self.ap.yaw_rad()) % 360.0)
-        self.send(self.mav.vfr_hud_encode(speed, speed, heading, int(self.ap.collective * 100), est.altitude_msl(), -est.vel[2]))
-
-    def _altitude(self) -> None:
-        est, c = self.ap.estimator, self.ap.commander
-        relative = (c.home[2] if c.home else 0.0) - est.pos[2]
-        amsl = est.altitude_msl()
-        self.send(self.mav.altitude_encode(int(self.ap.now_s * 1e6), amsl, amsl, -est.pos[2], relative, relative, float("nan")))
-
-    def _mission_current(self) -> None:
-        c = self.ap.commander
-        state = mavlink.MISSION_STATE_COMPLETE if c.mission_finished else (mavlink.MISSION_STATE_ACTIVE if c.mission else mavlink.MISSION_STATE_NO_MISSION)
-        self.send(self.mav.mission_current_encode(c.current, len(c.mission), state))
-
-    def _autopilot_version(self) -> None:
-        self.send(self.mav.autopilot_version_encode(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18))
-
-    def _stream(self, name: str) -> None:
-        {
-            "heartbeat": self.heartbeat,
-            "sys_status": self._sys_status,
-            "extended_sys_state": self._extended_sys_state,
-            "attitude": self._attitude,
-            "position": self._position,
-            "gps_raw": self._gps_raw,
-            "home": self._home,
-            "battery": self._battery,
-            "vfr_hud": self._vfr_hud,
-            "altitude": self._altitude,
-            "mission_current": self._mission_current,
-        }[name]()
+        self.streams.heartbeat()
 
     def telemetry(self, wall_s: float) -> None:
-        # Health and home go out as soon as they change: a client waiting to arm should not wait
-        # for the next periodic message.
-        if self._health_bits() != self._reported_health:
-            self._next["sys_status"] = 0.0
-        if not self._home_reported and self.ap.home_geodetic() is not None:
-            self._home_reported = True
-            self._next["home"] = 0.0
-        for name, due in self._next.items():
-            if wall_s >= due and self.periods[name] > 0:
-                self._stream(name)
-                self._next[name] = wall_s + self.periods[name]
+        self.streams.send_due(wall_s)
 
     def report_events(self) -> None:
         c = self.ap.commander
@@ -262,10 +96,10 @@ class ApiLink:
             elif kind == "item_reached":
                 self.send(self.mav.mission_item_reached_encode(int(value)))
             elif kind == "mission_current":
-                self._mission_current()
+                self.streams.mission_current()
             elif kind in ("mode", "landed", "in_air"):
                 self.heartbeat()
-                self._extended_sys_state()
+                self.streams.extended_sys_state()
         c.events.clear()
 
     # -- receiving ----------------------------------------------------------------------------
@@ -295,22 +129,7 @@ class ApiLink:
             self.last_gcs_heartbeat = time.monotonic()
             self.link_lost_reported = False
             return
-        handler = {
-            "PARAM_REQUEST_LIST": self._param_list,
-            "PARAM_REQUEST_READ": self._param_read,
-            "PARAM_SET": self._param_set,
-            "MISSION_COUNT": self._mission_count,
-            "MISSION_ITEM_INT": self._mission_item,
-            "MISSION_ITEM": self._mission_item,
-            "MISSION_REQUEST_LIST": self._mission_request_list,
-            "MISSION_REQUEST_INT": self._mission_request,
-            "MISSION_REQUEST": self._mission_request,
-            "MISSION_CLEAR_ALL": self._mission_clear,
-            "MISSION_SET_CURRENT": self._mission_set_current,
-            "COMMAND_LONG": self._command,
-            "COMMAND_INT": self._command,
-            "TIMESYNC": self._timesync,
-        }.get(kind)
+        handler = self._handlers.get(kind)
         if handler is not None:
             handler(msg)
 
@@ -325,112 +144,6 @@ class ApiLink:
         if msg.tc1 == 0:
             self.send(self.mav.timesync_encode(int(time.monotonic() * 1e9), msg.ts1))
 
-    # parameters
-
-    def _param_value(self, name: str) -> None:
-        params = self.ap.params
-        names = params.names()
-        self.send(self.mav.param_value_encode(name.encode(), params.wire_value(name), BY_NAME[name].mav_type, len(names), names.index(name)))
-
-    def _param_list(self, msg) -> None:
-        for name in self.ap.params.names():
-            self._param_value(name)
-
-    def _param_read(self, msg) -> None:
-        names = self.ap.params.names()
-        if msg.param_index >= 0:
-            if msg.param_index < len(names):
-                self._param_value(names[msg.param_index])
-            return
-        name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
-        if name in names:
-            self._param_value(name)
-
-    def _param_set(self, msg) -> None:
-        name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
-        params = self.ap.params
-        try:
-            params.set(name, params.from_wire(name, msg.param_value, msg.param_type))
-        except ParamError as error:
-            self.statustext(f"param rejected: {error}"[:50], mavlink.MAV_SEVERITY_WARNING)
-            if name not in params.names():
-                return
-        if name in params.unmodelled:
-            # A PX4 parameter it does not model: acknowledged as sent, so the client does not
-            # wait for an answer, and said to have no effect; 65535: not in the list.
-            self.statustext(f"{name} accepted without effect"[:50], mavlink.MAV_SEVERITY_NOTICE)
-            self.send(self.mav.param_value_encode(name.encode(), msg.param_value, msg.param_type, len(params.names()), 65535))
-            return
-        self._param_value(name)
-
-    # missions
-
-    def _mission_count(self, msg) -> None:
-        if msg.mission_type != mavlink.MAV_MISSION_TYPE_MISSION:
-            self.send(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED, msg.mission_type))
-            return
-        if msg.count == 0:
-            self.ap.commander.set_mission([])
-            self.send(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED, 0))
-            return
-        self._upload = {"count": msg.count, "items": [], "system": msg.get_srcSystem(), "component": msg.get_srcComponent()}
-        self.send(self.mav.mission_request_int_encode(msg.get_srcSystem(), msg.get_srcComponent(), 0, 0))
-
-    def _mission_item(self, msg) -> None:
-        upload = self._upload
-        if upload is None or msg.mission_type != mavlink.MAV_MISSION_TYPE_MISSION:
-            return
-        expected = len(upload["items"])
-        if msg.seq != expected:
-            self.send(self.mav.mission_request_int_encode(upload["system"], upload["component"], expected, 0))
-            return
-        if msg.get_type() == "MISSION_ITEM_INT":
-            lat, lon = msg.x * 1e-7, msg.y * 1e-7
-        else:
-            lat, lon = msg.x, msg.y
-        item = self.ap.mission_item_from_global(msg.seq, msg.command, msg.frame, lat, lon, msg.z, (msg.param1, msg.param2, msg.param3, msg.param4))
-        if item is None:
-            self.send(self.mav.mission_ack_encode(upload["system"], upload["component"], mavlink.MAV_MISSION_ERROR, 0))
-            self._upload = None
-            return
-        upload["items"].append(item)
-        if len(upload["items"]) < upload["count"]:
-            self.send(self.mav.mission_request_int_encode(upload["system"], upload["component"], len(upload["items"]), 0))
-            return
-        self.ap.commander.set_mission(upload["items"])
-        self.send(self.mav.mission_ack_encode(upload["system"], upload["component"], mavlink.MAV_MISSION_ACCEPTED, 0))
-        self._upload = None
-
-    def _mission_request_list(self, msg) -> None:
-        count = len(self.ap.commander.mission) if msg.mission_type == mavlink.MAV_MISSION_TYPE_MISSION else 0
-        self.send(self.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(), count, msg.mission_type))
-
-    def _mission_request(self, msg) -> None:
-        mission = self.ap.commander.mission
-        if msg.mission_type != mavlink.MAV_MISSION_TYPE_MISSION or not 0 <= msg.seq < len(mission):
-            self.send(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_INVALID_SEQUENCE, msg.mission_type))
-            return
-        item = mission[msg.seq]
-        lat, lon = self.ap.estimator.geodetic_from_local(item.north_m, item.east_m)
-        current = 1 if msg.seq == self.ap.commander.current else 0
-        self.send(
-            self.mav.mission_item_int_encode(
-                msg.get_srcSystem(), msg.get_srcComponent(), item.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, item.command, current, 1,
-                item.param1, item.param2, item.param3, item.param4, int(round(lat * 1e7)), int(round(lon * 1e7)), item.altitude_m, 0,
-            )
-        )
-
-    def _mission_clear(self, msg) -> None:
-        self.ap.commander.set_mission([])
-        self.send(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED, msg.mission_type))
-
-    def _mission_set_current(self, msg) -> None:
-        c = self.ap.commander
-        if 0 <= msg.seq < len(c.mission):
-            c.current = msg.seq
-            c.mission_finished = False
-        self._mission_current()
-
     # commands
 
     def _ack(self, msg, result: int) -> None:
@@ -442,7 +155,7 @@ class ApiLink:
             # means it listens now: every stream goes out at once, so that it need not wait up to
             # a period for the health and position it waits on before arming.
             self._client_greeted = True
-            self._next = {name: 0.0 for name in self._next}
+            self.streams.all_at_once()
         ap = self.ap
         c = ap.commander
         command = msg.command
@@ -495,10 +208,10 @@ class ApiLink:
             }.get(command, int(msg.param1))
             if wanted == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
                 self._ack(msg, accepted)
-                self._autopilot_version()
+                self.streams.autopilot_version()
             elif wanted in MESSAGE_STREAMS:
                 self._ack(msg, accepted)
-                self._stream(MESSAGE_STREAMS[wanted])
+                self.streams.stream(MESSAGE_STREAMS[wanted])
             else:
                 self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
         elif command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -506,13 +219,7 @@ class ApiLink:
             if stream is None:
                 self._ack(msg, mavlink.MAV_RESULT_UNSUPPORTED)
                 return
-            interval_us = msg.param2
-            if interval_us < 0:
-                self.periods[stream] = 0.0
-            elif interval_us > 0:
-                self.periods[stream] = max(MIN_STREAM_PERIOD_S, interval_us / 1e6)
-            else:
-                self.periods[stream] = STREAMS[stream]
+            self.streams.set_interval(stream, msg.param2)
             self._ack(msg, accepted)
         elif command == MAV_CMD_INJECT_FAILURE:
             self._inject_failure(msg)

@@ -13,17 +13,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.api import ApiLink
 from autopilot.collision import ObstacleMap, constrain_velocity
-from autopilot.commander import (
-    NAV_DELAY,
-    NAV_LAND,
-    NAV_RETURN_TO_LAUNCH,
-    NAV_TAKEOFF,
-    NAV_WAYPOINT,
-    DO_CHANGE_SPEED,
-    Commander,
-    MissionItem,
-    VehicleEstimate,
-)
+from autopilot.commander import Commander, MissionItem, VehicleEstimate
 from autopilot.control import (
     PositionControl,
     Setpoint,
@@ -135,7 +125,7 @@ class Autopilot:
     def mission_item_from_global(self, seq: int, command: int, frame: int, lat: float, lon: float, z: float, params) -> MissionItem | None:
         if self.estimator.origin is None:
             return None
-        has_position = frame in FRAMES_WITH_POSITION and command in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF) and (lat != 0.0 or lon != 0.0)
+        has_position = frame in FRAMES_WITH_POSITION and command in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LAND, mavlink.MAV_CMD_NAV_TAKEOFF) and (lat != 0.0 or lon != 0.0)
         if has_position:
             north, east = self.estimator.local_from_geodetic(lat, lon)
         else:
@@ -143,7 +133,7 @@ class Autopilot:
         if frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
             home = self.home_geodetic()
             z = z - (home[2] if home else self.estimator.origin[2])
-        if command not in (NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED, NAV_DELAY):
+        if command not in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_LAND, mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_DELAY):
             log.info("mission item %d: command %d will be skipped", seq, command)
         return MissionItem(seq, command, north, east, z, *params, has_position=has_position)
 

@@ -9,6 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_DELAY, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT,
+)
+
 from autopilot.control import Setpoint
 from autopilot.manual import FLIGHT_MODE_PARAM, Sticks
 
@@ -21,13 +25,6 @@ SUB_AUTO_LOITER = 3
 SUB_AUTO_MISSION = 4
 SUB_AUTO_RTL = 5
 SUB_AUTO_LAND = 6
-
-NAV_WAYPOINT = 16
-NAV_RETURN_TO_LAUNCH = 20
-NAV_LAND = 21
-NAV_TAKEOFF = 22
-NAV_DELAY = 93
-DO_CHANGE_SPEED = 178
 
 MODE_NAMES = {
     (MAIN_POSCTL, 0): "Position",
@@ -247,34 +244,34 @@ class Commander:
         if self.mission_finished:
             return self._hold_setpoint()
         item = self.mission[self.current]
-        if item.command == DO_CHANGE_SPEED:
+        if item.command == MAV_CMD_DO_CHANGE_SPEED:
             self.set_cruise(item.param2)
             self._advance(self.current)
             return self._hold_setpoint()
-        if item.command == NAV_RETURN_TO_LAUNCH:
+        if item.command == MAV_CMD_NAV_RETURN_TO_LAUNCH:
             self._advance(self.current)
             self.set_mode((MAIN_AUTO, SUB_AUTO_RTL), estimate)
             return self._hold_setpoint()
-        if self.landed and item.command != NAV_LAND:
+        if self.landed and item.command != MAV_CMD_NAV_LAND:
             # PX4 inserts a takeoff when a mission starts on the ground.
             self._target_alt_m = max(self.params["MIS_TAKEOFF_ALT"], item.altitude_m)
             self.landed = False
             self._hold = (estimate.north_m, estimate.east_m, estimate.down_m)
             self.events.append(("in_air", None))
-        if item.command == NAV_DELAY:
+        if item.command == MAV_CMD_NAV_DELAY:
             if self._phase != "wait":
                 self._phase, self._wait_until_s = "wait", now_s + max(0.0, item.param1)
             if now_s >= self._wait_until_s:
                 self._advance(self.current)
             return self._hold_setpoint()
-        if item.command == NAV_TAKEOFF:
+        if item.command == MAV_CMD_NAV_TAKEOFF:
             target = item.altitude_m
             n, e, _ = self._hold
             if self._altitude(estimate) >= target - VERTICAL_ACCEPTANCE_M:
                 self._hold = (n, e, self._down_for(target))
                 self._advance(self.current)
             return Setpoint(north_m=n, east_m=e, down_m=self._down_for(target), v_down_m_s=0.0, yaw_rad=self._yaw_sp)
-        if item.command == NAV_WAYPOINT:
+        if item.command == MAV_CMD_NAV_WAYPOINT:
             if self._phase == "wait":  # PX4's hold time at a reached waypoint (param1, seconds)
                 if now_s >= self._wait_until_s:
                     self._advance(self.current)
@@ -292,7 +289,7 @@ class Commander:
                     return self._hold_setpoint()
                 self._advance(self.current)
             return sp
-        if item.command == NAV_LAND:
+        if item.command == MAV_CMD_NAV_LAND:
             if self.landed:
                 self._advance(self.current)
                 return Setpoint(idle=True)

@@ -14,7 +14,9 @@ from typing import Any, Mapping
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.app import Autopilot
-from autopilot.commander import NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, MissionItem
+from pymavlink.dialects.v20.common import MAV_CMD_NAV_LAND, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT
+
+from autopilot.commander import MissionItem
 from autopilot.params import Params
 from simlink import codec
 
@@ -36,9 +38,9 @@ def replay(stream: bytes, mission: Mapping[str, Any]) -> dict[str, Any]:
     frames = codec.FrameSplitter(crc_extras).feed(stream)
     splitter = codec.FrameSplitter(crc_extras)
     last = mission["waypoints"][-1]
-    items = [MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, mission["takeoff_altitude_m"])]
-    items += [MissionItem(i + 1, NAV_WAYPOINT, w["north_m"], w["east_m"], w["altitude_m"], 0.0, 2.0) for i, w in enumerate(mission["waypoints"])]
-    items.append(MissionItem(len(items), NAV_LAND, last["north_m"], last["east_m"], 0.0))
+    items = [MissionItem(0, MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, mission["takeoff_altitude_m"])]
+    items += [MissionItem(i + 1, MAV_CMD_NAV_WAYPOINT, w["north_m"], w["east_m"], w["altitude_m"], 0.0, 2.0) for i, w in enumerate(mission["waypoints"])]
+    items.append(MissionItem(len(items), MAV_CMD_NAV_LAND, last["north_m"], last["east_m"], 0.0))
     durations = []
     armed = False
     sock = _DigestSocket()

@@ -22,9 +22,12 @@ from pathlib import Path
 from typing import Callable
 
 from sim_bridge import ardupilot_link
-from sim_bridge.bridge import RANGE_MESSAGES, Bridge, BridgeConfig, ControlChannel
+from sim_bridge.bridge import Bridge, BridgeConfig
+from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
-from sim_bridge.spec import NORMAL_ENDS, WorldSpec
+from sim_bridge.control import EndReason, Finished, Load, LoadRefused, Quit, Rejected
+from sim_bridge.frames import RANGE_MESSAGES
+from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
 from simlink import codec, shared_memory
 
@@ -198,7 +201,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             if args.sim_socket is not None and not args.sim_socket.startswith("@"):
                 os.unlink(args.sim_socket)  # a path's socket file outlives its listener
     print(json.dumps(summary), flush=True)
-    return 0 if summary["end_reason"] in NORMAL_ENDS else 3
+    return 0 if summary["end_reason"].normal else 3
 
 
 def load_world(path: str) -> WorldSpec:
@@ -224,21 +227,21 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
             try:
                 sut = connect_sut()
             except socket.timeout:
-                bridge.summary.end_reason = "sut_never_connected"
+                bridge.summary.end_reason = EndReason.SUT_NEVER_CONNECTED
             except OSError:  # it connected and went at once (the shared memory's hand-over failed)
-                bridge.summary.end_reason = "sut_disconnected"
+                bridge.summary.end_reason = EndReason.SUT_DISCONNECTED
             except KeyboardInterrupt:
-                bridge.summary.end_reason = "interrupted"
+                bridge.summary.end_reason = EndReason.INTERRUPTED
             if sut is not None:
                 try:
                     bridge.run(sut, control)
                 except KeyboardInterrupt:
                     bridge.settle_outcome()
-                    bridge.summary.end_reason = "interrupted"
+                    bridge.summary.end_reason = EndReason.INTERRUPTED
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
-        control.send({"event": "finished", **summary})
-        if sut is not None and summary["end_reason"] != "interrupted" and getattr(sut, "can_hang_up", True):
+        control.send(Finished(summary))
+        if sut is not None and summary["end_reason"] is not EndReason.INTERRUPTED and getattr(sut, "can_hang_up", True):
             _wait_for_hang_up(sut, linger_s)
     finally:
         if sut is not None:
@@ -273,18 +276,18 @@ def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[
                 request = _next_request(control, harness_pid)
                 if request is None:
                     return 0
-                if not isinstance(request.get("world"), str) or not isinstance(request.get("mcap"), str):
-                    control.send({"event": "load_refused", "why": f"a load request names a world and an mcap file: got {request}"})
+                if isinstance(request, Rejected) or not isinstance(request.world, str) or not isinstance(request.mcap, str):
+                    control.send(LoadRefused(f"a load request names a world and an mcap file: got {request}"))
                     continue
                 try:
-                    world = load_world(request["world"])
+                    world = load_world(request.world)
                 except (OSError, ValueError) as error:
-                    control.send({"event": "load_refused", "why": f"{request['world']}: {error}"})
+                    control.send(LoadRefused(f"{request.world}: {error}"))
                     continue
                 # The harness reports a crash with the end of our stderr: say where each flight's part begins.
-                print(f"flying {request['world']}", file=sys.stderr, flush=True)
-                summary = fly(world, config, Path(request["mcap"]), control, inline_sut, compression)
-                if summary["end_reason"] not in NORMAL_ENDS:
+                print(f"flying {request.world}", file=sys.stderr, flush=True)
+                summary = fly(world, config, Path(request.mcap), control, inline_sut, compression)
+                if not summary["end_reason"].normal:
                     return 3
             finally:
                 control.close()
@@ -294,15 +297,15 @@ def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[
         listener.close()
 
 
-def _next_request(control: ControlChannel, harness_pid: int) -> dict | None:
-    """The next harness's load request; None when it asks us to quit or is gone (no longer our
-    parent). Its death normally signals us (die_with_parent), but a server left waiting forever
-    would hold its port block, so we look for ourselves too."""
+def _next_request(control: ControlChannel, harness_pid: int) -> Load | Rejected | None:
+    """The next harness's load request (Rejected: one it could not read); None when it asks us to
+    quit or is gone (no longer our parent). Its death normally signals us (die_with_parent), but
+    a server left waiting forever would hold its port block, so we look for ourselves too."""
     while os.getppid() == harness_pid:
         for op in control.poll(1.0):
-            if op.get("op") == "quit":
+            if isinstance(op, Quit):
                 return None
-            if op.get("op") == "load":
+            if isinstance(op, Load) or isinstance(op, Rejected) and op.name == Load.NAME:
                 return op
     return None
 

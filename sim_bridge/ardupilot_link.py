@@ -12,15 +12,14 @@ from __future__ import annotations
 import select
 import socket
 import time
-from typing import TYPE_CHECKING
+from typing import Callable, Mapping
 
 from sim_bridge.ardupilot_json import (REPEATED, RESTARTED, FrameCounter, FrameError, decode_servo_frame, motor_commands, rangefinder_distances_m, rc_channels,
                                        rc_packet, state_line)
+from sim_bridge.control import EndReason
+from sim_bridge.frames import SensorFrames
 from sim_bridge.sensors import quaternion_from_euler
-from sim_bridge.world import SECTOR_DEG
-
-if TYPE_CHECKING:
-    from sim_bridge.bridge import Bridge
+from sim_bridge.world import SECTOR_DEG, World
 
 PROTOCOLS = ("mavlink", "ardupilot-json")
 
@@ -91,13 +90,21 @@ class UdpLink:
 
 
 class JsonSteps:
-    """The bridge's per-step exchange in ArduPilot's JSON protocol."""
+    """The bridge's per-step exchange in ArduPilot's JSON protocol: the world's readings from
+    `frames`, at the bridge's rates (`every`), its events through `on_event` and the bytes
+    received added to `link_in` for the bridge's recording."""
 
-    def __init__(self, bridge: "Bridge", link, first_frame: bytes | None = None):
-        self.bridge = bridge
+    def __init__(self, world: World, config, frames: SensorFrames, every: Mapping[str, int], on_event: Callable[..., None], link_in: bytearray,
+                 link, first_frame: bytes | None = None):
+        self.world = world
+        self.config = config
+        self.readings = frames
+        self.every = every
+        self.on_event = on_event
+        self.link_in = link_in
         self.link = link
-        rc_port = bridge.config.rc_port
-        self._rc_address = ("127.0.0.1", rc_port) if rc_port is not None and bridge.world.pilot is not None else None
+        rc_port = config.rc_port
+        self._rc_address = ("127.0.0.1", rc_port) if rc_port is not None and world.pilot is not None else None
         self.frames = FrameCounter()
         self.bad_frames = 0
         self.skipped_bytes = 0
@@ -105,9 +112,9 @@ class JsonSteps:
         self._ranges: list[float | None] = []
         # ArduPilot makes its GPS from the true position it is sent (its SITL GPS model): a GPS
         # failure the simulator would deliver cannot reach it.
-        for spec in bridge.world.spec.failures or ():
+        for spec in world.spec.failures or ():
             if spec.delivery == "simulator" and spec.unit != "distance sensor":
-                bridge._event(0.0, "failure_refused", {"unit": spec.unit, "type": spec.type, "delivery": "simulator",
+                on_event(0.0, "failure_refused", {"unit": spec.unit, "type": spec.type, "delivery": "simulator",
                                                        "result": "UNSUPPORTED: ArduPilot's JSON backend makes its own GPS from the true position"})
         if first_frame is not None:
             # The frame that opened the link was sent before any state: no step answers it.
@@ -118,14 +125,13 @@ class JsonSteps:
         velocity (ArduPilot's SITL makes its GPS, barometer and compass from them) and, at the
         range sensor's rate its six rangefinders, held in between. The pilot's sticks go to ArduPilot's RC input
         first, so that the step this line starts reads them."""
-        bridge = self.bridge
-        world = bridge.world
-        if self._rc_address is not None and step % bridge._every["rc"] == 0:
-            self.link.sock.sendto(rc_packet(bridge._pilot_frame(time_us, rc_channels)), self._rc_address)
+        world = self.world
+        if self._rc_address is not None and step % self.every["rc"] == 0:
+            self.link.sock.sendto(rc_packet(self.readings.pilot_frame(time_us, rc_channels)), self._rc_address)
         s = world.state
         imu = world.imu()
-        if step % bridge._every["sensor"] == 0:
-            distances = bridge._range_reading(time_us)
+        if step % self.every["sensor"] == 0:
+            distances = self.readings.range_reading(time_us)
             # Held until the next reading: ArduPilot prints the fields it got whenever they change.
             self._ranges = [] if distances is None else rangefinder_distances_m(distances, world.sector_visible.tolist(), SECTOR_DEG, world.range_m)
         ranges = self._ranges
@@ -140,27 +146,26 @@ class JsonSteps:
         whether it came. A frame sent again means our line was lost: it gets the same line again,
         and the world takes no second step. A count that starts again is an ArduPilot restarted:
         recorded, and flown on. What is no servo frame is counted and skipped."""
-        bridge = self.bridge
-        world = bridge.world
+        world = self.world
         while True:
             try:
                 if not lockstep and not sut.readable(world.dt):
                     return False
-                datagram = sut.receive(bridge.config.spin_s)
+                datagram = sut.receive(self.config.spin_s)
             except BlockingIOError:
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
-            bridge._link_in += datagram
+            self.link_in += datagram
             try:
                 frame = decode_servo_frame(datagram)
             except FrameError:
                 self.bad_frames += 1
                 self.skipped_bytes += len(datagram)
-                if time.perf_counter() - waiting_since > bridge.config.stall_timeout_s:
-                    world.end("sut_stalled")
+                if time.perf_counter() - waiting_since > self.config.stall_timeout_s:
+                    world.end(EndReason.SUT_STALLED)
                     return False
                 continue
             kind = self.frames.classify(frame.frame_count)
@@ -170,10 +175,10 @@ class JsonSteps:
                 try:
                     sut.send(self._last_line)
                 except OSError:
-                    world.end("sut_disconnected")
+                    world.end(EndReason.SUT_DISCONNECTED)
                     return False
                 continue
             if kind == RESTARTED:
-                bridge._event(world.time_s, "sut_restarted", {"frame_count": frame.frame_count})
+                self.on_event(world.time_s, "sut_restarted", {"frame_count": frame.frame_count})
             world.motors = motor_commands(frame.pwm_us)
             return True

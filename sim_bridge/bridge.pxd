@@ -3,28 +3,22 @@ cimport simlink.pymath as math
 import cython
 from sim_bridge.physics cimport VehicleState
 from sim_bridge.world cimport World
+from sim_bridge.frames cimport SensorFrames
 
 cdef class Bridge:
-    cdef public object config, recorder, summary, _control, _wedges, _hold_deadline, failures, _awaiting_injection, _json
+    cdef public object config, recorder, summary, _control, _hold_deadline, failures, _awaiting_injection, _json
     cdef public World world
+    cdef public SensorFrames frames
     cdef public dict _every
-    cdef public int _seq
     cdef public bytearray _link_out, _link_in
     cdef public tuple _clearance_batch
     cdef public bint _hold_announced
-
-    cpdef int _next_seq(self)
 
     @cython.locals(s=VehicleState)
     cpdef _record_pose(self, long long time_ns)
 
     @cython.locals(time_s=cython.double, time_ns=cython.longlong, batch=tuple)
     cpdef _observe(self, long long step)
-
-    @cython.locals(world=World, s=VehicleState, frames=list)
-    cpdef bytes _sensor_frames(self, long long step, long long time_us)
-
-    cpdef _gps_fix(self)
 
     @cython.locals(world=World, answered=cython.bint)
     cpdef bint _receive_answer(self, sut, splitter, bint lockstep, double waiting_since)

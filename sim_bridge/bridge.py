@@ -6,30 +6,8 @@ HIL_GPS, 50 Hz HIL_STATE_QUATERNION (ground truth) and OBSTACLE_DISTANCE at the 
 Until the SUT's first HIL_ACTUATOR_CONTROLS the bridge runs at real-time pace with the vehicle
 resting on the ground; from then on it waits for one actuator answer per step (lockstep).
 
-Control channel (newline-delimited JSON over TCP, one client, the harness):
-  bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
-      "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
-      simulation have passed: the harness can now connect, upload and arm while simulated time
-      stands still (hold mode "frozen") or runs on at `hold_pace` times real time (hold mode
-      "paced", for SUTs whose threads follow the lockstep clock); {"event": "finished", ...summary} at the
-      end. Messages sent before the harness connects wait for it.
-  harness -> bridge: {"op": "run"} ends the hold; {"op": "stop"} ends the run;
-      {"op": "add_obstacle", "obstacle": {...world-spec obstacle...}, "at_s": T};
-      {"op": "move_obstacle", "id": ID, "a": {...}, "b": {...} | null, "speed_m_s": V, "at_s": T};
-      {"op": "remove_obstacle", "id": ID, "at_s": T}. `at_s` is run time (simulation seconds
-      since "run"); without it the change applies at the next step.
-      {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
-      slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
-      A harness that hangs up before "finished" is gone: the run ends ("harness_gone").
-  Serving (`--serve`, a SUT inside the bridge's process): each harness connection starts with
-      {"op": "load", "world": PATH, "mcap": PATH} and ends after {"event": "finished"}, which
-      then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
-      world that does not load); {"op": "quit"} ends the process.
-  Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
-      end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
-      end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the
-      harness answers {"op": "failure_injected", "result": R} with the SUT's answer to
-      MAV_CMD_INJECT_FAILURE; /events records it ("failure" or "failure_cleared").
+The control channel to the harness (sim_bridge/channel.py) carries the messages of
+sim_bridge/control.py, whose docstring tells the protocol.
 
 With the pilot drive (world "drive": "pilot") a simulated pilot (sim_bridge/pilot.py) flies the
 route with RC_CHANNELS frames every 20 ms of simulated time, sent before HIL_SENSOR like the
@@ -42,41 +20,35 @@ harness took to set up.
 
 from __future__ import annotations
 
-import json
 import logging
-import math
-import select
 import socket
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.ardupilot_link import JsonSteps
+from sim_bridge.channel import ControlChannel
+from sim_bridge.control import (EndReason, Event, FailureInjected, Holding, InjectFailure, LockstepStarted, ObstacleOp, Op, RcModeSlot, Rejected, Run,
+                                Stop, SutConnected)
 from sim_bridge.failures import FailureSchedule
-from sim_bridge.pilot import CHANNEL_COUNT, RC_PERIOD_S
+from sim_bridge.frames import RANGE_MESSAGES, SensorFrames
+from sim_bridge.pilot import RC_PERIOD_S
 from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
-from sim_bridge.sensors import FIELDS_ALL, quaternion_from_euler
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SutLink
-from sim_bridge.world import SECTOR_DEG, World
+from sim_bridge.world import World
 from simlink import codec
-from simlink.failures import wrong_distances, wrong_gps_position
 
 log = logging.getLogger(__name__)
 
-SYSTEM_ID = 1
-COMPONENT_ID = 51
-UINT16_MAX = 65535
 RECORD_EVERY_S = 0.04
 SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
-RANGE_MESSAGES = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
-FORWARDED_EVENTS = ("sut_connected", "lockstep_started")
+FORWARDED_EVENTS = {"sut_connected": SutConnected, "lockstep_started": LockstepStarted}
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
 
 
@@ -110,7 +82,7 @@ class BridgeConfig:
 
 @dataclass
 class Summary:
-    end_reason: str = "running"
+    end_reason: EndReason = EndReason.RUNNING
     sim_time_s: float = 0.0
     run_time_s: float = 0.0
     steps: int = 0
@@ -131,82 +103,6 @@ class Summary:
         return dict(self.__dict__)
 
 
-class ControlChannel:
-    """The harness's side channel; absent until the harness connects."""
-
-    def __init__(self, listener: socket.socket | None, own_listener: bool = True):
-        """own_listener=False: close() hangs up on the harness but keeps listening for the next."""
-        self._listener = listener
-        self._own_listener = own_listener
-        self._conn: socket.socket | None = None
-        self._buffer = b""
-        self._backlog: list[Mapping[str, Any]] = []
-        # The harness keeps its connection for the whole flight: losing it means the harness died.
-        self.hung_up = False
-        if listener is not None:
-            listener.setblocking(False)
-
-    @property
-    def connected(self) -> bool:
-        return self._conn is not None
-
-    def poll(self, timeout_s: float = 0.0, wake: socket.socket | None = None) -> list[dict[str, Any]]:
-        """The harness's ops, waiting up to timeout_s for one, or for `wake` to turn readable."""
-        sockets = [s for s in (self._listener, self._conn) if s is not None]
-        if not sockets and wake is None:
-            if timeout_s:
-                time.sleep(timeout_s)
-            return []
-        readable, _, _ = select.select(sockets + ([wake] if wake is not None else []), [], [], timeout_s)
-        ops = []
-        for sock in readable:
-            if sock is wake:
-                continue
-            if sock is self._listener:
-                self._conn, _ = self._listener.accept()
-                self._conn.setblocking(False)
-                backlog, self._backlog = self._backlog, []
-                for message in backlog:
-                    self.send(message)
-                continue
-            try:
-                data = sock.recv(65536)
-            except BlockingIOError:
-                continue
-            if not data:
-                self._conn = None
-                self.hung_up = True
-                continue
-            self._buffer += data
-            *lines, self._buffer = self._buffer.split(b"\n")
-            for line in lines:
-                if line.strip():
-                    try:
-                        ops.append(json.loads(line))
-                    except json.JSONDecodeError:
-                        log.warning("ignoring malformed control line %r", line[:80])
-        return ops
-
-    def send(self, message: Mapping[str, Any]) -> None:
-        """Send now, or as soon as the harness connects."""
-        if self._conn is None:
-            self._backlog.append(message)
-            return
-        self._conn.setblocking(True)
-        try:
-            self._conn.sendall(json.dumps(message).encode() + b"\n")
-        except OSError:
-            self._conn = None
-            self.hung_up = True
-        else:
-            self._conn.setblocking(False)
-
-    def close(self) -> None:
-        for sock in (self._conn, self._listener if self._own_listener else None):
-            if sock is not None:
-                sock.close()
-
-
 class Bridge:
     """The server around the world (sim_bridge/world.py): PX4's simulator protocol to the SUT in
     lockstep, the hold while the harness sets up, the control channel, and the MCAP recording."""
@@ -217,7 +113,6 @@ class Bridge:
         self.summary = Summary()
         self._control: ControlChannel | None = None
         self.world = World(world, config.rate_hz, on_event=self._event, on_obstacles_changed=self._obstacles_changed)
-        self._wedges = _wedges(np.flatnonzero(self.world.sector_visible).tolist())
         self._every = {
             "gps": max(1, round(config.rate_hz / config.gps_rate_hz)),
             "truth": max(1, round(config.rate_hz / config.ground_truth_rate_hz)),
@@ -229,13 +124,13 @@ class Bridge:
         }
         if self.world.pilot is not None:
             self._every["rc"] = max(1, round(RC_PERIOD_S * config.rate_hz))
-        self._seq = 0  # the simulator link's MAVLink sequence number
         self._link_out = bytearray()
         self._link_in = bytearray()
         self._clearance_batch: tuple[list, list, list, list] = ([], [], [], [])
         self._hold_deadline: float | None = None
         self._hold_announced = False
         self.failures = FailureSchedule(world.failures or (), lambda event, detail: self._event(self.world.time_s, event, detail))
+        self.frames = SensorFrames(self.world, config.range_messages, recorder, self.failures, self._every)
         self._awaiting_injection: dict[str, Any] | None = None
         self._json: JsonSteps | None = None  # the exchange with an ArduPilot (protocol "ardupilot-json")
 
@@ -246,7 +141,7 @@ class Bridge:
         log.info("t=%.3f %s %s", time_s, event, detail)
         self.recorder.write("/events", time_ns=int(time_s * 1e9), message={"t": time_s, "event": event, "detail": detail})
         if event in FORWARDED_EVENTS and self._control is not None:
-            self._control.send({"event": event, "t": time_s, **detail})
+            self._control.send(FORWARDED_EVENTS[event](t=time_s, **detail))
 
     def _obstacles_changed(self, time_s: float, removed_id: str | None) -> None:
         time_ns = int(time_s * 1e9)
@@ -325,120 +220,6 @@ class Bridge:
             self._flush_link(time_ns)
             self._flush_clearance()
 
-    # -- messages ----------------------------------------------------------------------------
-
-    def _next_seq(self) -> int:
-        seq = self._seq
-        self._seq = (seq + 1) & 0xFF
-        return seq
-
-    def _encode(self, message: codec.MessageCodec, *values) -> bytes:
-        return message.encode(self._next_seq(), SYSTEM_ID, COMPONENT_ID, *values)
-
-    def _sensor_frames(self, step: int, time_us: int) -> bytes:
-        world = self.world
-        s = world.state
-        imu = world.imu()
-        every = self._every
-        frames = []
-        g = self._gps_fix() if step % every["gps"] == 0 else None
-        if g is not None:
-            frames.append(self._encode(
-                codec.HIL_GPS, time_us, g["fix_type"], g["lat"], g["lon"], g["alt"], g["eph"], g["epv"], g["vel"], g["vn"], g["ve"], g["vd"], g["cog"],
-                g["satellites_visible"], 0, 0,
-            ))
-        if step % every["truth"] == 0:
-            frames.append(self._encode(
-                codec.HIL_STATE_QUATERNION,
-                time_us,
-                quaternion_from_euler(s.roll_rad, s.pitch_rad, s.yaw_rad),
-                s.p_rad_s,
-                s.q_rad_s,
-                s.r_rad_s,
-                int(round(s.lat_deg * 1e7)),
-                int(round(s.lon_deg * 1e7)),
-                int(round(s.alt_msl_m * 1000)),
-                int(round(s.v_north_m_s * 100)),
-                int(round(s.v_east_m_s * 100)),
-                int(round(s.v_down_m_s * 100)),
-                0,
-                0,
-                _milli_g(s.ax_m_s2),
-                _milli_g(s.ay_m_s2),
-                _milli_g(s.az_m_s2),
-            ))
-        if step % every["sensor"] == 0:
-            frames.extend(self._obstacle_distance(time_us))
-        if world.pilot is not None and step % every["rc"] == 0:
-            frames.append(self._pilot_rc(time_us))
-        # HIL_SENSOR goes last: a SUT that steps on it has then seen this step's other messages,
-        # however TCP splits the stream. Sequence numbers count up in the order frames are sent.
-        frames.append(codec.encode_hil_sensor(seq=self._next_seq(), sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=imu, fields_updated=FIELDS_ALL))
-        return b"".join(frames)
-
-    def _gps_fix(self) -> dict[str, Any] | None:
-        """This step's HIL_GPS fields as the receiver delivers them (None: nothing delivered)."""
-        fix = self.world.gps()
-        if self.failures.owns("gps"):
-            return self.failures.reading("gps", self._run_time(), fix, _wrong_gps)
-        return fix
-
-    def _run_time(self) -> float | None:
-        world = self.world
-        return None if world.run_start_s is None else world.run_time(world.time_s)
-
-    def _range_reading(self, time_us: int) -> list[int] | None:
-        """The range sensor's sectors as the SUT gets them (a failure's, None: nothing), recorded."""
-        world = self.world
-        distances = world.range_cm()
-        if self.failures.owns("distance sensor"):
-            reach_cm = int(world.range_m * 100)
-            distances = self.failures.reading("distance sensor", self._run_time(), distances,
-                                              lambda sectors: wrong_distances(sectors, max_distance_cm=reach_cm))
-            if distances is None:
-                return None
-        self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": world.range_m, "distances_cm": distances})
-        return distances
-
-    def _obstacle_distance(self, time_us: int):
-        world = self.world
-        distances = self._range_reading(time_us)
-        if distances is None:
-            return []
-        reach_cm = int(world.range_m * 100)
-        min_cm = int(world.min_range_m * 100)
-        messages = []
-        if "OBSTACLE_DISTANCE" in self.config.range_messages:
-            messages.append(self._encode(
-                codec.OBSTACLE_DISTANCE, time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, 0, min_cm, reach_cm, SECTOR_DEG, 0.0, mavlink.MAV_FRAME_BODY_FRD
-            ))
-        # The same reading as DISTANCE_SENSOR wedges: PX4's simulator link ignores OBSTACLE_DISTANCE
-        # but turns DISTANCE_SENSOR into the distance_sensor topic its collision prevention reads.
-        for sensor_id, (quaternion, fov_rad, sectors) in enumerate(self._wedges if "DISTANCE_SENSOR" in self.config.range_messages else ()):
-            nearest_cm = min(min(distances[i] for i in sectors), reach_cm)
-            messages.append(self._encode(
-                codec.DISTANCE_SENSOR, time_us // 1000, min_cm, reach_cm, nearest_cm, mavlink.MAV_DISTANCE_SENSOR_LASER, sensor_id,
-                mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, fov_rad, fov_rad, quaternion, 0,
-            ))
-        return messages
-
-    def _pilot_frame(self, time_us: int, channels_of=None):
-        """The pilot's sticks now, recorded with the channels the SUT gets (channels_of(frame):
-        its transmitter's; PX4's layout by default)."""
-        pilot = self.world.pilot
-        frame = self.world.pilot_frame(time_us / 1e6)
-        channels = frame.channels() if channels_of is None else channels_of(frame)
-        self.recorder.write("/pilot", time_ns=time_us * 1000, message={
-            "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
-            "mode_slot": frame.slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
-        })
-        return channels
-
-    def _pilot_rc(self, time_us: int):
-        channels = self._pilot_frame(time_us)
-        unused = [UINT16_MAX] * (18 - CHANNEL_COUNT)
-        return self._encode(codec.RC_CHANNELS, time_us // 1000, CHANNEL_COUNT, *channels, *unused, 255)
-
     # -- the control channel -----------------------------------------------------------------
 
     def _serve_control(self, control: ControlChannel, time_s: float, timeout_s: float = 0.0, wake: socket.socket | None = None) -> None:
@@ -447,23 +228,26 @@ class Bridge:
         or holding for it up to the hold timeout, would keep a campaign's ports and core."""
         self._handle_ops(control.poll(timeout_s, wake=wake), time_s)
         if control.hung_up:
-            self.world.end("harness_gone")
+            self.world.end(EndReason.HARNESS_GONE)
 
-    def _handle_ops(self, ops: list[dict[str, Any]], time_s: float) -> None:
+    def _handle_ops(self, ops: list[Op], time_s: float) -> None:
         for op in ops:
-            kind = op.get("op")
-            if kind == "run":
+            if isinstance(op, Run):
                 self.world.start_run(time_s)
-            elif kind == "stop":
-                self.world.end("stopped")
-            elif kind == "rc_mode_slot":
-                self.world.forced_slot = int(op["slot"])
-            elif kind == "failure_injected":
-                self._injected(str(op.get("result", "")), time_s)
-            elif "at_s" in op:
+            elif isinstance(op, Stop):
+                self.world.end(EndReason.STOPPED)
+            elif isinstance(op, RcModeSlot):
+                self.world.forced_slot = int(op.slot)
+            elif isinstance(op, FailureInjected):
+                self._injected(str(op.result), time_s)
+            elif isinstance(op, ObstacleOp) and op.at_s is not None:
                 self.world.schedule(op)
-            else:
+            elif isinstance(op, ObstacleOp):
                 self.world.apply(op, time_s)
+            elif isinstance(op, Rejected) and op.name is not None:
+                self._event(time_s, "injection_rejected", {"reason": op.why})
+            else:  # not JSON, or an op for a serving simulator between flights
+                log.warning("ignoring control message %r", op)
 
     # -- failures told to the SUT -------------------------------------------------------------
 
@@ -471,7 +255,7 @@ class Bridge:
         """Each MAV_CMD_INJECT_FAILURE now due, through the harness: frozen, wait for its answer
         here; paced, the loop runs on at real-time pace until it comes."""
         while self._awaiting_injection is None and self.world.running:
-            due = self.failures.command_due(self._run_time())
+            due = self.failures.command_due(self.frames.run_time())
             if due is None:
                 return
             spec, kind = due
@@ -480,7 +264,7 @@ class Bridge:
                 self._event(time_s, "failure_undelivered", {**request, "reason": "no harness on the control channel"})
                 continue
             self._awaiting_injection = request
-            control.send({"event": "inject_failure", "t": time_s, "unit": spec.unit, "type": kind})
+            control.send(InjectFailure(t=time_s, unit=spec.unit, type=kind))
             if self.config.hold_mode != "paced":
                 self._frozen_until(lambda: self._awaiting_injection is None, sut, splitter, control, time_s)
 
@@ -509,13 +293,13 @@ class Bridge:
                     return False
                 data = sut.receive(self.config.spin_s if lockstep else 0.0)
             except BlockingIOError:
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
             if not data:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return False
             self._link_in += data
             answered = False
@@ -530,7 +314,7 @@ class Bridge:
                 return False  # before lockstep the step goes on at real-time pace, answered or not
             if time.perf_counter() - waiting_since > self.config.stall_timeout_s:
                 # Bytes keep coming but no answer among them: a flood stalls a step as silence does.
-                world.end("sut_stalled")
+                world.end(EndReason.SUT_STALLED)
                 return False
 
     def run(self, sut: SutLink, control: ControlChannel) -> Summary:
@@ -540,7 +324,7 @@ class Bridge:
         self._control = control
         splitter = codec.FrameSplitter(_CRC_EXTRAS)
         if config.protocol == "ardupilot-json":
-            self._json = JsonSteps(self, sut, getattr(sut, "first", None))
+            self._json = JsonSteps(world, config, self.frames, self._every, self._event, self._link_in, sut, getattr(sut, "first", None))
         json_steps = self._json
         wall_start = time.perf_counter()
         perf = time.perf_counter
@@ -580,13 +364,13 @@ class Bridge:
                 # Step timers count the run only: before it the loop runs at real-time pace.
                 setup_timers = {name: getattr(summary, name) for name in STEP_TIMERS}
             ts = perf()
-            frames_out = self._sensor_frames(step, time_us) if json_steps is None else json_steps.state(step, time_us)
+            frames_out = self.frames.step_frames(step, time_us) if json_steps is None else json_steps.state(step, time_us)
             t_send = perf()
             summary.sensors_s += t_send - ts
             try:
                 sut.send(frames_out)
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 break
             self._link_out += frames_out
             t_sent = perf()
@@ -652,18 +436,18 @@ class Bridge:
             self._event(time_s, "holding")
             self._hold_deadline = time.monotonic() + self.config.hold_timeout_s
         if not self._hold_announced and control.connected:
-            control.send({"event": "holding", "t": time_s})
+            control.send(Holding(t=time_s))
             self._hold_announced = True
         if time.monotonic() > self._hold_deadline:
-            self.world.end("hold_timeout")
+            self.world.end(EndReason.HOLD_TIMEOUT)
 
     def _hold(self, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float) -> None:
         """Pause the simulation until the harness says run; keep reading what the SUT sends."""
         self._event(time_s, "holding")
-        self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce={"event": "holding", "t": time_s})
+        self._frozen_until(lambda: self.world.run_start_s is not None, sut, splitter, control, time_s, announce=Holding(t=time_s))
 
     def _frozen_until(self, done, sut: SutLink, splitter: codec.FrameSplitter, control: ControlChannel, time_s: float,
-                      announce: Mapping[str, Any] | None = None) -> None:
+                      announce: Event | None = None) -> None:
         """Simulated time stands still until done() (the harness's ops are handled meanwhile) or
         the hold timeout; the SUT's traffic is read so that it never blocks on a full socket."""
         world = self.world
@@ -673,41 +457,14 @@ class Bridge:
                 control.send(announce)
                 announce = None
             if time.monotonic() > deadline:
-                world.end("hold_timeout")
+                world.end(EndReason.HOLD_TIMEOUT)
                 return
             try:
                 data = sut.idle()
             except OSError:
-                world.end("sut_disconnected")
+                world.end(EndReason.SUT_DISCONNECTED)
                 return
             if data:
                 self._link_in += data
                 splitter.feed(data)
             self._serve_control(control, time_s, 0.01, sut.waitable())
-
-
-WEDGE_SECTORS = 4
-
-
-def _milli_g(specific_force_m_s2: float) -> int:
-    """HIL_STATE_QUATERNION's int16 acceleration: a crash's impact (tens of g) saturates it."""
-    return max(-32768, min(32767, int(round(specific_force_m_s2 / 9.80665 * 1000))))
-
-
-def _wrong_gps(fix: dict[str, Any]) -> dict[str, Any]:
-    lat_deg, _lon_deg = wrong_gps_position(fix["lat"] * 1e-7, fix["lon"] * 1e-7)
-    return {**fix, "lat": int(round(lat_deg * 1e7))}
-
-
-def _wedges(visible: list[int]) -> list[tuple[list[float], float, list[int]]]:
-    """Visible sectors grouped WEDGE_SECTORS at a time from left to right: (body-yaw quaternion
-    w, x, y, z of the wedge's centre, its width in radians, its sector indices)."""
-    signed = sorted(visible, key=lambda i: ((i * SECTOR_DEG + 180.0) % 360.0) - 180.0)
-    wedges = []
-    for start in range(0, len(signed), WEDGE_SECTORS):
-        sectors = signed[start : start + WEDGE_SECTORS]
-        angles = [math.radians(((i * SECTOR_DEG + 180.0) % 360.0) - 180.0) for i in sectors]
-        centre = (angles[0] + angles[-1]) / 2.0
-        width = angles[-1] - angles[0] + math.radians(SECTOR_DEG)
-        wedges.append(([math.cos(centre / 2.0), 0.0, 0.0, math.sin(centre / 2.0)], width, sectors))
-    return wedges

@@ -17,9 +17,6 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Union
 
 WORLD_FORMAT = "stella.world/1"
-# How a flight in a world may end on its own (the bridge's summary, "end_reason"), as opposed to
-# the simulator's or the SUT's failure (sut_disconnected, sut_stalled, hold_timeout, harness_gone, ...).
-NORMAL_ENDS = frozenset({"landed", "time_limit", "stopped", "crashed", "blocked"})
 
 
 class SpecError(ValueError):

@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any, Callable, Mapping
+from typing import Any, Callable
 
 import numpy as np
 
+from sim_bridge.control import AddObstacle, EndReason, MoveObstacle, ObstacleOp, RemoveObstacle
 from sim_bridge.obstacles import Obstacle, ObstacleField
 from sim_bridge.physics import Multirotor, VehicleState
 from sim_bridge.pilot import Pilot, RcFrame
@@ -84,12 +85,12 @@ class World:
         self.steps = 0
         self.motors = (0.0, 0.0, 0.0, 0.0)  # the SUT's last answer
         self.run_start_s: float | None = None
-        self.end_reason = "running"
+        self.end_reason = EndReason.RUNNING
         self.airborne = False
         self.touchdown: dict[str, Any] | None = None
         self.injections: list[dict[str, Any]] = []
         self.forced_slot: int | None = None
-        self._pending_ops: list[Mapping[str, Any]] = []
+        self._pending_ops: list[ObstacleOp] = []
         self._moved_for_next_step = False
         self._landed_since: float | None = None
         self.pilot: Pilot | None = None
@@ -106,7 +107,7 @@ class World:
 
     @property
     def running(self) -> bool:
-        return self.end_reason == "running"
+        return self.end_reason is EndReason.RUNNING
 
     def run_time(self, time_s: float) -> float:
         """Simulation seconds since the run began (0 before): obstacles move and the time limit counts in it."""
@@ -117,7 +118,7 @@ class World:
             self.run_start_s = time_s
             self.on_event(time_s, "run", {})
 
-    def end(self, reason: str) -> None:
+    def end(self, reason: EndReason) -> None:
         self.end_reason = reason
 
     # -- readings ----------------------------------------------------------------------------
@@ -185,7 +186,7 @@ class World:
         time_s = self.time_s
         run_time = self.run_time(time_s)
         # A change places its obstacle at this time itself; the others' motion may be done already.
-        while self._pending_ops and self._pending_ops[0]["at_s"] <= run_time:
+        while self._pending_ops and self._pending_ops[0].at_s <= run_time:
             self.apply(self._pending_ops.pop(0), time_s)
         if not self._moved_for_next_step:
             self.field.move_to(run_time)
@@ -202,41 +203,39 @@ class World:
             self._gust_announced = True
             self.on_event(self.time_s, "gust", {"amplitude_m_s": gust.amplitude_m_s, "from_deg": gust.from_deg, "duration_s": gust.duration_s})
 
-    def schedule(self, op: Mapping[str, Any]) -> None:
-        """An obstacle change to make at run time op["at_s"]."""
+    def schedule(self, op: ObstacleOp) -> None:
+        """An obstacle change to make at run time op.at_s."""
         self._pending_ops.append(op)
-        self._pending_ops.sort(key=lambda o: o["at_s"])
+        self._pending_ops.sort(key=lambda o: o.at_s)
 
-    def apply(self, op: Mapping[str, Any], time_s: float) -> None:
-        """An obstacle change now: add_obstacle, move_obstacle or remove_obstacle (sim_bridge/bridge.py)."""
-        kind = op.get("op")
-        record = {"op": kind, "t": time_s}
+    def apply(self, op: ObstacleOp, time_s: float) -> None:
+        """An obstacle change now (sim_bridge/control.py)."""
+        record = {"op": op.NAME, "t": time_s}
         removed = None
-        if kind == "add_obstacle":
-            obstacle = Obstacle.from_spec(op["obstacle"])
+        if isinstance(op, AddObstacle):
+            obstacle = Obstacle.from_spec(op.obstacle)
             obstacle.move_to(self.run_time(time_s))
             self.field.add(obstacle)
             record["id"] = obstacle.id
-        elif kind == "move_obstacle":
-            current = next((o for o in self.field.obstacles if o.id == op["id"]), None)
+        elif isinstance(op, MoveObstacle):
+            current = next((o for o in self.field.obstacles if o.id == op.id), None)
             if current is None:
-                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op['id']!r}"})
+                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op.id!r}"})
                 return
-            spec = {"id": current.id, "form": current.form, "size": current.size, "yaw_rad": op.get("yaw_rad", current.yaw_rad),
-                    "a": op["a"], "b": op.get("b"), "speed_m_s": op.get("speed_m_s", 0.0)}
+            spec = {"id": current.id, "form": current.form, "size": current.size, "yaw_rad": current.yaw_rad if op.yaw_rad is None else op.yaw_rad,
+                    "a": op.a, "b": op.b, "speed_m_s": 0.0 if op.speed_m_s is None else op.speed_m_s}
             obstacle = Obstacle.from_spec(spec)
             obstacle.move_to(self.run_time(time_s))
             self.field.add(obstacle)
             record["id"] = obstacle.id
-        elif kind == "remove_obstacle":
-            record["id"] = op["id"]
-            if not self.field.remove(op["id"]):
-                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op['id']!r}"})
+        elif isinstance(op, RemoveObstacle):
+            record["id"] = op.id
+            if not self.field.remove(op.id):
+                self.on_event(time_s, "injection_rejected", {"reason": f"no obstacle {op.id!r}"})
                 return
-            removed = op["id"]
+            removed = op.id
         else:
-            self.on_event(time_s, "injection_rejected", {"reason": f"unknown op {kind!r}"})
-            return
+            raise TypeError(f"{op!r} is no obstacle change")
         self.injections.append(record)
         self.on_event(time_s, "injection", record)
         self.on_obstacles_changed(time_s, removed)
@@ -261,13 +260,13 @@ class World:
                 }
                 self.on_event(time_s, "touchdown", dict(self.touchdown))
                 if speed > CRASH_SPEED_M_S:
-                    self.end_reason = "crashed"
+                    self.end_reason = EndReason.CRASHED
                     return
             if speed < 0.3 and max(self.motors) < 0.15:
                 if self._landed_since is None:
                     self._landed_since = time_s
                 elif time_s - self._landed_since >= LANDED_HOLD_S:
-                    self.end_reason = "landed"
+                    self.end_reason = EndReason.LANDED
                     return
             else:
                 self._landed_since = None
@@ -276,8 +275,8 @@ class World:
             if not s.on_ground:
                 self.touchdown = None
         if self.pilot is not None and self.pilot.blocked:
-            self.end_reason = "blocked"
+            self.end_reason = EndReason.BLOCKED
             self.on_event(time_s, "blocked", {"remaining_m": self.pilot.remaining_m, "north_m": s.north_m, "east_m": s.east_m})
             return
         if self.run_start_s is not None and run_time >= self.spec.time_limit_s:
-            self.end_reason = "time_limit"
+            self.end_reason = EndReason.TIME_LIMIT

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Mapping
 
 from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
 from sut_adapter.ardupilot_failures import SUT_FAILURE_UNITS, failure_params
-from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess, non_empty
 
 if TYPE_CHECKING:
@@ -88,6 +88,11 @@ def resolve_binary(given: str | None) -> Path:
                                 "./waf copter` and pass build/sitl (docs/suts.md)")
 
 
+def rc_port_for(instance: int) -> int:
+    """The UDP port ArduPilot takes RC input on in this port block."""
+    return RC_PORT_BASE + instance
+
+
 def format_params(params: Mapping[str, float]) -> str:
     """A .parm file ArduPilot reads with --defaults: NAME VALUE per line."""
     return "".join(f"{name} {float(value):.9g}\n" for name, value in params.items())
@@ -95,41 +100,40 @@ def format_params(params: Mapping[str, float]) -> str:
 
 class ArduPilotSitl:
     name = "ardupilot"
-    hold_mode = "paced"
-    hold_pace = HOLD_PACE
-    # The range sensor reaches it as rangefinders in the JSON state, not as MAVLink.
-    range_messages: tuple[str, ...] = ()
-    sim_protocol = "ardupilot-json"
-    # ArduPilot's SITL IMU samples at the physics rate, and its pre-arm check wants the gyro at
-    # 1.8 times ArduCopter's 400 Hz loop at least ("Gyro 0 rate 253Hz < loop ratex1.8 720Hz",
-    # "Main loop slow (250Hz < 400Hz)" at our 250 Hz).
-    rate_hz = 800.0
-    # start() takes the world it flies in: ArduPilot starts at its origin, with rangefinders of its sensor's reach.
-    needs_world = True
-    # MISSION_ITEM_INT 0 is home to ArduPilot: the harness puts the start there.
-    mission_home_item = True
-    # The pilot drive: its RC layout is in the defaults above; its take-off altitude goes with
-    # MAVSDK's take-off command, as ArduPilot has no parameter for it; MAVSDK calls ArduCopter's
-    # Loiter "Hold".
-    pilot_params: dict[str, float] = {}
-    takeoff_altitude_param = None
-    pilot_flight_mode = "HOLD"
-    # ArduPilot has no MAV_CMD_INJECT_FAILURE: its SITL fails its sensors through SIM_* parameters,
-    # set at the failure's onset (sut_adapter/ardupilot_failures.py); a failure without one is
-    # refused. Its GPS is its own (the JSON backend carries none), so GPS failures go to it too.
-    injects_failures = False
-    failure_params = staticmethod(failure_params)
-    sut_failure_units = SUT_FAILURE_UNITS
+    capabilities = Capabilities(
+        hold_mode="paced",
+        hold_pace=HOLD_PACE,
+        # The range sensor reaches it as rangefinders in the JSON state, not as MAVLink.
+        range_messages=(),
+        sim_protocol="ardupilot-json",
+        # ArduPilot's SITL IMU samples at the physics rate, and its pre-arm check wants the gyro at
+        # 1.8 times ArduCopter's 400 Hz loop at least ("Gyro 0 rate 253Hz < loop ratex1.8 720Hz",
+        # "Main loop slow (250Hz < 400Hz)" at our 250 Hz).
+        rate_hz=800.0,
+        # start() takes the world it flies in: ArduPilot starts at its origin, with rangefinders of its sensor's reach.
+        needs_world=True,
+        # MISSION_ITEM_INT 0 is home to ArduPilot: the harness puts the start there.
+        mission_home_item=True,
+        rc_port_for=rc_port_for,
+        # The pilot drive: its RC layout is in the defaults above; its take-off altitude goes with
+        # MAVSDK's take-off command, as ArduPilot has no parameter for it; MAVSDK calls ArduCopter's
+        # Loiter "Hold".
+        pilot_params={},
+        takeoff_altitude_param=None,
+        pilot_flight_mode="HOLD",
+        # ArduPilot has no MAV_CMD_INJECT_FAILURE: its SITL fails its sensors through SIM_* parameters,
+        # set at the failure's onset (sut_adapter/ardupilot_failures.py); a failure without one is
+        # refused. Its GPS is its own (the JSON backend carries none), so GPS failures go to it too.
+        injects_failures=False,
+        failure_params=failure_params,
+        sut_failure_units=SUT_FAILURE_UNITS,
+    )
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"ardupilot_bin"})
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes ardupilot_bin (--ardupilot-bin)")
         self.binary = resolve_binary(config.get("ardupilot_bin") or os.environ.get("STELLA_ARDUPILOT_BIN"))
-
-    @staticmethod
-    def rc_port_for(instance: int) -> int:
-        return rc_port_for(instance)
 
     def check_params(self, params: Mapping[str, float]) -> None:
         """Its parameters are known only to the running SUT, which reports a bad one when set."""
@@ -167,11 +171,6 @@ def world_params(world: "WorldSpec") -> dict[str, float]:
         if not in_view:
             params[f"RNGFND{n}_TYPE"] = 0
     return params
-
-
-def rc_port_for(instance: int) -> int:
-    """The UDP port ArduPilot takes RC input on in this port block."""
-    return RC_PORT_BASE + instance
 
 
 def collect_artifacts(ardupilot_dir: Path, console_logs: list[Path]) -> list[Path]:

@@ -2,49 +2,14 @@
 
 A SUT is started for one evaluation with a port block (the simulator's TCP port it connects
 to, the UDP port it sends its API link to, the instance index those came from), a fresh
-working directory and parameters; it answers with a handle. Two properties tell the harness
-how to treat it without knowing which SUT it is:
-
-* `hold_mode`: "frozen" if it answers MAVLink while the simulation is held with simulated
-  time stopped (the bundled autopilot), "paced" if its threads follow the lockstep clock and
-  so need simulated time to pass while the harness sets up (PX4).
-* `hold_pace` (optional, 1.0): how many times faster than real time a paced hold may run. PX4
-  stretches its timeouts by the speed factor it is started with, so its hold runs that fast.
-* `range_messages`: how it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled
-  autopilot) and/or DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
-* `spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it
-  may poll for the simulator's next message this long before sleeping. The bundled autopilot
-  does; PX4 and command SUTs wait their own way.
-* `inline_arguments` (optional): a SUT that can run inside the bridge's process, its simulator
-  link through memory (`--transport memory`; the bundled autopilot), gives the arguments it
-  takes there. PX4 and command SUTs have none: they keep TCP.
-* `connects_to_unix_socket` (optional, True): the SUT's `start` also takes `sim_socket`, a
-  Unix-domain socket to connect to instead of the simulator's TCP port (`--transport unix`; the
-  bundled autopilot). Same bytes, half the kernel's round trip.
-* `connects_to_shared_memory` (optional, True): with `sim_socket`, `start` also takes
-  `sim_shared_memory`: the simulator hands shared memory over on that socket and the link's
-  bytes go through it (`--transport shm`, simlink/shared_memory.py; the bundled autopilot).
-* `sim_protocol` (optional, "mavlink"): what the simulator link speaks; "ardupilot-json" for
-  ArduPilot's JSON physics backend (sim_bridge/ardupilot_json.py), over UDP on the simulator port.
-* `needs_world` (optional, False): `start` also takes `world`, the WorldSpec it flies in
-  (ArduPilot starts at its origin and sizes its rangefinders by its range sensor).
-* `mission_home_item` (optional, False): the SUT takes MISSION_ITEM_INT 0 for home (ArduPilot),
-  so the harness uploads the start there and the mission after it.
-* `rc_port_for(instance)` (optional): the UDP port the SUT takes the pilot's sticks on, as
-  ArduPilot SITL's RC input does; without it they go on the simulator link as RC_CHANNELS.
-* `pilot_params` (optional, sim_bridge/pilot.py's SUT_PARAMS): the pilot drive's RC layout as
-  parameters set over MAVLink; `takeoff_altitude_param` (optional, "MIS_TAKEOFF_ALT"; None:
-  MAVSDK's take-off altitude); `pilot_flight_mode` (optional, "POSCTL"): MAVSDK's name of the
-  mode the pilot's Position slot selects.
-* `rate_hz` (optional, 250): the lockstep rate it wants unless the user chose one; ArduPilot's
-  SITL samples its gyros at the physics rate and refuses to arm below 1.8 times its 400 Hz loop.
-* `injects_failures` (optional, True): False for a SUT without MAV_CMD_INJECT_FAILURE
-  (ArduPilot): each failure it is to be told of is answered UNSUPPORTED, `failure_refused`,
-  unless its `failure_params(unit, type)` (optional) gives parameters that fail the unit (set
-  over MAVLink at the onset; type "ok" gives their values without a failure); None: refused.
-* `sut_failure_units` (optional, none): units whose failures the SUT makes itself although the
-  simulator would fail their readings on the way for others (ArduPilot's GPS, which it makes
-  from the true position): they are told to it instead.
+working directory and parameters; it answers with a handle. Its adapter declares once, in a
+`Capabilities` record (`capabilities`), how the harness is to meet it without knowing which SUT
+it is; the fields say what each capability means. A `start` takes, besides the port block,
+`sim_socket` (and `sim_shared_memory`) where its transports include "unix" ("shm"), `world`
+where it `needs_world`; an adapter whose transports include "memory" gives `inline_arguments`.
+`spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it may
+poll for the simulator's next message this long before sleeping. The bundled autopilot does;
+PX4 and command SUTs wait their own way.
 * `SutHandle.mavlink_params`: parameters the harness sets over MAVLink (MAVSDK's param
   plugin) once the SUT is discovered, before it waits for health.
 """
@@ -62,6 +27,8 @@ if TYPE_CHECKING:
     from sim_bridge.spec import WorldSpec
 
 HOLD_MODES = ("frozen", "paced")
+TRANSPORTS = ("tcp", "unix", "shm", "memory")
+DEFAULT_RATE_HZ = 250.0
 
 
 @dataclass(frozen=True)
@@ -122,96 +89,94 @@ def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
     return SutHandle(name=sut, **{**defaults, **fields})
 
 
-def runs_inline(system: "SystemUnderTest") -> bool:
-    """Whether the SUT can run inside the bridge's process (it gives `inline_arguments`)."""
-    return callable(getattr(system, "inline_arguments", None))
+@dataclass(frozen=True)
+class Capabilities:
+    """What a SUT can do and how the harness must meet it, declared on its adapter."""
 
+    # "frozen" if it answers MAVLink while the simulation is held with simulated time stopped (the
+    # bundled autopilot); "paced" if its threads follow the lockstep clock and so need simulated
+    # time to pass while the harness sets up (PX4).
+    hold_mode: str
+    # How it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled autopilot) and/or
+    # DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
+    range_messages: tuple[str, ...]
+    # How many times faster than real time a paced hold may run. PX4 stretches its timeouts by
+    # the speed factor it is started with, so its hold runs that fast.
+    hold_pace: float = 1.0
+    # The lockstep rate it wants unless the user chose one (--rate-hz); ArduPilot's SITL samples
+    # its gyros at the physics rate and refuses to arm below 1.8 times its 400 Hz loop.
+    rate_hz: float = DEFAULT_RATE_HZ
+    # What the simulator link speaks: "mavlink" (PX4's simulator messages), or "ardupilot-json"
+    # for ArduPilot's JSON physics backend (sim_bridge/ardupilot_json.py) over UDP.
+    sim_protocol: str = "mavlink"
+    # What may carry the simulator link (--transport): "tcp"; "unix", a Unix-domain socket (same
+    # bytes, half the kernel's round trip); "shm", shared memory handed over on that socket
+    # (simlink/shared_memory.py); "memory", inside the bridge's process.
+    transports: tuple[str, ...] = ("tcp",)
+    # How many instances can run side by side on one host (None: as many as there are port
+    # blocks); an evaluation's instance number is its port block's slot.
+    instance_count: int | None = None
+    # Its start takes `world`, the WorldSpec it flies in (ArduPilot starts at its origin and sizes
+    # its rangefinders by its range sensor).
+    needs_world: bool = False
+    # It takes MISSION_ITEM_INT 0 for home (ArduPilot): the harness uploads the start there and
+    # the mission after it.
+    mission_home_item: bool = False
+    # The UDP port it takes the pilot's sticks on for an instance, as ArduPilot SITL's RC input
+    # does; None: they go on the simulator link as RC_CHANNELS.
+    rc_port_for: Callable[[int], int] | None = None
+    # The pilot drive's RC layout as parameters set over MAVLink (None: sim_bridge/pilot.py's
+    # SUT_PARAMS, PX4's names); the parameter its take-off altitude goes in (None: MAVSDK's
+    # take-off command); MAVSDK's name of the mode the pilot's Position slot selects.
+    pilot_params: Mapping[str, float] | None = None
+    takeoff_altitude_param: str | None = "MIS_TAKEOFF_ALT"
+    pilot_flight_mode: str = "POSCTL"
+    # Whether it takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled
+    # autopilot do. Without it each failure it is to be told of is answered UNSUPPORTED
+    # (`failure_refused`) unless failure_params(unit, type) gives parameters that fail the unit,
+    # set over MAVLink at the onset (type "ok" gives their values without a failure).
+    injects_failures: bool = True
+    failure_params: Callable[[str, str], Mapping[str, float] | None] | None = None
+    # Units whose failures it makes itself although the simulator would fail their readings on
+    # the way for others (ArduPilot's GPS, which it makes from the true position): they are told to it.
+    sut_failure_units: tuple[str, ...] = ()
 
-def instance_count(system: "SystemUnderTest") -> int | None:
-    """How many instances of the SUT can run side by side on one host (None: as many as there
-    are port blocks); an evaluation's instance number is its port block's slot."""
-    return getattr(system, "instance_count", None)
+    def check(self, sut: str) -> None:
+        """Raise SutError naming the SUT for a declaration the harness cannot act on."""
+        problems = []
+        if self.hold_mode not in HOLD_MODES:
+            problems.append(f"its hold_mode {self.hold_mode!r} is not one of {', '.join(HOLD_MODES)}")
+        for name in ("hold_pace", "rate_hz"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                problems.append(f"its {name} {value!r} is not a positive number")
+        unknown = sorted(set(self.transports) - set(TRANSPORTS))
+        if unknown:
+            problems.append(f"its transports {', '.join(unknown)} are not among {', '.join(TRANSPORTS)}")
+        if problems:
+            raise SutError(sut, "; ".join(problems))
 
+    def pilot_setup(self) -> tuple[dict[str, float], str | None, str]:
+        """The pilot drive's set-up: its RC layout's parameters, the parameter its take-off
+        altitude goes in (None: MAVSDK's take-off command), MAVSDK's name of its Position mode."""
+        from sim_bridge.pilot import SUT_PARAMS
 
-def hold_pace(system: "SystemUnderTest") -> float:
-    """Simulated seconds per wall-clock second in the SUT's paced hold (real time unless it says)."""
-    pace = getattr(system, "hold_pace", 1.0)
-    if not (isinstance(pace, (int, float)) and math.isfinite(pace) and pace > 0):
-        raise SutError(system.name, f"its hold_pace {pace!r} is not a positive number of simulated seconds per wall-clock second")
-    return float(pace)
+        return dict(SUT_PARAMS if self.pilot_params is None else self.pilot_params), self.takeoff_altitude_param, self.pilot_flight_mode
 
+    def rc_port(self, instance: int) -> int | None:
+        """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""
+        return self.rc_port_for(instance) if self.rc_port_for is not None else None
 
-def sim_protocol(system: "SystemUnderTest") -> str:
-    """What the SUT's simulator link speaks: "mavlink" unless it says otherwise."""
-    return getattr(system, "sim_protocol", "mavlink")
-
-
-def needs_world(system: "SystemUnderTest") -> bool:
-    """Whether the SUT's start takes `world`, the WorldSpec it flies in."""
-    return getattr(system, "needs_world", False) is True
-
-
-def mission_home_item(system: "SystemUnderTest") -> bool:
-    """Whether the SUT takes mission item 0 for home."""
-    return getattr(system, "mission_home_item", False) is True
-
-
-def pilot_setup(system: "SystemUnderTest") -> tuple[dict[str, float], str | None, str]:
-    """The pilot drive's set-up for this SUT: its RC layout's parameters, the parameter its
-    take-off altitude goes in (None: MAVSDK's take-off command), MAVSDK's name of its Position mode."""
-    from sim_bridge.pilot import SUT_PARAMS
-
-    return (dict(getattr(system, "pilot_params", SUT_PARAMS)), getattr(system, "takeoff_altitude_param", "MIS_TAKEOFF_ALT"),
-            getattr(system, "pilot_flight_mode", "POSCTL"))
-
-
-DEFAULT_RATE_HZ = 250.0
-
-
-def physics_rate(system: "SystemUnderTest") -> float:
-    """The lockstep rate the SUT wants unless the user chose one (--rate-hz): 250 Hz, PX4's."""
-    return float(getattr(system, "rate_hz", DEFAULT_RATE_HZ))
-
-
-def injects_failures(system: "SystemUnderTest") -> bool:
-    """Whether the SUT takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled autopilot do."""
-    return getattr(system, "injects_failures", True) is not False
-
-
-def failure_params(system: "SystemUnderTest") -> Callable[[str, str], Mapping[str, float] | None] | None:
-    """How a SUT without MAV_CMD_INJECT_FAILURE fails a unit through its parameters (None: it cannot)."""
-    means = getattr(system, "failure_params", None)
-    return means if callable(means) else None
-
-
-def with_failure_deliveries(system: "SystemUnderTest", world: "WorldSpec") -> "WorldSpec":
-    """The world with the failures of units the SUT fails itself told to it, not made by the simulator."""
-    units = tuple(getattr(system, "sut_failure_units", ()))
-    if not any(f.unit in units and f.delivery != "sut" for f in world.failures or ()):
-        return world
-    return replace(world, failures=tuple(replace(f, delivery="sut") if f.unit in units else f for f in world.failures))
-
-
-def rc_port(system: "SystemUnderTest", instance: int) -> int | None:
-    """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""
-    port_for = getattr(system, "rc_port_for", None)
-    return port_for(instance) if callable(port_for) else None
-
-
-def connects_to_unix_socket(system: "SystemUnderTest") -> bool:
-    """Whether the SUT's start takes `sim_socket`, a Unix-domain socket to connect to."""
-    return getattr(system, "connects_to_unix_socket", False) is True
-
-
-def connects_to_shared_memory(system: "SystemUnderTest") -> bool:
-    """Whether the SUT's start takes `sim_shared_memory` beside `sim_socket`."""
-    return connects_to_unix_socket(system) and getattr(system, "connects_to_shared_memory", False) is True
+    def with_failure_deliveries(self, world: "WorldSpec") -> "WorldSpec":
+        """The world with the failures of units the SUT fails itself told to it, not made by the simulator."""
+        if not any(f.unit in self.sut_failure_units and f.delivery != "sut" for f in world.failures or ()):
+            return world
+        return replace(world, failures=tuple(replace(f, delivery="sut") if f.unit in self.sut_failure_units else f for f in world.failures))
 
 
 class SystemUnderTest(Protocol):
     name: str
-    hold_mode: str
-    range_messages: tuple[str, ...]
+    capabilities: Capabilities
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0) -> SutHandle:

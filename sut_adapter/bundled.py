@@ -12,10 +12,11 @@ import json
 import os
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -23,10 +24,7 @@ log = logging.getLogger(__name__)
 
 class BundledAutopilot:
     name = "bundled"
-    hold_mode = "frozen"
-    range_messages = ("OBSTACLE_DISTANCE",)
-    connects_to_unix_socket = True
-    connects_to_shared_memory = True
+    capabilities = Capabilities(hold_mode="frozen", range_messages=("OBSTACLE_DISTANCE",), transports=("tcp", "unix", "shm", "memory"))
 
     def __init__(self, config: Mapping[str, str] | None = None):
         config = dict(config or {})
@@ -41,8 +39,8 @@ class BundledAutopilot:
             if not (folder / "autopilot" / "__main__.py").is_file():
                 raise SutError(self.name, f"{folder} holds no autopilot package (autopilot/__main__.py): give the folder `stella mutants build` wrote for a mutant")
             self.autopilot_dir = str(folder)
-            # An instance attribute hides the method: runs_inline() then says no.
-            self.inline_arguments = None
+            # Its package must be found on its own PYTHONPATH, which only a process of its own has.
+            self.capabilities = replace(self.capabilities, transports=("tcp", "unix", "shm"))
 
     def check_params(self, params: Mapping[str, float]) -> None:
         """Refuse a name neither the bundled autopilot nor PX4 has; say, once, which PX4

@@ -16,7 +16,7 @@ import string
 from pathlib import Path
 from typing import Mapping
 
-from sut_adapter.base import HOLD_MODES, SutError, SutHandle, start_process
+from sut_adapter.base import HOLD_MODES, Capabilities, SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess
 
 PLACEHOLDERS = ("sim_port", "api_port", "instance", "workdir")
@@ -49,16 +49,16 @@ def parse_template(template: str) -> list[str]:
 
 class CommandSut:
     name = "command"
-    range_messages = ("OBSTACLE_DISTANCE", "DISTANCE_SENSOR")
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"command", "hold"})
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes command (--sut-command) and hold (--sut-hold)")
         self.words = parse_template(config.get("command", ""))
-        self.hold_mode = config.get("hold", "paced")
-        if self.hold_mode not in HOLD_MODES:
-            raise SutError(self.name, f"--sut-hold {self.hold_mode!r} is not one of {', '.join(HOLD_MODES)}")
+        hold_mode = config.get("hold", "paced")
+        if hold_mode not in HOLD_MODES:
+            raise SutError(self.name, f"--sut-hold {hold_mode!r} is not one of {', '.join(HOLD_MODES)}")
+        self.capabilities = Capabilities(hold_mode=hold_mode, range_messages=("OBSTACLE_DISTANCE", "DISTANCE_SENSOR"))
 
     def argv(self, *, sim_port: int, api_port: int, instance: int, workdir: Path) -> list[str]:
         values = {"sim_port": sim_port, "api_port": api_port, "instance": instance, "workdir": str(workdir)}

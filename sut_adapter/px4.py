@@ -16,10 +16,11 @@ and the harness measures exactly that.
 from __future__ import annotations
 
 import os
+import shlex
 from pathlib import Path
 from typing import Mapping
 
-from sut_adapter.base import SutError, SutHandle, start_process
+from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
 from sut_adapter.processes import ManagedProcess, non_empty
 
 AIRFRAME = "10016"
@@ -34,6 +35,15 @@ DEFAULT_PARAMS: dict[str, int | float] = {"CP_DIST": 1.0, "NAV_DLL_ACT": 0}
 # paced hold can run this many times faster than real time: it reaches its first heartbeat (1 s
 # of its time after its MAVLink starts) and health in a twentieth of the wall time.
 SPEED_FACTOR = 20
+# PX4's API link (MAVLink's "onboard" mode, ROMFS px4-rc.mavlink) streams about 470 messages per
+# simulated second, 310 of them attitude, IMU, odometry and position at 30-100 Hz; the harness
+# relays, records and MAVSDK parses each one, which cost as much CPU as PX4's own (docs/
+# benchmarks.md). The harness needs status, health and mission progress from that link; 10 Hz of
+# the rest is plenty to look at in a log viewer.
+API_STREAM_RATES_HZ = {"ATTITUDE": 10, "ATTITUDE_QUATERNION": 10, "HIGHRES_IMU": 10, "GLOBAL_POSITION_INT": 10, "LOCAL_POSITION_NED": 10,
+                       "ODOMETRY": 10}
+# The script PX4's rcS sources to start its MAVLink instances, found first on PATH.
+MAVLINK_SCRIPT = "px4-rc.mavlink"
 
 
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
@@ -50,12 +60,19 @@ def resolve_binary(given: str | None) -> tuple[Path, Path]:
     return binary, etc
 
 
+def api_stream_script(etc: Path, instance: int) -> str:
+    """PX4's own MAVLink start-up, then its API link's high-rate streams at API_STREAM_RATES_HZ:
+    PX4's rcS sources this instead of its own px4-rc.mavlink (PX4 puts its bin/ first on PATH,
+    its init.d-posix/ last, so a folder between them comes first), and this sources PX4's."""
+    own = etc / "init.d-posix" / MAVLINK_SCRIPT
+    api_port_local = 14580 + instance  # its API link's own UDP port (px4-rc.mavlink: udp_offboard_port_local)
+    return "\n".join(["# Written by stella (sut_adapter/px4.py) for PX4's rcS.", f". {shlex.quote(str(own))}",
+                      *(f"mavlink stream -u {api_port_local} -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()), ""])
+
+
 class Px4Sitl:
     name = "px4"
-    hold_mode = "paced"
-    hold_pace = float(SPEED_FACTOR)
-    range_messages = ("DISTANCE_SENSOR",)
-    instance_count = MAX_INSTANCE + 1
+    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1)
 
     def __init__(self, config: Mapping[str, str]):
         unknown = sorted(set(config) - {"px4_bin"})
@@ -64,9 +81,15 @@ class Px4Sitl:
         self.binary, self.etc = resolve_binary(config.get("px4_bin") or os.environ.get("STELLA_PX4_BIN"))
 
     def command(self, *, instance: int, workdir: Path) -> tuple[list[str], dict[str, str]]:
+        """PX4's command line and environment for an instance in workdir (where it writes a script
+        of its own for PX4's rcS, found on PATH before PX4's: api_stream_script)."""
         if not 0 <= instance <= MAX_INSTANCE:
             raise SutError(self.name, f"instance {instance} is out of range: PX4 gives instances above {MAX_INSTANCE} one shared API port; run at most {MAX_INSTANCE + 1} PX4 evaluations at once")
-        env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": str(SPEED_FACTOR)}
+        scripts = workdir / "stella-rc"
+        scripts.mkdir(parents=True, exist_ok=True)
+        (scripts / MAVLINK_SCRIPT).write_text(api_stream_script(self.etc, instance))
+        env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": str(SPEED_FACTOR),
+               "PATH": os.pathsep.join([str(scripts), os.environ.get("PATH", os.defpath)])}
         return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
 
     def check_params(self, params: Mapping[str, float]) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.scenario.profile import Profile, load_profile
 
@@ -145,15 +145,16 @@ FIG4_SEED1_FITNESS = 9.882575416238263  # the bundled autopilot's fitness on Fig
 def stored_result(fitness: float, status: str, seed: int = 0, *, min_clearance_m: float | None = None, log_path: str | None = None,
                   confirmations: dict | None = None) -> EvaluationResult:
     """An evaluation's result as a campaign stores it, for tests that fill a store by hand."""
-    return EvaluationResult(Status(status), fitness, None, min_clearance_m, None, None, 0.0, 0.0, None, seed, log_path, "test", "bundled",
-                            confirmations=confirmations)
+    return EvaluationResult(status=Status(status), fitness=fitness, why=None, min_clearance_m=min_clearance_m, min_clearance_at_s=None,
+                            min_clearance_obstacle=None, sim_time_s=0.0, wall_time_s=0.0, real_time_factor=None, seed=seed, log_path=log_path,
+                            scenario="test", sut="bundled", confirmations=confirmations)
 
 
 def fig4_job(out_dir, profile: Profile, key: int = 0, **options):
     """An executor job: Fig. 4 sampled with seed 1, flown with seed 1."""
     import numpy as np
 
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.results import RunOptions
     from harness.execution.executor import Job
     from harness.scenario.logical import load_logical
     from harness.scenario.space import SearchSpace

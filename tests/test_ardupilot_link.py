@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import stat
 import struct
 import subprocess
@@ -23,7 +22,7 @@ from sim_bridge import ardupilot_json, geo
 from sim_bridge.ardupilot_json import FrameCounter, FrameError, decode_servo_frame, encode_servo_frame, motor_commands, rangefinder_distances_m, state_line
 from sim_bridge.spec import WorldSpec
 from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
-from sut_adapter import SutError, get, with_failure_deliveries
+from sut_adapter import SutError, get
 from sut_adapter.ardupilot import DEFAULT_PARAMS, PARAMS_FILE
 from sut_adapter.ardupilot_failures import failure_params
 from test_bridge_lockstep import world
@@ -166,7 +165,7 @@ def test_arducopter_is_started_on_the_port_blocks_ports_at_the_worlds_origin_wit
     assert [params[f"RNGFND{n}_ORIENT"] for n in range(1, 7)] == ["0", "1", "2", "4", "6", "7"]
     # The world's sensor sees 100 degrees about the nose: no rangefinder right, back or left (one without data fails pre-arm).
     assert [params[f"RNGFND{n}_TYPE"] for n in range(1, 7)] == ["100", "100", "0", "0", "0", "100"]
-    assert system.rate_hz >= 1.8 * 400  # its gyros sample at the physics rate
+    assert system.capabilities.rate_hz >= 1.8 * 400  # its gyros sample at the physics rate
     assert handle.mavlink_params == {"OA_TYPE": 1}
     assert set(DEFAULT_PARAMS) <= set(params)
 
@@ -202,14 +201,17 @@ def test_each_servo_frame_is_answered_by_one_step_and_the_lines_are_what_ardupil
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 4 * 400
     # One line per frame, one step apart in simulated time, each whole to ArduPilot's parser.
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
-    assert seen["ranges_seen"] == seen["parsed"] and seen["resent"] == 0 and summary["bad_frames"] == 0
+    # No frame was sent again but one whose line was still on the way (a second's wait on a loaded machine).
+    assert seen["ranges_seen"] == seen["parsed"] and seen["resent"] == seen["duplicates"] and summary["bad_frames"] == 0
 
 
 @pytest.mark.slow
 def test_a_lost_line_is_sent_again_without_a_second_step_and_skipped_or_restarted_counts_fly_on(tmp_path):
     code, summary, seen = fly_fake(tmp_path, "--ignore-every", "200", "--skip-every", "300", "--restart-at", "700")
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 4 * 400
-    assert seen["ignored"] >= 7 and seen["resent"] == seen["ignored"]
+    # Each lost line was answered again when its frame came again; on a loaded machine a frame can
+    # also come again while its line is on the way, and then its second answer is a duplicate.
+    assert seen["ignored"] >= 7 and seen["resent"] == seen["ignored"] + seen["duplicates"]
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
 
 
@@ -266,6 +268,6 @@ def test_ardupilots_gps_failures_are_told_to_it_and_the_distance_sensors_stay_th
     failures = [{"unit": "gps", "type": "off", "onset_s": 1.0, "duration_s": 1.0, "delivery": "simulator"},
                 {"unit": "distance sensor", "type": "off", "onset_s": 0.0, "duration_s": 10.0, "delivery": "simulator"}]
     spec = WorldSpec.from_dict({**world(), "failures": failures})
-    placed = with_failure_deliveries(get("ardupilot", {"ardupilot_bin": str(arducopter)}), spec)
+    placed = get("ardupilot", {"ardupilot_bin": str(arducopter)}).capabilities.with_failure_deliveries(spec)
     assert [(f.unit, f.delivery) for f in placed.failures] == [("gps", "sut"), ("distance sensor", "simulator")]
-    assert with_failure_deliveries(get("bundled"), spec) is spec
+    assert get("bundled").capabilities.with_failure_deliveries(spec) is spec

@@ -5,10 +5,11 @@ from __future__ import annotations
 import math
 
 import pytest
+from pymavlink.dialects.v20.common import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_LAND, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT
 
 from autopilot.app import Autopilot
 from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction
-from autopilot.commander import DO_CHANGE_SPEED, MAIN_AUTO, NAV_LAND, NAV_TAKEOFF, NAV_WAYPOINT, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
+from autopilot.commander import MAIN_AUTO, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
 from autopilot.estimator import Estimator, GpsFix
 from autopilot.params import SPECS, ParamError, Params
@@ -189,10 +190,10 @@ def test_mission_state_machine_takes_off_flies_lands_and_disarms():
     commander = Commander(params)
     commander.home = (0.0, 0.0, 0.0)
     commander.set_mission([
-        MissionItem(0, NAV_TAKEOFF, 0.0, 0.0, 5.0),
-        MissionItem(1, DO_CHANGE_SPEED, 0.0, 0.0, 0.0, 1.0, 3.0, has_position=False),
-        MissionItem(2, NAV_WAYPOINT, 20.0, 0.0, 5.0, 0.0, 2.0),
-        MissionItem(3, NAV_LAND, 20.0, 0.0, 0.0),
+        MissionItem(0, MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, 5.0),
+        MissionItem(1, MAV_CMD_DO_CHANGE_SPEED, 0.0, 0.0, 0.0, 1.0, 3.0, has_position=False),
+        MissionItem(2, MAV_CMD_NAV_WAYPOINT, 20.0, 0.0, 5.0, 0.0, 2.0),
+        MissionItem(3, MAV_CMD_NAV_LAND, 20.0, 0.0, 0.0),
     ])
     assert commander.arm(0.0, True, "")[0]
     assert commander.start_mission(estimate())

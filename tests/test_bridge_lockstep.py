@@ -14,6 +14,7 @@ import pytest
 from conftest import ROOT, port_bound
 from harness.flight import logs
 from harness.flight.ports import PortLease
+from sim_bridge.control import AddObstacle, FailureInjected, Finished, Holding, InjectFailure, MoveObstacle, RemoveObstacle, Run, Stop
 
 SCRIPTED_SUT = ROOT / "tests" / "scripted_sut.py"
 BODY = {"length_m": 0.6, "width_m": 0.6, "height_m": 0.2}
@@ -144,19 +145,19 @@ def test_obstacles_are_injected_moved_and_removed_through_the_control_channel(tm
         sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", "hover"], cwd=ROOT)
         try:
             control = BridgeControl(ports.control)
-            assert control.wait_for("holding", 20.0) is not None
-            control.send({"op": "add_obstacle", "obstacle": pole, "at_s": 2.0})
-            control.send({"op": "move_obstacle", "id": "pole", "a": {"north_m": 6.5, "east_m": 0.0, "up_m": 10.0}, "at_s": 3.0})
-            control.send({"op": "remove_obstacle", "id": "pole", "at_s": 4.0})
-            control.send({"op": "run"})
-            finished = control.wait_for("finished", 60.0)
+            assert control.wait_for(Holding, 20.0) is not None
+            control.send(AddObstacle(pole, at_s=2.0))
+            control.send(MoveObstacle("pole", {"north_m": 6.5, "east_m": 0.0, "up_m": 10.0}, at_s=3.0))
+            control.send(RemoveObstacle("pole", at_s=4.0))
+            control.send(Run())
+            finished = control.wait_for(Finished, 60.0)
             control.close()
             bridge.communicate(timeout=30)
         finally:
             sut.kill()
             sut.wait()
             bridge.kill()
-    assert [i["op"] for i in finished["injections"]] == ["add_obstacle", "move_obstacle", "remove_obstacle"]
+    assert [i["op"] for i in finished.summary["injections"]] == ["add_obstacle", "move_obstacle", "remove_obstacle"]
     samples = [(t, d) for _topic, _ns, m in logs.messages(log_path, ["/clearance"]) for t, d in zip(m["t"], m["d"])]
     run_start = 0.5
     def clearance_at(run_time):
@@ -218,9 +219,9 @@ def test_a_harness_that_hangs_up_mid_flight_ends_the_run_at_once(tmp_path, momen
 
     with bridge_and_hovering_sut(tmp_path, world(time_limit_s=120.0), "--hold-after-s", "0.5") as (bridge, _sut, ports, _log):
         control = BridgeControl(ports.control)
-        assert control.wait_for("holding", 20.0) is not None
+        assert control.wait_for(Holding, 20.0) is not None
         if moment == "flying":
-            control.send({"op": "run"})
+            control.send(Run())
             time.sleep(0.5)
         hung_up_at = time.monotonic()
         control.close()
@@ -241,17 +242,17 @@ def test_a_paced_hold_runs_simulated_time_at_its_pace(tmp_path, pace):
     with bridge_and_hovering_sut(tmp_path, world(time_limit_s=60.0), "--hold-after-s", "0.5", "--hold-mode", "paced", "--hold-pace", str(pace)) as (
             bridge, _sut, ports, _log):
         control = BridgeControl(ports.control)
-        holding = control.wait_for("holding", 20.0)
+        holding = control.wait_for(Holding, 20.0)
         assert holding is not None
         held_since = time.monotonic()
         time.sleep(1.0)
-        control.send({"op": "stop"})
-        finished = control.wait_for("finished", 30.0)
+        control.send(Stop())
+        finished = control.wait_for(Finished, 30.0)
         held_s = time.monotonic() - held_since  # more than the hold lasted in the bridge
         assert finished is not None
         control.close()
         bridge.communicate(timeout=30)
-    simulated_in_hold_s = finished["sim_time_s"] - holding["t"]
+    simulated_in_hold_s = finished.summary["sim_time_s"] - holding.t
     assert simulated_in_hold_s <= pace * held_s * 1.05
     assert simulated_in_hold_s >= pace * 0.5
 
@@ -266,21 +267,21 @@ def test_a_paced_bridge_waits_for_a_failure_injection_at_real_time_whatever_its_
     spec["failures"] = [{"unit": "barometer", "type": "off", "onset_s": 1.0, "duration_s": 60.0, "delivery": "sut"}]
     with bridge_and_hovering_sut(tmp_path, spec, "--hold-after-s", "0.5", "--hold-mode", "paced", "--hold-pace", "10") as (bridge, _sut, ports, log_path):
         control = BridgeControl(ports.control)
-        assert control.wait_for("holding", 20.0) is not None
-        control.send({"op": "run"})
-        asked = control.wait_for("inject_failure", 20.0)
+        assert control.wait_for(Holding, 20.0) is not None
+        control.send(Run())
+        asked = control.wait_for(InjectFailure, 20.0)
         assert asked is not None
         asked_at = time.monotonic()
         time.sleep(0.5)
-        control.send({"op": "failure_injected", "result": "SUCCESS"})
+        control.send(FailureInjected("SUCCESS"))
         waited_s = time.monotonic() - asked_at
-        control.send({"op": "stop"})
-        assert control.wait_for("finished", 30.0) is not None
+        control.send(Stop())
+        assert control.wait_for(Finished, 30.0) is not None
         control.close()
         bridge.communicate(timeout=30)
     told = next(m for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "failure")
     assert told["detail"]["result"] == "SUCCESS"
-    assert told["t"] - asked["t"] <= waited_s * 1.1 + 0.2
+    assert told["t"] - asked.t <= waited_s * 1.1 + 0.2
 
 
 def test_a_recording_that_cannot_be_written_is_refused_before_any_flight(tmp_path):

@@ -1,15 +1,11 @@
-"""Campaigns: optimizer determinism, sequences, termination, the store's resume after kill -9, statistics."""
+"""Campaigns: optimizer determinism, sequences, termination, the store's resume after a full disk (after kill -9: test_cleanup.py), statistics."""
 
 from __future__ import annotations
 
 import json
 import random
 import shutil
-import signal
 import sqlite3
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
@@ -219,48 +215,6 @@ def test_compare_counts_the_violations_that_did_not_come_back_in_every_re_flight
         report = compare(store, "NSGAII")
     assert (report["overall"][0]["violations"], report["overall"][0]["flaky"]) == (3, 1)
     assert "NSGAII 1 of its 3 violations did not come back" in table(report)
-
-
-@pytest.mark.slow
-def test_a_campaign_killed_with_sigkill_resumes_without_losing_or_repeating_an_evaluation(tmp_path):
-    scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
-    def command(store):
-        return [sys.executable, "-m", "harness.tools.cli", "campaign", str(scenario), "--algorithm", "NSGAII", "--evaluations", "8",
-                "--population", "4", "--executor", "sequential", "--store", str(store), "--json"]
-    killed_store = tmp_path / "killed.db"
-    campaign = subprocess.Popen(command(killed_store), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    before = []
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if killed_store.exists():
-            try:
-                with sqlite3.connect(killed_store) as db:
-                    before = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
-            except sqlite3.OperationalError:
-                before = []
-            if len(before) >= 3:
-                break
-        time.sleep(0.2)
-    # Frozen before its store is read, so what was read is exactly what the kill leaves behind.
-    campaign.send_signal(signal.SIGSTOP)
-    with sqlite3.connect(killed_store) as db:
-        before = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
-    campaign.send_signal(signal.SIGKILL)
-    campaign.wait()
-    assert 3 <= len(before) < 8
-    resumed = subprocess.run(command(killed_store), cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    with sqlite3.connect(killed_store) as db:
-        after = db.execute("SELECT ordinal, vector_key, fitness, created FROM evaluations ORDER BY ordinal").fetchall()
-    kept = {row[0]: row for row in after}
-    assert all(kept[row[0]] == row for row in before), "a finished evaluation was lost or redone"
-    assert [row[0] for row in after] == list(range(len(after)))
-    subprocess.run(command(tmp_path / "clean.db"), cwd=ROOT, capture_output=True, text=True, timeout=300, check=True)
-    with sqlite3.connect(tmp_path / "clean.db") as db:
-        uninterrupted = db.execute("SELECT ordinal, vector_key, fitness FROM evaluations ORDER BY ordinal").fetchall()
-    assert [row[:3] for row in after] == uninterrupted  # the same candidates, in the same order, with the same results
-    report = json.loads(resumed.stdout)
-    assert report["runs"][0]["replayed"] == len(before)
 
 
 @pytest.mark.slow

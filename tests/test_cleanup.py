@@ -110,8 +110,12 @@ def test_a_campaign_killed_at_ten_random_moments_loses_nothing_repeats_nothing_a
         now = {(run, ordinal): row for run, ordinal, *row in rows}
         assert all(now.get(key) == row for key, row in seen.items()), "a stored evaluation was lost or changed"
         seen.update(now)
+    before_finishing = stored(store)
     finished = subprocess.run(command(store), capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert finished.returncode == 0, finished.stderr[-2000:]
+    # What was stored is replayed, not flown again; a run that finished before the last kill is not run again.
+    replayed = [run["replayed"] for run in json.loads(finished.stdout)["runs"]]
+    assert replayed == [len(before_finishing)] or (replayed == [] and len(before_finishing) == 10), (replayed, len(before_finishing))
     final = stored(store)
     assert [ordinal for _run, ordinal, *_ in final] == list(range(10))
     assert all({(run, ordinal): row for run, ordinal, *row in final}[key] == row for key, row in seen.items())

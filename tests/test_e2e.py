@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from conftest import ROOT, chunk_compressions
 from harness.flight import logs
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
 from harness.flight.mavsdk_session import MavsdkSession, mission_items
@@ -22,6 +23,7 @@ from harness.flight.ports import PortLease
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.control import EndReason, Finished, Holding, Run
 from sim_bridge.recording import TOPICS
 from sut_adapter.processes import ManagedProcess
 
@@ -46,11 +48,17 @@ def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_
     space = space_for(DATA / "one_dynamic_sphere.json", profile)
     result = evaluate(space, space.vector_from({"obstacle_1.north_m": 40.0, "obstacle_1.east_m": 15.0}), seed=1, out_dir=tmp_path)
     counts = {}
+    validators = {}  # one per schema, checked once: jsonschema.validate checks the schema again at every call
     with open(result.log_path, "rb") as stream:
         reader = make_reader(stream)
         for schema, channel, message in reader.iter_messages():
             assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
-            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            if schema.id not in validators:
+                document = json.loads(schema.data)
+                validator_class = jsonschema.validators.validator_for(document)
+                validator_class.check_schema(document)
+                validators[schema.id] = validator_class(document)
+            validators[schema.id].validate(json.loads(message.data))
             counts[(channel.topic, schema.name)] = counts.get((channel.topic, schema.name), 0) + 1
     # every channel the log declares carries messages under the schema the bridge documents
     assert set(counts) == set(TOPICS.items())
@@ -114,7 +122,7 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
         autopilot_argv = [__import__("sys").executable, "-m", "autopilot", "--sim", f"tcp:127.0.0.1:{ports.sim}", "--api", f"udp:127.0.0.1:{ports.api}"]
         with ManagedProcess("bridge", bridge_argv, log_dir=tmp_path) as bridge, ManagedProcess("autopilot", autopilot_argv, log_dir=tmp_path) as autopilot:
             control = BridgeControl(ports.control)
-            assert control.wait_for("holding", 30.0) is not None
+            assert control.wait_for(Holding, 30.0) is not None
             session = MavsdkSession(ports.api).discover()
             try:
                 session.wait_healthy(20.0)
@@ -126,8 +134,8 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
                 session.upload_and_start(items, 0.0)
                 downloaded = session.mission.download_mission()
                 assert [i.command for i in downloaded] == [i.command for i in items]
-                control.send({"op": "run"})
-                finished = control.wait_for("finished", 120.0)
+                control.send(Run())
+                finished = control.wait_for(Finished, 120.0)
                 time.sleep(0.5)
                 texts = list(session.status_texts)
             finally:
@@ -135,12 +143,12 @@ def test_mavsdk_flies_a_three_waypoint_mission_and_uses_the_param_plugin(tmp_pat
                 control.close()
             assert bridge.wait(10.0) == 0
             assert autopilot.poll() is None or autopilot.poll() == 0
-    assert finished["end_reason"] == "landed"
+    assert finished.end_reason == EndReason.LANDED
     states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
     for waypoint in world.mission.waypoints:
         closest = min(math.hypot(s["north_m"] - waypoint.north_m, s["east_m"] - waypoint.east_m) for s in states)
         assert closest <= 2.0, (waypoint, closest)
-    touchdown = finished["touchdown"]
+    touchdown = finished.summary["touchdown"]
     assert math.hypot(touchdown["north_m"] - 0.0, touchdown["east_m"] - 15.0) < 1.5
     assert "Landing detected" in texts and "Disarmed" in texts
 

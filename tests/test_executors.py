@@ -17,7 +17,7 @@ from harness.campaigns.campaign import CampaignConfig, run_campaign
 from harness.campaigns.store import Store
 from harness.execution.local import LocalExecutor, SequentialExecutor
 from harness.execution.registry import make_executor
-from harness.flight.evaluation import RunOptions
+from harness.flight.results import RunOptions
 from harness.flight.ports import PortLease
 from harness.tools.cli import main
 from sut_adapter import SutConfig

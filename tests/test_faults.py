@@ -7,11 +7,12 @@ import json
 import math
 
 import pytest
+from pymavlink.dialects.v20.common import MAV_CMD_NAV_WAYPOINT
 
 from test_autopilot_units import UNKNOWN, wall_ahead
 from autopilot.app import Autopilot
 from autopilot.collision import BINS, ObstacleMap, constrain_velocity
-from autopilot.commander import NAV_WAYPOINT, Commander, MissionItem, VehicleEstimate
+from autopilot.commander import Commander, MissionItem, VehicleEstimate
 from autopilot.faults import BY_NAME, FAULTS, markdown_table
 from autopilot.params import ParamError, Params
 from conftest import ROOT
@@ -86,7 +87,7 @@ def estimate(north=0.0, east=0.0, down=-8.0, yaw=0.0) -> VehicleEstimate:
 def commander(fault: str | None) -> Commander:
     c = Commander(Params(fault=fault))
     c.home, c.landed = (0.0, 0.0, 0.0), False
-    c.set_mission([MissionItem(0, NAV_WAYPOINT, 30.0, 0.0, 8.0), MissionItem(1, NAV_WAYPOINT, 30.0, 40.0, 8.0)])
+    c.set_mission([MissionItem(0, MAV_CMD_NAV_WAYPOINT, 30.0, 0.0, 8.0), MissionItem(1, MAV_CMD_NAV_WAYPOINT, 30.0, 40.0, 8.0)])
     assert c.arm(0.0, True, "")[0] and c.start_mission(estimate())
     return c
 

@@ -14,7 +14,9 @@ from conftest import ROOT
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.bridge import UINT16_MAX, Bridge, BridgeConfig
+from sim_bridge.bridge import Bridge, BridgeConfig
+from sim_bridge.control import AddObstacle, MoveObstacle
+from sim_bridge.frames import UINT16_MAX
 from sim_bridge.obstacles import Obstacle, ObstacleField, ray_distances
 from sim_bridge.recording import Recorder
 from sim_bridge.spec import (Atmosphere, Body, MissionSpec, Origin, Point, RangeSensor, Surface, Uav, Waypoint,
@@ -119,7 +121,7 @@ def _bridge_with(obstacles, visibility_m=10_000.0, fov_deg=360.0):
 
 def _range_messages(bridge) -> list:
     """The bridge's range frames of this step, as pymavlink reads them."""
-    return [mavlink.MAVLink(None).decode(bytearray(frame)) for frame in bridge._obstacle_distance(0)]
+    return [mavlink.MAVLink(None).decode(bytearray(frame)) for frame in bridge.frames.obstacle_distance(0)]
 
 
 def _sectors(bridge):
@@ -148,7 +150,7 @@ def test_the_same_reading_goes_out_as_distance_sensor_wedges_for_px4():
     assert yaws == pytest.approx([-42.5, -22.5, -2.5, 17.5, 37.5, 50.0])  # 4 sectors of 5 degrees each, the last one alone
     assert all(w.orientation == 100 and w.max_distance == sectors.max_distance for w in wedges)  # MAV_SENSOR_ROTATION_CUSTOM
     # each wedge reports the nearest of its sectors; the pole at 30 degrees only in the 37.5-degree one
-    assert [w.current_distance for w in wedges] == [min(min(sectors.distances[i] for i in group), sectors.max_distance) for _q, _fov, group in bridge._wedges]
+    assert [w.current_distance for w in wedges] == [min(min(sectors.distances[i] for i in group), sectors.max_distance) for _q, _fov, group in bridge.frames.wedges]
     assert [w.current_distance < w.max_distance for w in wedges] == [False, False, False, False, True, False]
     assert wedges[4].current_distance == sectors.distances[6]
 
@@ -202,8 +204,8 @@ def test_obstacles_moved_while_the_sut_computes_are_where_the_step_would_have_pu
         world.start_run(0.0)
         ball = {"id": "ball", "form": "sphere", "size": {"diameter_m": 1.0}, "a": {"north_m": 4.0, "east_m": 4.0, "up_m": 5.0},
                 "b": {"north_m": 4.0, "east_m": -4.0, "up_m": 5.0}, "speed_m_s": 3.0}
-        world.schedule({"op": "add_obstacle", "obstacle": ball, "at_s": 0.1})
-        world.schedule({"op": "move_obstacle", "id": "pole", "a": {"north_m": 9.0, "east_m": 0.0, "up_m": 5.0}, "b": None, "at_s": 0.2})
+        world.schedule(AddObstacle(ball, at_s=0.1))
+        world.schedule(MoveObstacle("pole", {"north_m": 9.0, "east_m": 0.0, "up_m": 5.0}, None, at_s=0.2))
         return world
 
     def positions(world):

@@ -12,7 +12,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.flight.fitness import PENALTY
 from harness.scenario.world import load_concrete
 from harness.tools.cli import main

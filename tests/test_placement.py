@@ -14,7 +14,8 @@ import pytest
 from conftest import FIG4, fig4_job, stored_result
 from harness.execution.executor import Executor
 from harness.execution.local import LocalExecutor
-from harness.flight.evaluation import RunOptions, simulation_stack
+from harness.flight.results import RunOptions
+from harness.flight.stack import simulation_stack
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec

@@ -11,8 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20.common import MAV_CMD_NAV_DELAY, MAV_CMD_NAV_WAYPOINT
 
-from autopilot.commander import NAV_DELAY, NAV_WAYPOINT, Commander, MissionItem, VehicleEstimate
+from autopilot.commander import Commander, MissionItem, VehicleEstimate
 from autopilot.params import Params
 from conftest import PLAN_SCENARIO, PLAN_SPEED_M_S, ROOT, plan_flight
 from harness.errors import InputError
@@ -157,8 +158,8 @@ def test_delay_and_hold_time_keep_the_vehicle_in_place_for_their_seconds():
     commander = Commander(Params())
     commander.home = (0.0, 0.0, 0.0)
     commander.landed = False
-    commander.set_mission([MissionItem(0, NAV_WAYPOINT, 10.0, 0.0, 5.0, 3.0), MissionItem(1, NAV_DELAY, 0.0, 0.0, 0.0, 2.5, has_position=False),
-                           MissionItem(2, NAV_WAYPOINT, 30.0, 0.0, 5.0)])
+    commander.set_mission([MissionItem(0, MAV_CMD_NAV_WAYPOINT, 10.0, 0.0, 5.0, 3.0), MissionItem(1, MAV_CMD_NAV_DELAY, 0.0, 0.0, 0.0, 2.5, has_position=False),
+                           MissionItem(2, MAV_CMD_NAV_WAYPOINT, 30.0, 0.0, 5.0)])
     assert commander.arm(0.0, True, "")[0] and commander.start_mission(estimate(down=-5.0))
     there = estimate(north=10.0, down=-5.0)
     t, advanced_at = 10.0, {}

@@ -33,7 +33,9 @@ def test_px4_with_a_larger_cp_distance_reveals_a_behaviour_difference_on_the_wal
     # THEN both flew twice (the pair was confirmed), the subject stopped farther from the wall
     assert len(differential["subject"]) == 2 and len(differential["reference"]) == 2
     assert differential["reveals"] == "behaviour"
-    assert min(f["min_clearance_m"] for f in differential["subject"]) > max(f["min_clearance_m"] for f in differential["reference"]) + 1.0
+    # by more than PX4's spread between pilot flights on a wall (up to 0.4 m, docs/real_faults.md);
+    # not by the whole 2 m: PX4 main 02e73e3b6f stops 2.7 m from it keeping 1 m and 3.7 m keeping 3 m.
+    assert min(f["min_clearance_m"] for f in differential["subject"]) > max(f["min_clearance_m"] for f in differential["reference"]) + 0.4
 
 
 def _worktree_options() -> list[str]:

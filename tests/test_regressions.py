@@ -14,7 +14,7 @@ from conftest import ROOT, stored_result
 from harness.campaigns.regression import export_regressions, load_regression, verdict
 from harness.campaigns.store import Store
 from harness.errors import InputError
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -105,7 +105,8 @@ def test_a_malformed_case_names_the_file_the_field_and_the_fix(tmp_path):
     ],
 )
 def test_verdicts(expect, status, failure):
-    result = EvaluationResult(Status(status), 0.25, None, 1.25, 3.0, "obstacle_1", 30.0, 1.0, 30.0, 0, "x.mcap", "s", "bundled")
+    result = EvaluationResult(status=Status(status), fitness=0.25, why=None, min_clearance_m=1.25, min_clearance_at_s=3.0, min_clearance_obstacle="obstacle_1",
+                              sim_time_s=30.0, wall_time_s=1.0, real_time_factor=30.0, seed=0, log_path="x.mcap", scenario="s", sut="bundled")
     message = verdict(expect, result, 1.0)
     assert message == failure if failure is None else message.startswith(failure)
     if message:

@@ -15,14 +15,15 @@ import pytest
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
 import sut_adapter
-from sut_adapter import SutConfig
+from sut_adapter import SutConfig, registry
 from sut_adapter.command import CommandSut
-from sut_adapter.px4 import DEFAULT_PARAMS, Px4Sitl, collect_artifacts
+from sut_adapter.px4 import API_STREAM_RATES_HZ, DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
 AUTOPILOT = f"{sys.executable} -m autopilot --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}"
@@ -48,7 +49,7 @@ def test_a_template_is_split_like_a_shell_and_filled_word_by_word(tmp_path):
     workdir = tmp_path / "with space"
     assert sut.argv(sim_port=4561, api_port=14541, instance=1, workdir=workdir) == [
         "ap", "--sim", "tcp:127.0.0.1:4561", "--gcs", "udp:127.0.0.1:14541", "--id", "1", "--dir", str(workdir)]
-    assert sut.hold_mode == "paced" and sut_adapter.hold_pace(sut) == 1.0  # an unknown SUT is held at real time
+    assert sut.capabilities.hold_mode == "paced" and sut.capabilities.hold_pace == 1.0  # an unknown SUT is held at real time
 
 
 @pytest.mark.parametrize(("config", "message"), [
@@ -94,9 +95,9 @@ def test_px4_command_line_airframe_and_instance_ports(tmp_path, monkeypatch):
     argv, env = px4.command(instance=3, workdir=tmp_path / "w")
     assert argv == [str(build / "bin" / "px4"), "-i", "3", "-d", "-w", str(tmp_path / "w"), str(build / "etc")]
     assert (env["PX4_SYS_AUTOSTART"], env["PX4_SIM_MODEL"]) == ("10016", "none_iris")
-    assert px4.hold_mode == "paced"
+    assert px4.capabilities.hold_mode == "paced"
     # Its hold runs as fast as its timeouts were stretched for.
-    assert sut_adapter.hold_pace(px4) == float(env["PX4_SIM_SPEED_FACTOR"]) > 1.0
+    assert px4.capabilities.hold_pace == float(env["PX4_SIM_SPEED_FACTOR"]) > 1.0
     with pytest.raises(sut_adapter.SutError, match="instance 10 is out of range"):
         px4.command(instance=10, workdir=tmp_path)
     with pytest.raises(sut_adapter.SutError, match="uses simulator port 4563 and API port 14543"):
@@ -121,6 +122,28 @@ def test_px4_is_started_in_a_fresh_directory_with_its_parameters_for_mavlink(tmp
     assert (px4_dir / "env.txt").read_text().split() == ["10016", "none_iris"]
     assert (px4_dir / "cwd.txt").read_text().strip() == str(px4_dir)
     assert handle.mavlink_params == {**DEFAULT_PARAMS, "CP_DIST": 2.5, "MPC_XY_CRUISE": 4.0}
+
+
+def test_px4s_rcs_sources_its_own_mavlink_start_up_and_then_the_adapters_lower_api_rates(tmp_path):
+    # As PX4 starts rcS: its bin/ first on PATH, its init.d-posix/ appended last, then `. px4-rc.mavlink`.
+    build = fake_px4_build(tmp_path, """\
+        mavlink() { echo "mavlink $*" >> streams.txt; }
+        PATH="$(dirname "$0"):$PATH:$(dirname "$0")/../etc/init.d-posix"
+        . px4-rc.mavlink
+        """)
+    (build / "etc" / "init.d-posix" / "px4-rc.mavlink").write_text('echo "PX4\'s own MAVLink start-up" >> streams.txt\n')
+    workdir = tmp_path / "evaluation"
+    workdir.mkdir()
+    handle = Px4Sitl({"px4_bin": str(build)}).start(sim_port=4562, api_port=14542, instance=2, workdir=workdir, params={})
+    deadline = time.monotonic() + 10.0
+    while handle.alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert handle.stop() == 0
+    streams = (workdir / "px4" / "streams.txt").read_text().splitlines()
+    assert streams[0] == "PX4's own MAVLink start-up"
+    # PX4 instance 2's API link listens on UDP 14582 (px4-rc.mavlink's udp_offboard_port_local).
+    assert streams[1:] == [f"mavlink stream -u 14582 -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()]
+    assert API_STREAM_RATES_HZ["ATTITUDE"] < 100 and "DISTANCE_SENSOR" not in API_STREAM_RATES_HZ  # its relayed ranges stay as PX4 sends them
 
 
 def test_px4_ulogs_and_console_are_its_artifacts(tmp_path):
@@ -236,10 +259,27 @@ def test_sut_check_names_the_stage_a_silent_sut_fails_at(capsys):
 
 
 @pytest.mark.parametrize("pace", [0, -1.0, float("nan"), float("inf"), "20"])
-def test_a_sut_adapter_with_a_bad_hold_pace_is_a_sut_error(pace):
+def test_a_sut_adapter_with_a_bad_hold_pace_is_a_sut_error(pace, monkeypatch):
     class Adapter:
         name = "custom"
-        hold_pace = pace
+        capabilities = sut_adapter.Capabilities(hold_mode="paced", range_messages=("DISTANCE_SENSOR",), hold_pace=pace)
 
+        def __init__(self, config):
+            pass
+
+    monkeypatch.setattr(registry, "_REGISTRY", {**registry._REGISTRY, "custom": Adapter})
     with pytest.raises(sut_adapter.SutError, match="custom: its hold_pace"):
-        sut_adapter.hold_pace(Adapter())
+        sut_adapter.get("custom")
+
+
+def test_a_sut_adapter_that_declares_no_capabilities_is_told_how_to_declare_them(monkeypatch):
+    class Adapter:
+        name = "custom"
+        hold_mode = "paced"  # the attributes adapters had before capabilities were declared in one record
+
+        def __init__(self, config):
+            pass
+
+    monkeypatch.setattr(registry, "_REGISTRY", {**registry._REGISTRY, "custom": Adapter})
+    with pytest.raises(sut_adapter.SutError, match=r"custom: its adapter declares no capabilities: give it `capabilities = sut_adapter.Capabilities\("):
+        sut_adapter.get("custom")

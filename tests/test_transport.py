@@ -13,7 +13,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import RunOptions, evaluate, in_memory, placed_transport
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
+from harness.flight.stack import in_memory, placed_transport
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main

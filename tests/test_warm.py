@@ -15,7 +15,8 @@ import pytest
 from conftest import ROOT, alive, port_bound
 from test_transport import SIMULATED
 from harness.flight import logs, warm
-from harness.flight.evaluation import RunOptions, evaluate
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortLease
 from harness.scenario.logical import load_logical

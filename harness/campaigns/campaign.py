@@ -23,9 +23,9 @@ from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
-from harness.flight.evaluation import EvaluationResult, RunOptions
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.scenario.logical import LogicalScenario, load_logical
-from harness.scenario.profile import load_profile
+from harness.scenario.profile import Profile, load_profile
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
@@ -36,6 +36,14 @@ log = logging.getLogger(__name__)
 
 SEEDS_FROM_BEST = 5
 EXPLORE_POOL = 2000
+
+
+@dataclass(frozen=True)
+class CampaignDocuments:
+    """A campaign's documents, read once: the profile and its logical scenarios as flown."""
+
+    profile: Profile
+    scenarios: tuple[LogicalScenario, ...]
 
 
 @dataclass(frozen=True)
@@ -61,18 +69,18 @@ class CampaignConfig:
     objective: str = "subject"
     stop_at_reveal: bool = False  # end each run at its first confirmed revealing candidate
 
-    def scenario_documents(self) -> list[LogicalScenario]:
-        """The logical scenarios as this campaign flies them (drive and plan applied)."""
+    def read(self) -> CampaignDocuments:
+        """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
         profile = load_profile(self.profile)
         plan = Path(self.mission_plan) if self.mission_plan else None
-        return [load_logical(Path(s), profile, self.drive, plan) for s in self.scenarios]
+        return CampaignDocuments(profile, tuple(load_logical(Path(s), profile, self.drive, plan) for s in self.scenarios))
 
-    def identity(self) -> dict[str, Any]:
+    def identity(self, documents: CampaignDocuments | None = None) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store): the
-        scenario documents and the profile as read, by content, not where they lie, so a store
-        copied to another checkout or machine resumes there."""
-        return self._identity(scenarios=[content_key(s.document) for s in self.scenario_documents()],
-                              profile=content_key(load_profile(self.profile).document))
+        scenario documents and the profile as read (documents, else read now), by content, not
+        where they lie, so a store copied to another checkout or machine resumes there."""
+        documents = documents or self.read()
+        return self._identity(scenarios=[content_key(s.document) for s in documents.scenarios], profile=content_key(documents.profile.document))
 
     def legacy_identity(self) -> dict[str, Any]:
         """The identity stores were made with before it was by content: the scenario files' (and
@@ -224,17 +232,17 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
-    campaign_id = store.campaign(config.identity(), legacy=config.legacy_identity(), sources=config.sources())
+    documents = config.read()
+    campaign_id = store.campaign(config.identity(documents), legacy=config.legacy_identity(), sources=config.sources())
     pairs = None
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache
 
         pairs = PairedFlights(executor, config.reference, objective=config.objective, confirm=config.confirm,
                               cache=reference_cache or ReferenceCache(store.path))
-    profile = load_profile(config.profile)
     summary = CampaignSummary()
-    for scenario_file, logical in zip(config.scenarios, config.scenario_documents()):
-        space = SearchSpace(logical, profile)
+    for scenario_file, logical in zip(config.scenarios, documents.scenarios):
+        space = SearchSpace(logical, documents.profile)
         for algorithm, combination in zip(config.algorithms, combinations):
             for run_index in range(config.runs):
                 seed = config.seed + run_index

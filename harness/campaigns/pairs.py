@@ -23,7 +23,7 @@ from typing import Iterable, Iterator, Mapping
 from harness.campaigns.store import ReferenceFlightTable
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Outcome, compare, record
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from sut_adapter import SutConfig
 
 

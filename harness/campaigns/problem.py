@@ -19,7 +19,8 @@ import numpy as np
 from harness.campaigns.store import Store, vector_key
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
-from harness.flight.evaluation import EvaluationResult, RunOptions, infeasible
+from harness.flight.evaluation import infeasible
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import Status
 from harness.scenario.space import SearchSpace
 from harness.search.termination import Progress, Termination

@@ -18,7 +18,7 @@ import numpy as np
 
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json, schema_problems

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from sut_adapter.processes import dies_with_this_process
 

@@ -29,7 +29,7 @@ from typing import Iterator
 
 from harness.errors import InfrastructureError
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
-from harness.flight.evaluation import EvaluationResult
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.paths import project_root
 

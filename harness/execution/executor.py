@@ -14,7 +14,7 @@ The contract, the same for every executor:
 
 `sequential` and `local` (local.py) fly in this process or in a pool of worker processes on
 this machine, each evaluation with its own port block, temp dir and core (see
-harness/flight/evaluation.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
+harness/flight/stack.py); `dask` (dask_executor.py) and `docker` (docker_executor.py)
 elsewhere; registry.py makes one by name. Jobs carry the world spec the simulator
 loads and the concrete scenario it came from, so a worker needs nothing but the job and
 derives nothing again.
@@ -34,7 +34,8 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 
 from harness.flight import warm
-from harness.flight.evaluation import EvaluationResult, RunOptions, fly
+from harness.flight.evaluation import fly
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
@@ -81,7 +82,9 @@ def run_job(job: Job) -> EvaluationResult:
 
 def failed_try(job: Job, status: Status, why: str) -> EvaluationResult:
     """The result of a try that produced none of its own (its worker died or ran out of time)."""
-    return EvaluationResult(status, PENALTY, why, None, None, None, 0.0, 0.0, None, job.seed, None, job.world.scenario, job.options.sut.name)
+    return EvaluationResult(status=status, fitness=PENALTY, why=why, min_clearance_m=None, min_clearance_at_s=None, min_clearance_obstacle=None,
+                            sim_time_s=0.0, wall_time_s=0.0, real_time_factor=None, seed=job.seed, log_path=None, scenario=job.world.scenario,
+                            sut=job.options.sut.name)
 
 
 class _TryTimedOut(BaseException):

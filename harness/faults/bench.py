@@ -27,7 +27,7 @@ from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
-from harness.flight.evaluation import RunOptions
+from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
 from harness.scenario.world import space_from_concrete
 from sut_adapter import SutConfig

@@ -15,7 +15,8 @@ from typing import Any, Callable, Iterable, Mapping
 import numpy as np
 
 from harness.errors import InputError, Problem
-from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate, infeasible
+from harness.flight.evaluation import evaluate, infeasible
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical

@@ -37,7 +37,8 @@ from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.firmware.mutants import BUILT, load_index
-from harness.flight.evaluation import RunOptions, infeasible
+from harness.flight.evaluation import infeasible
+from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.scenario.world import load_concrete

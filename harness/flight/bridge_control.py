@@ -1,14 +1,16 @@
-"""The harness's end of the bridge's control channel (see sim_bridge/bridge.py for the protocol)."""
+"""The harness's end of the simulator's control channel (sim_bridge/control.py has its messages)."""
 
 from __future__ import annotations
 
-import json
 import select
 import socket
 import time
-from typing import Any, Mapping
+from typing import Callable, TypeVar
 
 from harness.errors import InfrastructureError
+from sim_bridge.control import ControlError, Event, Op, decode_event
+
+E = TypeVar("E", bound=Event)
 
 
 class BridgeControl:
@@ -24,14 +26,15 @@ class BridgeControl:
                 time.sleep(0.02)
         self._sock.setblocking(False)
         self._buffer = b""
-        self.events: list[dict[str, Any]] = []
+        self.events: list[Event] = []
+        self.closed = False
 
-    def send(self, op: Mapping[str, Any]) -> None:
+    def send(self, op: Op) -> None:
         self._sock.setblocking(True)
-        self._sock.sendall(json.dumps(op).encode() + b"\n")
+        self._sock.sendall(op.encode())
         self._sock.setblocking(False)
 
-    def poll(self, timeout_s: float = 0.0) -> list[dict[str, Any]]:
+    def poll(self, timeout_s: float = 0.0) -> list[Event]:
         readable, _, _ = select.select([self._sock], [], [], timeout_s)
         new = []
         if readable:
@@ -43,22 +46,27 @@ class BridgeControl:
                 self.closed = True
             self._buffer += data
             *lines, self._buffer = self._buffer.split(b"\n")
-            new = [json.loads(line) for line in lines if line.strip()]
+            try:
+                new = [decode_event(line) for line in lines if line.strip()]
+            except ControlError as error:
+                raise InfrastructureError(f"the simulator's control channel: {error}") from None
             self.events.extend(new)
         return new
 
-    closed = False
+    def seen(self, kind: type[E]) -> E | None:
+        """The first event of a kind heard so far."""
+        return next((event for event in self.events if isinstance(event, kind)), None)
 
-    def wait_for(self, event: str, timeout_s: float, alive=lambda: True) -> dict[str, Any] | None:
+    def wait_for(self, kind: type[E], timeout_s: float, alive: Callable[[], bool] = lambda: True) -> E | None:
         """The first event of a kind, waiting up to timeout_s while alive() holds."""
         deadline = time.monotonic() + timeout_s
-        for seen in self.events:
-            if seen.get("event") == event:
-                return seen
+        seen = self.seen(kind)
+        if seen is not None:
+            return seen
         while time.monotonic() < deadline and not self.closed and alive():
-            for seen in self.poll(0.05):
-                if seen.get("event") == event:
-                    return seen
+            for event in self.poll(0.05):
+                if isinstance(event, kind):
+                    return event
         return None
 
     def close(self) -> None:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Iterable, Mapping, Sequence
 
+from sim_bridge.control import EndReason
 from sim_bridge.pilot import BLOCKED_AFTER_S
 from sim_bridge.spec import MissionSpec
 
@@ -80,7 +81,7 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: MissionSpec, acc
     """None if the recorded flight performed the mission, else why not. A pilot (drive "pilot")
     steers its own line to the goal, so only the goal and the landing count for it."""
     reason = summary.get("end_reason")
-    if reason == "blocked":
+    if reason == EndReason.BLOCKED:
         return f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
     waypoints = list(enumerate(mission.waypoints, 1))
     for number, waypoint in waypoints if drive == "mission" else waypoints[-1:]:
@@ -94,11 +95,11 @@ def mission_check(states: Sequence[Mapping[str, Any]], mission: MissionSpec, acc
             return f"{what} missed by {closest:.1f} m (acceptance radius {radius} m); run ended: {reason}"
     if not mission.land:
         return None
-    if reason == "crashed":
+    if reason == EndReason.CRASHED:
         touchdown = summary.get("touchdown") or {}
         return f"crashed into the ground at {touchdown.get('speed_m_s', float('nan')):.1f} m/s"
-    if reason != "landed":
-        return {"time_limit": "not landed within the time limit"}.get(reason, f"run ended: {reason}")
+    if reason != EndReason.LANDED:
+        return "not landed within the time limit" if reason == EndReason.TIME_LIMIT else f"run ended: {reason}"
     # The pilot lands where its route ends; a mission where its plan ends (home after a return).
     goal = mission.waypoints[-1] if drive == "pilot" else mission.landing or mission.waypoints[-1]
     touchdown = summary.get("touchdown") or {}

@@ -3,7 +3,7 @@
 Starting an evaluation's simulator process costs about a quarter of a second of one core in
 Python imports before the flight begins, and MAVSDK a connection; a campaign pays that on every
 evaluation. A worker that flies evaluation after evaluation with the same options keeps one
-stack (harness/flight/evaluation.py builds it: the simulator with the SUT inside, serving
+stack (harness/flight/stack.py builds it: the simulator with the SUT inside, serving
 flight after flight) and hands it to the next evaluation if the last flight ended cleanly.
 
 One stack per process: a warm evaluation with other options closes the kept one first. The

@@ -116,6 +116,35 @@ def mission_for(logical: LogicalScenario, profile: Profile) -> Mission:
     )
 
 
+class _Builder:
+    """Collects a space's dimensions in order, with the concrete-scenario template their values go into."""
+
+    def __init__(self, logical: LogicalScenario, profile: Profile):
+        self.file = logical.file
+        self.profile_name = profile.name
+        self.template: dict[str, Any] = {
+            "format": CONCRETE_FORMAT,
+            "scenario": logical.name,
+            "profile": profile.name,
+            "environment": {},
+            "obstacles": [],
+            "not_simulated": {},
+        }
+        self.dimensions: list[Dimension] = []
+        self.fixed: list[FixedValue] = []
+
+    def quantity(self, name: str, interval: Interval, unit: str, path: tuple[Any, ...]) -> None:
+        """A free quantity: a dimension, or a fixed value where its range has collapsed."""
+        if interval.min > interval.max:
+            raise SpaceError([Problem(self.file, "", f"lower {interval.min} > upper {interval.max} for `{name}`: swapped bounds in profile {self.profile_name}?")])
+        if interval.degenerate:
+            self.fixed.append(FixedValue(name, interval.min, unit, path))
+            _set(self.template, path, interval.min)
+        else:
+            self.dimensions.append(Dimension(name, interval.min, interval.max, unit, path))
+            _set(self.template, path, None)
+
+
 class SearchSpace:
     """Bounded float dimensions plus the realism constraints of one logical scenario."""
 
@@ -125,38 +154,43 @@ class SearchSpace:
         self.mission = mission_for(logical, profile)
         self.area = logical.document["environment"]["flight area"].get("area") or (
             self.mission.plan.area() if self.mission.plan else profile.landforms[logical.landform].area)
-        self._template: dict[str, Any] = {
-            "format": CONCRETE_FORMAT,
-            "scenario": logical.name,
-            "profile": profile.name,
-            "environment": {},
-            "obstacles": [],
-            "not_simulated": {},
-        }
-        dimensions: list[Dimension] = []
-        fixed: list[FixedValue] = []
-
-        def quantity(name: str, interval: Interval, unit: str, path: tuple[Any, ...]) -> None:
-            if interval.min > interval.max:
-                raise SpaceError(
-                    [Problem(logical.file, "", f"lower {interval.min} > upper {interval.max} for `{name}`: swapped bounds in profile {profile.name}?")]
-                )
-            if interval.degenerate:
-                fixed.append(FixedValue(name, interval.min, unit, path))
-                _set(self._template, path, interval.min)
+        self.timing = RouteTiming(self.mission.waypoints, self.mission.cruise_speed_m_s, self.mission.waypoints[0][2] / profile.climb_speed_m_s)
+        during_route = Interval(0.0, round(self.timing.duration_s, 1))
+        # The order of the groups is the order of the dimensions: a vector's meaning.
+        space = _Builder(logical, profile)
+        self._weather(space)
+        if logical.gusts != "none":
+            self._gusts(space, during_route)
+        if logical.failures:
+            self._failures(space, during_route)
+        for index, obstacle in enumerate(logical.obstacles):
+            if obstacle.kind == "intruder":
+                self._intruder(space, index, obstacle, during_route)
             else:
-                dimensions.append(Dimension(name, interval.min, interval.max, unit, path))
-                _set(self._template, path, None)
+                self._obstacle(space, index, obstacle)
+        space.template["drive"] = self.mission.drive
+        self.pilot_defaults: dict[str, float] = {}
+        if self.mission.drive == "pilot":
+            self._pilot(space)
+        self._template = space.template
+        self.dimensions = tuple(space.dimensions)
+        self.fixed = tuple(space.fixed)
+        self._index = {d.name: i for i, d in enumerate(self.dimensions)}
+        self._fixed = {f.name: f.value for f in self.fixed}
+        self.lower = np.array([d.lower for d in self.dimensions], dtype=float)
+        self.upper = np.array([d.upper for d in self.dimensions], dtype=float)
 
+    def _weather(self, space: _Builder) -> None:
+        logical = self.logical
         for parameter, (name, unit) in SIMULATED_WEATHER.items():
             weather = logical.weather[parameter]
             scale = units.factor(weather.unit, unit)
-            quantity(name, Interval(weather.interval.min * scale, weather.interval.max * scale), unit, ("environment", name))
+            space.quantity(name, Interval(weather.interval.min * scale, weather.interval.max * scale), unit, ("environment", name))
             if parameter == "wind force":
                 calm = weather.interval.max == 0.0
-                quantity("wind_from_deg", Interval(0.0, 0.0) if calm else Interval(0.0, 360.0), "deg", ("environment", "wind_from_deg"))
+                space.quantity("wind_from_deg", Interval(0.0, 0.0) if calm else Interval(0.0, 360.0), "deg", ("environment", "wind_from_deg"))
         for weather in logical.not_simulated:
-            self._template["not_simulated"][weather.parameter] = {
+            space.template["not_simulated"][weather.parameter] = {
                 "category": weather.category,
                 "min": weather.interval.min,
                 "max": weather.interval.max,
@@ -164,95 +198,85 @@ class SearchSpace:
                 "source": weather.source,
             }
 
-        area = self.area
-        north = Interval(area["north_min_m"], area["north_max_m"])
-        east = Interval(area["east_min_m"], area["east_max_m"])
-        self.timing = RouteTiming(self.mission.waypoints, self.mission.cruise_speed_m_s, self.mission.waypoints[0][2] / profile.climb_speed_m_s)
-        during_route = Interval(0.0, round(self.timing.duration_s, 1))
-        if logical.gusts != "none":
-            gusts = profile.section("gusts")
-            band = gusts["categories"][logical.gusts]
-            quantity("turbulence_m_s", Interval.from_json(band["turbulence"]), "m/s", ("environment", "turbulence_m_s"))
-            self._template["environment"]["gust"] = {}
-            gust = ("environment", "gust")
-            quantity("gust.amplitude_m_s", Interval.from_json(band["gust"]), "m/s", gust + ("amplitude_m_s",))
-            quantity("gust.from_deg", Interval(0.0, 360.0), "deg", gust + ("from_deg",))
-            quantity("gust.onset_s", during_route, "s", gust + ("onset_s",))
-            quantity("gust.duration_s", Interval.from_json(gusts["gust_duration"]), "s", gust + ("duration_s",))
-        if logical.failures:
-            self._template["failures"] = []
-            duration = Interval.from_json(profile.section("failures")["duration"])
-            for index, failure in enumerate(logical.failures):
-                self._template["failures"].append({"unit": failure.unit, "type": failure.type})
-                quantity(f"failure_{index + 1}.onset_s", during_route, "s", ("failures", index, "onset_s"))
-                quantity(f"failure_{index + 1}.duration_s", duration, "s", ("failures", index, "duration_s"))
+    def _gusts(self, space: _Builder, during_route: Interval) -> None:
+        gusts = self.profile.section("gusts")
+        band = gusts["categories"][self.logical.gusts]
+        space.quantity("turbulence_m_s", Interval.from_json(band["turbulence"]), "m/s", ("environment", "turbulence_m_s"))
+        space.template["environment"]["gust"] = {}
+        gust = ("environment", "gust")
+        space.quantity("gust.amplitude_m_s", Interval.from_json(band["gust"]), "m/s", gust + ("amplitude_m_s",))
+        space.quantity("gust.from_deg", Interval(0.0, 360.0), "deg", gust + ("from_deg",))
+        space.quantity("gust.onset_s", during_route, "s", gust + ("onset_s",))
+        space.quantity("gust.duration_s", Interval.from_json(gusts["gust_duration"]), "s", gust + ("duration_s",))
 
-        area = self.area
-        north = Interval(area["north_min_m"], area["north_max_m"])
-        east = Interval(area["east_min_m"], area["east_max_m"])
-        for index, obstacle in enumerate(logical.obstacles):
-            prefix = f"obstacle_{index + 1}"
-            if obstacle.kind == "intruder":
-                self._template["obstacles"].append(self._intruder_entry(obstacle))
-                geometry = ("obstacles", index, "geometry")
-                timeline = Interval(round(self.timing.takeoff_s + 0.15 * (during_route.max - self.timing.takeoff_s), 1),
-                                    round(self.timing.takeoff_s + 0.85 * (during_route.max - self.timing.takeoff_s), 1))
-                quantity(f"{prefix}.closest_approach_s", timeline, "s", geometry + ("closest_approach_s",))
-                quantity(f"{prefix}.crossing_deg", Interval(*ENCOUNTER_CROSSING_DEG[obstacle.encounter]), "deg", geometry + ("crossing_deg",))
-                quantity(f"{prefix}.closing_speed_m_s", profile.intruder_range("closing_speed"), "m/s", geometry + ("closing_speed_m_s",))
-                quantity(f"{prefix}.vertical_offset_m", profile.intruder_range("vertical_offset"), "m", geometry + ("vertical_offset_m",))
-                if obstacle.path == "arc":
-                    quantity(f"{prefix}.turn_rate_deg_s", profile.intruder_range("turn_rate"), "deg/s", geometry + ("turn_rate_deg_s",))
-                continue
-            entry: dict[str, Any] = {"kind": obstacle.kind, "form": obstacle.form, "size": {}, "position": {}}
-            self._template["obstacles"].append(entry)
-            size = obstacle.size_range or profile.obstacle_sizes[obstacle.size]
-            for key in SIZE_DIMENSIONS[obstacle.form]:
-                quantity(f"{prefix}.{key}", size, "m", ("obstacles", index, "size", key))
-            quantity(f"{prefix}.north_m", north, "m", ("obstacles", index, "position", "north_m"))
-            quantity(f"{prefix}.east_m", east, "m", ("obstacles", index, "position", "east_m"))
-            if obstacle.form == "cuboid":
-                quantity(f"{prefix}.yaw_deg", Interval(0.0, 180.0), "deg", ("obstacles", index, "position", "yaw_deg"))
-            if obstacle.kind == "dynamic":
-                # A straight motion keeps the paper's four quantities and no "type", so concrete
-                # scenarios of Table III read as they always have.
-                entry["motion"] = {} if obstacle.motion == "straight" else {"type": obstacle.motion}
-                speed = obstacle.speed_range.scaled(profile.obstacle_speed_factor) if obstacle.speed_range else profile.obstacle_speed_m_s
-                motion = ("obstacles", index, "motion")
-                quantity(f"{prefix}.altitude_m", profile.obstacle_altitude_m, "m", motion + ("altitude_m",))
-                if obstacle.motion in ("straight", "arc"):
-                    quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
-                quantity(f"{prefix}.speed_m_s", speed, "m/s", motion + ("speed_m_s",))
-                if obstacle.motion == "straight":
-                    quantity(f"{prefix}.travel_m", profile.obstacle_travel_m, "m", motion + ("travel_m",))
-                elif obstacle.motion == "arc":
-                    quantity(f"{prefix}.radius_m", profile.obstacle_range("arc_radius"), "m", motion + ("radius_m",))
-                    quantity(f"{prefix}.turn_deg", Interval(-180.0, 180.0), "deg", motion + ("turn_deg",))
-                elif obstacle.motion == "vertical":
-                    quantity(f"{prefix}.rise_m", profile.obstacle_range("vertical_travel"), "m", motion + ("rise_m",))
-                else:
-                    for via in ("via_1", "via_2"):
-                        entry["motion"][via] = {}
-                        quantity(f"{prefix}.{via}.north_m", north, "m", motion + (via, "north_m"))
-                        quantity(f"{prefix}.{via}.east_m", east, "m", motion + (via, "east_m"))
+    def _failures(self, space: _Builder, during_route: Interval) -> None:
+        space.template["failures"] = []
+        duration = Interval.from_json(self.profile.section("failures")["duration"])
+        for index, failure in enumerate(self.logical.failures):
+            space.template["failures"].append({"unit": failure.unit, "type": failure.type})
+            space.quantity(f"failure_{index + 1}.onset_s", during_route, "s", ("failures", index, "onset_s"))
+            space.quantity(f"failure_{index + 1}.duration_s", duration, "s", ("failures", index, "duration_s"))
 
-        self._template["drive"] = self.mission.drive
-        # Pilot values a concrete scenario made for the mission drive lacks, when it is flown by
-        # the pilot (`--drive pilot`): full stick, aiming along the route.
-        self.pilot_defaults: dict[str, float] = {}
-        if self.mission.drive == "pilot":
-            self._template["pilot"] = {}
-            stick, offset = profile.pilot_max_stick, profile.pilot_aim_offset_m
-            quantity("pilot.max_stick", stick, "", ("pilot", "max_stick"))
-            quantity("pilot.aim_offset_m", offset, "m", ("pilot", "aim_offset_m"))
-            self.pilot_defaults = {"pilot.max_stick": stick.max, "pilot.aim_offset_m": min(max(0.0, offset.min), offset.max)}
+    def _intruder(self, space: _Builder, index: int, obstacle, during_route: Interval) -> None:
+        """An intruder UAV by its encounter geometry: when and how it meets the route."""
+        profile, prefix = self.profile, f"obstacle_{index + 1}"
+        space.template["obstacles"].append(self._intruder_entry(obstacle))
+        geometry = ("obstacles", index, "geometry")
+        timeline = Interval(round(self.timing.takeoff_s + 0.15 * (during_route.max - self.timing.takeoff_s), 1),
+                            round(self.timing.takeoff_s + 0.85 * (during_route.max - self.timing.takeoff_s), 1))
+        space.quantity(f"{prefix}.closest_approach_s", timeline, "s", geometry + ("closest_approach_s",))
+        space.quantity(f"{prefix}.crossing_deg", Interval(*ENCOUNTER_CROSSING_DEG[obstacle.encounter]), "deg", geometry + ("crossing_deg",))
+        space.quantity(f"{prefix}.closing_speed_m_s", profile.intruder_range("closing_speed"), "m/s", geometry + ("closing_speed_m_s",))
+        space.quantity(f"{prefix}.vertical_offset_m", profile.intruder_range("vertical_offset"), "m", geometry + ("vertical_offset_m",))
+        if obstacle.path == "arc":
+            space.quantity(f"{prefix}.turn_rate_deg_s", profile.intruder_range("turn_rate"), "deg/s", geometry + ("turn_rate_deg_s",))
 
-        self.dimensions = tuple(dimensions)
-        self.fixed = tuple(fixed)
-        self._index = {d.name: i for i, d in enumerate(self.dimensions)}
-        self._fixed = {f.name: f.value for f in self.fixed}
-        self.lower = np.array([d.lower for d in self.dimensions], dtype=float)
-        self.upper = np.array([d.upper for d in self.dimensions], dtype=float)
+    def _obstacle(self, space: _Builder, index: int, obstacle) -> None:
+        """A static or dynamic obstacle: its size, where it stands, and how a dynamic one moves."""
+        profile, prefix = self.profile, f"obstacle_{index + 1}"
+        north = Interval(self.area["north_min_m"], self.area["north_max_m"])
+        east = Interval(self.area["east_min_m"], self.area["east_max_m"])
+        entry: dict[str, Any] = {"kind": obstacle.kind, "form": obstacle.form, "size": {}, "position": {}}
+        space.template["obstacles"].append(entry)
+        size = obstacle.size_range or profile.obstacle_sizes[obstacle.size]
+        for key in SIZE_DIMENSIONS[obstacle.form]:
+            space.quantity(f"{prefix}.{key}", size, "m", ("obstacles", index, "size", key))
+        space.quantity(f"{prefix}.north_m", north, "m", ("obstacles", index, "position", "north_m"))
+        space.quantity(f"{prefix}.east_m", east, "m", ("obstacles", index, "position", "east_m"))
+        if obstacle.form == "cuboid":
+            space.quantity(f"{prefix}.yaw_deg", Interval(0.0, 180.0), "deg", ("obstacles", index, "position", "yaw_deg"))
+        if obstacle.kind != "dynamic":
+            return
+        # A straight motion keeps the paper's four quantities and no "type", so concrete
+        # scenarios of Table III read as they always have.
+        entry["motion"] = {} if obstacle.motion == "straight" else {"type": obstacle.motion}
+        speed = obstacle.speed_range.scaled(profile.obstacle_speed_factor) if obstacle.speed_range else profile.obstacle_speed_m_s
+        motion = ("obstacles", index, "motion")
+        space.quantity(f"{prefix}.altitude_m", profile.obstacle_altitude_m, "m", motion + ("altitude_m",))
+        if obstacle.motion in ("straight", "arc"):
+            space.quantity(f"{prefix}.heading_deg", Interval(0.0, 360.0), "deg", motion + ("heading_deg",))
+        space.quantity(f"{prefix}.speed_m_s", speed, "m/s", motion + ("speed_m_s",))
+        if obstacle.motion == "straight":
+            space.quantity(f"{prefix}.travel_m", profile.obstacle_travel_m, "m", motion + ("travel_m",))
+        elif obstacle.motion == "arc":
+            space.quantity(f"{prefix}.radius_m", profile.obstacle_range("arc_radius"), "m", motion + ("radius_m",))
+            space.quantity(f"{prefix}.turn_deg", Interval(-180.0, 180.0), "deg", motion + ("turn_deg",))
+        elif obstacle.motion == "vertical":
+            space.quantity(f"{prefix}.rise_m", profile.obstacle_range("vertical_travel"), "m", motion + ("rise_m",))
+        else:
+            for via in ("via_1", "via_2"):
+                entry["motion"][via] = {}
+                space.quantity(f"{prefix}.{via}.north_m", north, "m", motion + (via, "north_m"))
+                space.quantity(f"{prefix}.{via}.east_m", east, "m", motion + (via, "east_m"))
+
+    def _pilot(self, space: _Builder) -> None:
+        """The pilot drive's quantities, and the values a concrete scenario made for the mission
+        drive lacks when it is flown by the pilot (`--drive pilot`): full stick, aiming along the route."""
+        space.template["pilot"] = {}
+        stick, offset = self.profile.pilot_max_stick, self.profile.pilot_aim_offset_m
+        space.quantity("pilot.max_stick", stick, "", ("pilot", "max_stick"))
+        space.quantity("pilot.aim_offset_m", offset, "m", ("pilot", "aim_offset_m"))
+        self.pilot_defaults = {"pilot.max_stick": stick.max, "pilot.aim_offset_m": min(max(0.0, offset.min), offset.max)}
 
     def _intruder_entry(self, obstacle) -> dict[str, Any]:
         body = self.profile.section("intruder")["body"]

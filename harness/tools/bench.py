@@ -27,7 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from harness.flight import warm
-from harness.flight.evaluation import RunOptions, evaluate, transport_problem
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
+from harness.flight.stack import transport_problem
 import sut_adapter
 from sut_adapter import SutConfig
 from harness.flight.fitness import Status
@@ -76,7 +78,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
         system = sut_adapter.system_for(sut.sut)
-        rate_hz = rate_hz or sut_adapter.physics_rate(system)
+        rate_hz = rate_hz or system.capabilities.rate_hz
         can = {transport: transport_problem(transport, system) is None for transport in TRANSPORTS[1:]}
         for cores, transport, keep_warm in [(c, t, w) for c, t, w in placements if c <= machine_cores and can[t]]:
             rows = []
@@ -147,6 +149,7 @@ def _run_figures(result, rate_hz: float, wall_time_s: float) -> dict[str, Any]:
         "world_us": 1e6 * timings["world_s"] / run_steps,
         "step_us": 1e6 * in_run / run_steps,
         "sim_time_s": result.sim_time_s,
+        "run_steps": round(run_steps),
         "fitness": result.fitness,
     }
     figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "world_us"))

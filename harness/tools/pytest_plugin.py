@@ -26,7 +26,8 @@ from harness.campaigns.regression import EXPECTATIONS, SUFFIX, Regression, load_
 from harness.errors import InputError
 from harness.execution.executor import Executor, Job, run_job
 from harness.execution.local import LocalExecutor
-from harness.flight.evaluation import EvaluationResult, RunOptions, evaluate, infeasible
+from harness.flight.evaluation import evaluate, infeasible
+from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json
 from harness.scenario.logical import DRIVES, load_logical

@@ -118,11 +118,11 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     """The SUT alone on `cores` cores (2: the stand-in and the SUT a core each, the stand-in
     polling; 1: both on one core, sleeping while the other works), replaying the flight in
     `log_path` `repeats` times, each into a fresh SUT process: the median and each run."""
-    from harness.flight.evaluation import _pin
+    from harness.flight.stack import pin_to_cores
 
     recorded = recorded_link(log_path)
     system = sut_adapter.system_for(sut)
-    if sut_adapter.sim_protocol(system) != "mavlink":
+    if system.capabilities.sim_protocol != "mavlink":
         raise ValueError(f"{system.name}'s simulator link is not PX4's MAVLink protocol; the replay speaks only that")
     runs = []
     own_cores = os.sched_getaffinity(0)
@@ -130,7 +130,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
         workdir = Path(tempfile.mkdtemp(prefix="stella-alone-"))
         try:
             # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
-            limited = sut_adapter.instance_count(system)
+            limited = system.capabilities.instance_count
             with (PortLease(slots=limited, wait_s=CONNECT_TIMEOUT_S) if limited else PortLease()) as ports:
                 listener = listen(ports.sim)
                 handle = None
@@ -138,7 +138,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                     handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={},
                                           spin_s=SPIN_S if cores >= 2 else 0.0)
                     if pin_cpu:
-                        _pin(os.getpid(), handle.pids, ports.slot, cores)
+                        pin_to_cores(os.getpid(), handle.pids, ports.slot, cores)
                     listener.settimeout(CONNECT_TIMEOUT_S)
                     try:
                         sock, _ = listener.accept()

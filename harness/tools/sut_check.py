@@ -23,10 +23,13 @@ from mavsdk.plugins.telemetry import FlightMode
 
 from harness.errors import InfrastructureError
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import RunOptions, Stack, arm_retry_for, simulation_stack
+from harness.flight.evaluation import arm_retry_for
+from harness.flight.results import RunOptions
+from harness.flight.stack import Stack, simulation_stack
 from harness.flight.mavsdk_session import mission_items
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
+from sim_bridge.control import LockstepStarted, RcModeSlot, Run, Stop, SutConnected
 from sim_bridge.pilot import SLOT_POSITION
 import sut_adapter
 
@@ -60,7 +63,7 @@ def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -
 
 
 def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_s: float, arm_retry_s: float, system) -> None:
-    pilot_params, _altitude_param, pilot_mode = sut_adapter.pilot_setup(system)
+    pilot_params, _altitude_param, pilot_mode = system.capabilities.pilot_setup()
     sut, session = stack.sut, stack.session
     alive = lambda: stack.bridge.poll() is None and sut.alive()  # noqa: E731
 
@@ -77,17 +80,17 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
     passed(0, f"pids {', '.join(map(str, sut.pids))}; simulator TCP {stack.ports.sim}, API UDP {stack.ports.api}")
     control = BridgeControl(stack.ports.control)
     try:
-        for index, event, what in ((1, "sut_connected", "the SUT never connected to the simulator"),
-                                   (2, "lockstep_started", "the SUT never answered a sensor step with HIL_ACTUATOR_CONTROLS")):
+        for index, event, what in ((1, SutConnected, "the SUT never connected to the simulator"),
+                                   (2, LockstepStarted, "the SUT never answered a sensor step with HIL_ACTUATOR_CONTROLS")):
             seen = control.wait_for(event, timeout_s, alive)
             if seen is None:
                 return failed(index, f"{what} on TCP {stack.ports.sim} within {timeout_s:.0f} s")
-            passed(index, f"at simulated t={seen['t']:.3f} s")
+            passed(index, f"at simulated t={seen.t:.3f} s")
         steps: list[tuple[int, str, Callable[[], Any]]] = [
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
             (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
-            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, sut_adapter.mission_home_item(system)))) if world.drive == "mission" else
+            (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, system.capabilities.mission_home_item))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s, pilot_params, pilot_mode)),
         ]
         for index, _name, action in steps:
@@ -97,7 +100,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
                 return failed(index, str(error))
             passed(index, outcome if index == 5 else _details(index, session, sut, world.drive, pilot_params))
     finally:
-        control.send({"op": "stop"})
+        control.send(Stop())
         control.close()
 
 
@@ -105,8 +108,8 @@ def _position_mode_by_stick(session, control: BridgeControl, timeout_s: float, p
     """With the pilot's RC layout set, the simulation running and the pilot's mode switch in its
     Position slot, the SUT must report Position mode (nothing is armed)."""
     session.set_params(pilot_params)
-    control.send({"op": "run"})
-    control.send({"op": "rc_mode_slot", "slot": SLOT_POSITION})
+    control.send(Run())
+    control.send(RcModeSlot(SLOT_POSITION))
     deadline = time.monotonic() + timeout_s
     mode = session.telemetry.flight_mode()
     while mode != FlightMode[pilot_mode]:

@@ -22,7 +22,7 @@ from harness.flight.differential import Reveal
 from harness.flight.fitness import Status
 
 if TYPE_CHECKING:
-    from harness.flight.evaluation import EvaluationResult
+    from harness.flight.results import EvaluationResult
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS campaigns (

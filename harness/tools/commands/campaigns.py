@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from harness.errors import InputError, Problem
+from harness.execution import registry as executors
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
@@ -36,7 +37,7 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
                         "candidates on every executor; raise it to the number of workers on a big machine")
     p.add_argument("--profile", default="default")
     add_sut_options(p)
-    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local",
+    p.add_argument("--executor", choices=executors.names(), default="local",
                    help="local: worker processes here (default); dask: a Dask cluster; docker: one container per evaluation")
     p.add_argument("--workers", type=positive_int, help="parallel evaluations (default: cores; with --dask-scheduler the cluster's threads)")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto",
@@ -99,7 +100,7 @@ def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
 @command("campaign", "search logical scenarios for worst cases; resumable from its store", _campaign_options)
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import run_campaign
-    from harness.flight.evaluation import EvaluationResult, RunOptions
+    from harness.flight.results import EvaluationResult, RunOptions
     from harness.execution.registry import make_executor
     from harness.campaigns.store import Store
     from tqdm import tqdm

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from harness.errors import InputError, Problem
+from harness.execution import registry as executors
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.tools.commands.campaigns import print_run_line
@@ -88,7 +89,7 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--evaluations", type=positive_int, help="budget per run")
     p.add_argument("--population", type=positive_int, default=50, help="as for campaign")
     p.add_argument("--store", help="the benchmark's folder (one campaign store per fault and the fault-free re-flights)")
-    p.add_argument("--executor", choices=["sequential", "local", "dask", "docker"], default="local", help="as for campaign")
+    p.add_argument("--executor", choices=executors.names(), default="local", help="as for campaign")
     _baseline_option(p)
     p.add_argument("--seed", type=seed_int, default=0, help="run r uses seed + r")
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")

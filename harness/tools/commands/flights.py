@@ -19,7 +19,7 @@ from harness.tools.commands.sut_options import (add_reference_options, add_sut_o
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
-    from harness.flight.evaluation import EvaluationResult
+    from harness.flight.results import EvaluationResult
     from sut_adapter import SutConfig
 
 
@@ -48,7 +48,8 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 @command("run", "fly one concrete scenario against the SUT and score it", _run_options)
 def cmd_run(args: argparse.Namespace) -> int:
-    from harness.flight.evaluation import RunOptions, evaluate
+    from harness.flight.evaluation import evaluate
+    from harness.flight.results import RunOptions
     from harness.flight.fitness import COULD_NOT_FINISH, Status
     from harness.scenario.world import load_concrete
 

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from harness.errors import InputError, Problem
+from harness.execution import registry as executors
 from harness.tools.commands.campaigns import print_run_line
 from harness.tools.commands.common import command, emit, port_int, positive_float, positive_int, seed_int
 from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
@@ -26,7 +27,8 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", action="store_true", help="also the SUT alone: the first flight's simulator link replayed to it --runs times per placement's cores, "
                                                         "and each flight's speed as a share of that (the SUT in its own process, over PX4's simulator protocol)")
     p.add_argument("--campaign", action="store_true", help="instead: an NSGA-II campaign (default Table III scenario 9) with the local executor")
-    p.add_argument("--executor", choices=["local", "docker", "dask"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
+    # Sequential flies in this process: it has no overhead of its own to measure.
+    p.add_argument("--executor", choices=[name for name in executors.names() if name != "sequential"], help="instead: fly the standard scenario --evaluations times (default 10) through this executor")
     p.add_argument("--evaluations", type=positive_int, help="with --campaign (default 500) or --executor (default 10)")
     p.add_argument("--workers", type=positive_int, help="with --campaign (default: cores) or --executor (default 1)")
     p.add_argument("--cold-start", action="store_true", help="with --campaign: every evaluation starts its processes afresh (as `stella campaign --cold-start`)")
@@ -37,15 +39,15 @@ def check_limit(sut) -> None:
     import sut_adapter
 
     system = sut_adapter.system_for(sut)
-    if sut_adapter.sim_protocol(system) != "mavlink":
-        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {sut_adapter.sim_protocol(system)}, not PX4's MAVLink protocol, "
+    if system.capabilities.sim_protocol != "mavlink":
+        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {system.capabilities.sim_protocol}, not PX4's MAVLink protocol, "
                                                  f"which the replay speaks: measure it without --limit")])
 
 
 @command("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes", _bench_options)
 def cmd_bench(args: argparse.Namespace) -> int:
     from harness.tools.bench import PLACEMENTS, bench_text, run_bench
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.results import RunOptions
 
     for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
         if given and (args.executor or args.campaign):

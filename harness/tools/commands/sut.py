@@ -26,7 +26,7 @@ def _check_options(p: argparse.ArgumentParser) -> None:
 
 @command("sut check", "start a SUT with the simulator and report each stage with its time", _check_options)
 def sut_check(args: argparse.Namespace) -> int:
-    from harness.flight.evaluation import RunOptions
+    from harness.flight.results import RunOptions
     from harness.tools.sut_check import as_dicts, check, report_text
 
     sut = sut_spec(args)

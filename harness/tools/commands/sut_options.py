@@ -156,7 +156,7 @@ def reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | 
 
 def check_transport(transport: str, sut: SutConfig) -> None:
     import sut_adapter
-    from harness.flight.evaluation import transport_problem
+    from harness.flight.stack import transport_problem
 
     problem = transport_problem(transport, sut_adapter.system_for(sut))
     if problem is not None:

@@ -1,0 +1,226 @@
+"""One evaluation's running parts and where they run: the simulator, the API tap, the SUT and
+MAVSDK on a free port block, placed on the evaluation's cores with the transport that carries
+the simulator link (RunOptions.transport, .cores), and a warm stack kept for the next flight.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import sys
+import tempfile
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Iterator
+
+from harness.flight import warm
+from harness.flight.api_tap import ApiTap
+from harness.flight.mavsdk_session import MavsdkSession
+from harness.flight.ports import PortBlock, PortLease
+from harness.flight.results import RunOptions
+from sim_bridge.control import Load
+from sim_bridge.spec import WorldSpec
+from simlink import shared_memory
+import sut_adapter
+from sut_adapter import SutHandle, SystemUnderTest
+from sut_adapter.processes import ManagedProcess
+
+log = logging.getLogger(__name__)
+
+CLIENT_PORT_OFFSET = 1000  # MAVSDK listens here, behind the API tap
+# With a core each, the simulator and the SUT poll this long for each other's next message
+# before sleeping: far longer than a lockstep turn, short enough to idle during setup.
+LOCKSTEP_SPIN_S = 0.002
+# After its flight the simulator keeps the SUT's link open until the SUT has gone, at most this
+# long: longer than stopping the SUT can take (ManagedProcess.stop's two grace periods).
+LINGER_S = 5.0
+
+@dataclass
+class Stack:
+    """One evaluation's running parts: its port block, the simulator, the API tap, the SUT and MAVSDK."""
+
+    ports: PortBlock
+    bridge: ManagedProcess
+    bridge_log: Path | None  # None: a warm stack between its evaluations
+    tap: ApiTap
+    sut: SutHandle
+    session: MavsdkSession
+    # Where it runs: {"cores": N, "transport": "memory" | "unix" | "shm" | "tcp"}, as the log records it.
+    placement: dict[str, Any]
+    # A warm stack's simulator serves flight after flight: this one starts when it gets this request.
+    load: Load | None = None
+    # Set once the flight ended normally: a warm stack may then fly the next evaluation.
+    clean: bool = False
+
+
+def cores_for(options: RunOptions) -> int:
+    """The cores an evaluation gets: those it may use, as far as this machine has them."""
+    return min(options.cores, len(os.sched_getaffinity(0)))
+
+
+def transport_problem(transport: str, system: SystemUnderTest) -> str | None:
+    """Why this SUT cannot fly over this transport (None: it can)."""
+    if transport in ("memory", "unix", "shm") and transport not in system.capabilities.transports:
+        how = "runs in a process of its own" if transport == "memory" else "connects to the simulator over TCP"
+        return f"{transport} carries the bundled autopilot only; {system.name} {how}: use --transport tcp"
+    if transport == "shm" and not shared_memory.AVAILABLE:
+        return "shm needs Linux on x86-64, which this machine is not: use --transport unix"
+    return None
+
+
+def _check_transport(options: RunOptions, system: SystemUnderTest) -> None:
+    problem = transport_problem(options.transport, system)
+    if problem is not None:
+        raise sut_adapter.SutError(system.name, problem)
+
+
+def placed_transport(options: RunOptions, system: SystemUnderTest) -> str:
+    """What carries the simulator link (RunOptions.transport): auto puts a SUT that can run
+    inside the bridge's process there when the evaluation has one core; with two, it takes
+    shared memory, else a Unix-domain socket, where the SUT can; TCP otherwise."""
+    _check_transport(options, system)
+    if options.transport != "auto":
+        return options.transport
+    preferred = ("memory",) if cores_for(options) == 1 else ("shm", "unix")
+    return next((transport for transport in preferred if transport_problem(transport, system) is None), "tcp")
+
+
+def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
+    """Whether the SUT runs inside the bridge's process."""
+    return placed_transport(options, system) == "memory"
+
+
+@contextmanager
+def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
+    """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
+    on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first).
+    With options.warm and the SUT in memory, a stack kept from this process's last evaluation
+    flies it instead (harness/flight/warm.py), and is kept for the next if the flight ended cleanly."""
+    world_path = workdir / "world.json"
+    world_path.write_text(json.dumps(world.as_dict()))
+    bridge_log = workdir / "bridge.mcap"
+    if options.warm and in_memory(options, system):
+        with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
+            yield serving.begin(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)))
+        return
+    with ExitStack() as contexts:
+        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
+
+
+def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None,
+           world: WorldSpec | None = None) -> Stack:
+    """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
+    run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
+    capabilities = system.capabilities
+    limited = capabilities.instance_count
+    ports = contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
+    transport = placed_transport(options, system)
+    inline = transport == "memory"
+    # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
+    cores = 1 if inline else cores_for(options)
+    spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
+    rc_port = capabilities.rc_port(ports.slot)
+    bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+                   "--rate-hz", str(options.rate_hz or capabilities.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", capabilities.hold_mode,
+                   "--hold-pace", str(capabilities.hold_pace),
+                   "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
+                   "--sim-protocol", capabilities.sim_protocol,
+                   *(["--rc-port", str(rc_port)] if rc_port is not None else []),
+                   # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
+                   "--mcap-compression", "none",
+                   # stop() stops the SUT before the simulator, with the simulator link still open.
+                   "--linger-s", str(LINGER_S)]
+    # Named after the leased simulator port, so unique on this machine while the lease lasts; in
+    # the abstract namespace, so nothing is left behind however the processes end.
+    sim_socket = f"@stella-sim-{ports.sim}" if transport in ("unix", "shm") else None
+    if sim_socket is not None:
+        bridge_argv += ["--sim-socket", sim_socket]
+    if transport == "shm":
+        bridge_argv.append("--sim-shared-memory")
+    if inline:
+        bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
+                       *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
+    session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
+    contexts.callback(session.close)
+    bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
+    tap = contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET))
+    if inline:
+        sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
+    else:
+        extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
+        if capabilities.needs_world:
+            extra["world"] = world
+        if transport == "shm":
+            extra["sim_shared_memory"] = True
+        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
+
+    def stop() -> None:
+        session.close()
+        sut_exit = sut.stop()
+        if bridge_log is not None:  # a bridge flying one world ends by itself once its log is written
+            bridge.wait(5.0)
+        bridge.stop()
+        log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
+
+    contexts.callback(stop)
+    if options.pin_cpu:
+        pin_to_cores(bridge.pid, sut.pids, ports.slot, cores)
+    placement = {"cores": cores, "transport": transport}
+    return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
+
+
+class _ServingStack:
+    """A warm stack: the bridge with the SUT inside, serving flight after flight (its --serve),
+    with its own directory for its logs and the SUT's files."""
+
+    def __init__(self, contexts: ExitStack, stack: Stack):
+        self._contexts = contexts
+        self._stack = stack
+        self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
+
+    @classmethod
+    def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
+        home = Path(tempfile.mkdtemp(prefix="stella-warm-"))
+        contexts = ExitStack()
+        contexts.callback(shutil.rmtree, home, ignore_errors=True)
+        try:
+            return cls(contexts, _start(contexts, options, system, home, ["--serve", "--harness-pid", str(os.getpid())], None))
+        except BaseException:
+            contexts.close()
+            raise
+
+    def begin(self, bridge_log: Path, load: Load) -> Stack:
+        """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
+        self._stack.tap.restart()
+        self._stack.session.restart()
+        self._flight = replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
+        return self._flight
+
+    def _flew_cleanly(self) -> bool:
+        return self._flight is not None and self._flight.clean
+
+    def reusable(self) -> bool:
+        return self._flew_cleanly() and self._stack.bridge.poll() is None
+
+    def close(self) -> None:
+        bridge = self._stack.bridge
+        if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
+            log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
+        self._contexts.close()
+
+
+def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
+    """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
+    the SUT on the next one."""
+    available = sorted(os.sched_getaffinity(0))
+    first = slot * cores
+    placement = {bridge_pid: available[first % len(available)]}
+    placement.update({pid: available[(first + cores - 1) % len(available)] for pid in sut_pids})
+    for pid, core in placement.items():
+        try:
+            os.sched_setaffinity(pid, {core})
+        except OSError as error:  # a process that already exited, or a restricted container
+            log.debug("cannot pin %d to core %d: %s", pid, core, error)
