@@ -183,12 +183,12 @@ def test_statistics_match_hand_computed_values():
 
 def test_the_spread_of_repeats_says_how_many_violated_and_whether_that_is_flaky():
     def flight(status, fitness):
-        return {"status": status, "fitness": fitness, "min_clearance_m": fitness + 1.0}
+        return stored_result(fitness, status, min_clearance_m=fitness + 1.0)
 
     flaky = spread([flight("violation", -0.001), flight("ok", 0.002), flight("violation", -0.003)])
     assert (flaky["repeats"], flaky["violations"], flaky["flaky"]) == (3, 2, True)
     assert flaky["fitness"] == {"min": -0.003, "median": -0.001, "max": 0.002} and flaky["statuses"] == {"ok": 1, "violation": 2}
-    steady = spread([flight("violation", -0.5)] * 2 + [{"status": "sut_crashed", "fitness": 1e6, "min_clearance_m": None}])
+    steady = spread([flight("violation", -0.5)] * 2 + [stored_result(1e6, "sut_crashed")])
     assert not steady["flaky"] and steady["fitness"] == {"min": -0.5, "median": -0.5, "max": -0.5}  # a crash is no flight to spread
 
 

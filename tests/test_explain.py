@@ -164,16 +164,16 @@ def test_triage_groups_by_mechanism_and_still_works_when_a_log_is_gone(flown, tm
             run_id, _ = store.run(campaign, FLIGHTS[name][0], result.scenario, "hand-made", index, 2)
             store.add_evaluation(run_id, ordinal=0, step=0, optimizer="hand-made", vector=x, result=result, concrete=None)
     report = triage(store_path)
-    assert sorted(m["mechanism"] for m in report["modes"]) == ["braked_too_little", "outrun", "pushed", "seen_late", "unseen"]
-    assert all(m["mode"].startswith(f"{m['mechanism']}: ") and m["mechanism"] in MECHANISMS for m in report["modes"])
+    assert sorted(m.keys["mechanism"] for m in report.modes) == ["braked_too_little", "outrun", "pushed", "seen_late", "unseen"]
+    assert all(m.mode.startswith(f"{m.keys['mechanism']}: ") and m.keys["mechanism"] in MECHANISMS for m in report.modes)
     # A log deleted since: that violation is listed as not triaged, the others keep their modes.
     Path(flown["thick_fog"][2].log_path).rename(tmp_path / "moved.mcap")
     try:
         report = triage(store_path)
     finally:
         (tmp_path / "moved.mcap").rename(flown["thick_fog"][2].log_path)
-    assert sorted(m["mechanism"] for m in report["modes"]) == ["braked_too_little", "outrun", "pushed", "unseen"]
-    assert [s["why"] for s in report["skipped"]] == ["its log is missing"]
+    assert sorted(m.keys["mechanism"] for m in report.modes) == ["braked_too_little", "outrun", "pushed", "unseen"]
+    assert [s["why"] for s in report.skipped] == ["its log is missing"]
 
 
 @pytest.mark.parametrize("speed_m_s", [0.5, 2.0, 5.0, 12.0])

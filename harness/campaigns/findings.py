@@ -27,7 +27,7 @@ from typing import Any, Mapping
 from harness.campaigns.explain import explain, explain_text
 from harness.campaigns.regression import SUFFIX, case_document
 from harness.campaigns.store import Store, StoredEvaluation
-from harness.campaigns.triage import triage
+from harness.campaigns.triage import FailureMode, triage
 from harness.errors import InputError, Problem
 from harness.flight.inspect_log import plot
 from harness.flight.logs import slug
@@ -38,33 +38,33 @@ def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
     differential campaign): each bundle's folder and the store's id of the evaluation in it, most
     frequent mode first."""
     report = triage(store_path)
-    if not report["modes"]:
+    if not report.modes:
         raise InputError([Problem(str(store_path), "", "no violation with a log to export: nothing was found, or the logs were deleted "
                                                        "(`stella triage` lists what it skipped)")])
     with Store.existing(store_path) as store:
         sut = store.campaign_sut()
         sources = store.campaign_sources()
         config = store.campaign_config()
-        worst = [store.evaluation(mode["worst"]["id"]) for mode in report["modes"]]
+        worst = [store.evaluation(mode.worst.id) for mode in report.modes]
     out_dir.mkdir(parents=True, exist_ok=True)
     folders = []
-    for number, (mode, case) in enumerate(zip(report["modes"], worst), start=1):
-        folder = out_dir / f"{number:02d}-{slug(mode['mode'])[:80]}"
+    for number, (mode, case) in enumerate(zip(report.modes, worst), start=1):
+        folder = out_dir / f"{number:02d}-{slug(mode.mode)[:80]}"
         folder.mkdir(exist_ok=True)
         _bundle(folder, mode, case, sut, sources, config, store_path)
         folders.append(folder)
-    index = ["# Findings", "", f"From `{store_path}`: {report['violations']} violations in {len(report['modes'])} failure modes.", "",
+    index = ["# Findings", "", f"From `{store_path}`: {report.violations} violations in {len(report.modes)} failure modes.", "",
              "| # | failure mode | violations | contacts | worst f | folder |", "| --- | --- | --- | --- | --- | --- |"]
-    index += [f"| {n} | {m['mode']} | {m['count']} | {m['contacts']} | {m['worst']['fitness']:.3f} | [{f.name}]({f.name}/FINDING.md) |"
-              for n, (m, f) in enumerate(zip(report["modes"], folders), start=1)]
+    index += [f"| {n} | {m.mode} | {m.count} | {m.contacts} | {m.worst.fitness:.3f} | [{f.name}]({f.name}/FINDING.md) |"
+              for n, (m, f) in enumerate(zip(report.modes, folders), start=1)]
     (out_dir / "FINDINGS.md").write_text("\n".join(index) + "\n")
     return [(folder, case.id) for folder, case in zip(folders, worst)]
 
 
-def _bundle(folder: Path, mode: Mapping[str, Any], case: StoredEvaluation | None, sut: Mapping[str, Any], sources: Mapping[str, Any],
+def _bundle(folder: Path, mode: FailureMode, case: StoredEvaluation | None, sut: Mapping[str, Any], sources: Mapping[str, Any],
             config: Mapping[str, Any], store_path: Path) -> None:
     if case is None or case.concrete is None or not case.log_path:
-        raise InputError([Problem(str(store_path), "", f"the worst violation of mode {mode['mode']!r} has no concrete scenario or log")])
+        raise InputError([Problem(str(store_path), "", f"the worst violation of mode {mode.mode!r} has no concrete scenario or log")])
     log = Path(case.log_path)
     name = slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}")
     regression = folder / f"case{SUFFIX}"
@@ -111,7 +111,7 @@ def _identity(title: str, sut: Mapping[str, Any], build: Mapping[str, Any]) -> l
     return lines
 
 
-def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], config: Mapping[str, Any],
+def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], config: Mapping[str, Any],
                   regression: str, sut_files: list[str], store_hint: str) -> str:
     # Stores made before the sources kept the builds still have their digests in the identity.
     build = sources.get("sut_build") or config.get("subject", {})
@@ -128,14 +128,14 @@ def _finding_text(mode: Mapping[str, Any], case: StoredEvaluation, sut: Mapping[
         outcome = f"least clearance {clearance}" + (f" ({case.why})" if case.why else "") + f"; against the reference: {case.differential['why']}"
         expectation = "fails unless the SUT keeps the reference's clearance here (run it with either build)"
     return "\n".join([
-        f"# {mode['mode']}",
+        f"# {mode.mode}",
         "",
-        f"{mode['count']} violations of this mode in the campaign ({mode['contacts']} contacts, {mode['near_misses']} near misses). "
+        f"{mode.count} violations of this mode in the campaign ({mode.contacts} contacts, {mode.near_misses} near misses). "
         f"The worst: scenario {case.scenario!r}, found by {case.algorithm} (run {case.run_index}, evaluation {case.ordinal}), "
         f"{outcome}.",
         "",
-        "* obstacle: " + str(mode["obstacle"]) + "; approach: " + str(mode["approach"]) + "; phase: " + str(mode["phase"])
-        + "; closing speed: " + str(mode["speed"]) + "; " + str(mode["wind"]) + "; " + str(mode["visibility"]),
+        "* obstacle: " + str(mode.keys["obstacle"]) + "; approach: " + str(mode.keys["approach"]) + "; phase: " + str(mode.keys["phase"])
+        + "; closing speed: " + str(mode.keys["speed"]) + "; " + str(mode.keys["wind"]) + "; " + str(mode.keys["visibility"]),
         "* `explanation.txt`: why it failed (`stella explain`): the timeline of the closest approach and the mechanism, with its evidence",
         "* `flight.png`: the trajectory from above, with the obstacles, and the clearance over time",
         "* `flight.mcap`: the flight's log (open it in Foxglove; `stella inspect flight.mcap`)",

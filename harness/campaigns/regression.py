@@ -152,7 +152,7 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
     if per_mode:
         from harness.campaigns.triage import triage
 
-        wanted = {(m["worst"]["scenario_file"], m["worst"]["algorithm"], m["worst"]["run"], m["worst"]["evaluation"]) for m in triage(store_path)["modes"]}
+        wanted = {(m.worst.scenario_file, m.worst.algorithm, m.worst.run, m.worst.evaluation) for m in triage(store_path).modes}
         cases = [c for c in cases if (c.scenario_file, c.algorithm, c.run_index, c.ordinal) in wanted]
     chosen, seen = [], set()
     for case in cases:

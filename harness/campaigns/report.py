@@ -148,16 +148,16 @@ def _failure_modes(store: Store) -> str:
     from harness.campaigns.triage import triage
 
     report = triage(store.path)
-    if not report["modes"]:
+    if not report.modes:
         return "<p>No violation to triage.</p>"
-    spread = report["diversity"]["mean_pairwise_trajectory_distance_m"]
+    spread = report.mean_pairwise_trajectory_distance_m
     rows = ["<tr><th>violations</th><th>mode</th><th>contact</th><th>near miss</th><th>worst (fitness, log)</th><th>typical (fitness, log)</th></tr>"]
-    for mode in report["modes"]:
-        worst, typical = mode["worst"], mode["typical"]
-        rows.append(f"<tr><td>{mode['count']}</td><td class='text'>{html.escape(mode['mode'])}</td><td>{mode['contacts']}</td><td>{mode['near_misses']}</td>"
-                    f"<td class='text'>{worst['fitness']:.3f} <code>{html.escape(worst['log'])}</code></td>"
-                    f"<td class='text'>{typical['fitness']:.3f} <code>{html.escape(typical['log'])}</code></td></tr>")
-    summary = (f"<p>{report['violations']} distinct violations in {len(report['modes'])} failure modes; mean pairwise trajectory distance "
+    for mode in report.modes:
+        worst, typical = mode.worst, mode.typical
+        rows.append(f"<tr><td>{mode.count}</td><td class='text'>{html.escape(mode.mode)}</td><td>{mode.contacts}</td><td>{mode.near_misses}</td>"
+                    f"<td class='text'>{worst.fitness:.3f} <code>{html.escape(worst.log)}</code></td>"
+                    f"<td class='text'>{typical.fitness:.3f} <code>{html.escape(typical.log)}</code></td></tr>")
+    summary = (f"<p>{report.violations} distinct violations in {len(report.modes)} failure modes; mean pairwise trajectory distance "
                f"{'-' if spread is None else f'{spread:.1f} m'}.</p>")
     return summary + f"<table>{''.join(rows)}</table>"
 

@@ -19,6 +19,7 @@ from scipy.stats import mannwhitneyu
 
 from harness.campaigns.store import Store
 from harness.flight.fitness import Status
+from harness.flight.results import EvaluationResult
 
 
 def a12(candidate: Sequence[float], baseline: Sequence[float]) -> float:
@@ -116,21 +117,21 @@ def refused_text(report: dict[str, Any]) -> str:
             + "; they flew without the failure their scenario asks for")
 
 
-def spread(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def spread(results: Sequence[EvaluationResult]) -> dict[str, Any]:
     """How repeated flights of one concrete scenario differ: the range and median of fitness and
     clearance, and how many violated. A violation in some repeats but not all is flaky: a real
     SUT's timing differs run to run, and a violation by millimetres may not come back."""
-    flown = [r for r in results if r.get("min_clearance_m") is not None]
+    flown = [r for r in results if r.min_clearance_m is not None]
 
     def summary(values: list[float]) -> dict[str, float] | None:
         return {"min": min(values), "median": statistics.median(values), "max": max(values)} if values else None
 
-    violations = sum(r["status"] == Status.VIOLATION for r in results)
+    violations = sum(r.status == Status.VIOLATION for r in results)
     return {
         "repeats": len(results),
-        "statuses": {status: sum(r["status"] == status for r in results) for status in sorted({r["status"] for r in results})},
+        "statuses": {str(status): sum(r.status == status for r in results) for status in sorted({r.status for r in results})},
         "violations": violations,
         "flaky": 0 < violations < len(flown),  # of the repeats that flew: a crash says nothing of the violation
-        "fitness": summary([r["fitness"] for r in flown]),
-        "min_clearance_m": summary([r["min_clearance_m"] for r in flown]),
+        "fitness": summary([r.fitness for r in flown]),
+        "min_clearance_m": summary([r.min_clearance_m for r in flown]),
     }

@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from harness.campaigns.store import Store
+from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
 from harness.flight import logs
 from harness.flight.fitness import Status, min_clearance
@@ -127,7 +128,62 @@ def mode_name(entry: Mapping[str, Any]) -> str:
             f"{entry['visibility']}")
 
 
-def triage(store_path: Path) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Example:
+    """The evaluation that stands for a failure mode (its worst or its most typical)."""
+
+    id: int
+    scenario: str
+    scenario_file: str
+    algorithm: str
+    run: int
+    evaluation: int
+    fitness: float
+    min_clearance_m: float
+    log: str
+
+
+@dataclass(frozen=True)
+class FailureMode:
+    mode: str  # its name: the keys' values in words
+    keys: Mapping[str, Any]  # MODE_KEYS' values (and, in a differential campaign, what it reveals)
+    count: int
+    contacts: int
+    near_misses: int
+    worst: Example
+    typical: Example
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"mode": self.mode, **self.keys, "count": self.count, "contacts": self.contacts, "near_misses": self.near_misses,
+                "worst": asdict(self.worst), "typical": asdict(self.typical)}
+
+
+@dataclass(frozen=True)
+class Triage:
+    store: str
+    violations: int
+    modes: tuple[FailureMode, ...]
+    skipped: tuple[Mapping[str, Any], ...]  # evaluations that could not be triaged, with why
+    differential: bool
+    mean_pairwise_trajectory_distance_m: float | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"store": self.store, "violations": self.violations, "modes": [mode.as_dict() for mode in self.modes], "skipped": list(self.skipped),
+                "differential": self.differential,
+                "diversity": {"modes": len(self.modes), "mean_pairwise_trajectory_distance_m": self.mean_pairwise_trajectory_distance_m}}
+
+
+@dataclass(frozen=True)
+class _Violation:
+    evaluation: StoredEvaluation
+    features: Mapping[str, Any]  # read from its log (features())
+
+    def example(self) -> Example:
+        e = self.evaluation
+        return Example(e.id, e.scenario, e.scenario_file, e.algorithm, e.run_index, e.ordinal, e.fitness, self.features["min_clearance_m"], e.log_path)
+
+
+def triage(store_path: Path) -> Triage:
     """The campaign's violations grouped into failure modes, most frequent first; of a
     differential campaign, its revealing candidates (the subject's flights), grouped also by
     the level they reveal."""
@@ -136,56 +192,51 @@ def triage(store_path: Path) -> dict[str, Any]:
         found = (sorted(store.revealing_cases(), key=lambda e: (e.run_id, e.ordinal)) if differential
                  else store.evaluations_with(Status.VIOLATION))
     keys = ("reveals", *MODE_KEYS) if differential else MODE_KEYS
-    violations, skipped = [], []
+    violations: list[_Violation] = []
+    skipped: list[dict[str, Any]] = []
     seen = set()
     for evaluation in found:
         if evaluation.vector_key in seen:
             continue
         seen.add(evaluation.vector_key)
-        where = {"id": evaluation.id, "scenario": evaluation.scenario, "scenario_file": evaluation.scenario_file, "algorithm": evaluation.algorithm,
-                 "run": evaluation.run_index, "evaluation": evaluation.ordinal, "fitness": evaluation.fitness, "log": evaluation.log_path,
-                 "reveals": evaluation.reveals}
         if not evaluation.log_path or not Path(evaluation.log_path).is_file():
-            skipped.append({**where, "why": "its log is missing"})
+            skipped.append(_skipped(evaluation, "its log is missing"))
             continue
         try:
-            violations.append({**where, **features(Path(evaluation.log_path))})
+            violations.append(_Violation(evaluation, {"reveals": evaluation.reveals, **features(Path(evaluation.log_path))}))
         except InputError as error:
-            skipped.append({**where, "why": str(error)})
-    modes: dict[tuple, list[dict[str, Any]]] = {}
+            skipped.append(_skipped(evaluation, str(error)))
+    modes: dict[tuple, list[_Violation]] = {}
     for violation in violations:
-        modes.setdefault(tuple(violation[key] for key in keys), []).append(violation)
+        modes.setdefault(tuple(violation.features[key] for key in keys), []).append(violation)
     described = []
     for key, members in sorted(modes.items(), key=lambda item: (-len(item[1]), item[0])):
-        worst = min(members, key=lambda v: v["fitness"])
-        typical = min(members, key=lambda v: sum(trajectory_distance(v["trajectory"], o["trajectory"]) for o in members))
+        worst = min(members, key=lambda v: v.evaluation.fitness)
+        typical = min(members, key=lambda v: sum(trajectory_distance(v.features["trajectory"], o.features["trajectory"]) for o in members))
         fields = dict(zip(keys, key))
-        described.append({
-            "mode": (f"reveals {fields['reveals']}: " if differential else "") + mode_name(fields), **fields, "count": len(members),
-            "contacts": sum(v["min_clearance_m"] <= 0.0 for v in members), "near_misses": sum(v["min_clearance_m"] > 0.0 for v in members),
-            "worst": _example(worst), "typical": _example(typical),
-        })
-    pairs = list(itertools.combinations([v["trajectory"] for v in violations], 2))
-    return {
-        "store": str(store_path), "violations": len(violations), "modes": described, "skipped": skipped, "differential": differential,
-        "diversity": {"modes": len(described), "mean_pairwise_trajectory_distance_m": float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None},
-    }
+        contacts = sum(v.features["min_clearance_m"] <= 0.0 for v in members)
+        described.append(FailureMode((f"reveals {fields['reveals']}: " if differential else "") + mode_name(fields), fields, len(members),
+                                     contacts, len(members) - contacts, worst.example(), typical.example()))
+    pairs = list(itertools.combinations([v.features["trajectory"] for v in violations], 2))
+    return Triage(str(store_path), len(violations), tuple(described), tuple(skipped), differential,
+                  float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None)
 
 
-def _example(violation: Mapping[str, Any]) -> dict[str, Any]:
-    return {key: violation[key] for key in ("id", "scenario", "scenario_file", "algorithm", "run", "evaluation", "fitness", "min_clearance_m", "log")}
+def _skipped(evaluation: StoredEvaluation, why: str) -> dict[str, Any]:
+    return {"id": evaluation.id, "scenario": evaluation.scenario, "scenario_file": evaluation.scenario_file, "algorithm": evaluation.algorithm,
+            "run": evaluation.run_index, "evaluation": evaluation.ordinal, "fitness": evaluation.fitness, "log": evaluation.log_path,
+            "reveals": evaluation.reveals, "why": why}
 
 
-def triage_text(report: Mapping[str, Any]) -> str:
-    diversity = report["diversity"]
-    spread = diversity["mean_pairwise_trajectory_distance_m"]
-    what = "revealing candidates (differential campaign)" if report.get("differential") else "violations"
-    lines = [f"{report['violations']} distinct {what} in {diversity['modes']} failure modes; mean pairwise trajectory distance "
+def triage_text(report: Triage) -> str:
+    spread = report.mean_pairwise_trajectory_distance_m
+    what = "revealing candidates (differential campaign)" if report.differential else "violations"
+    lines = [f"{report.violations} distinct {what} in {len(report.modes)} failure modes; mean pairwise trajectory distance "
              + (f"{spread:.1f} m" if spread is not None else "-")]
-    for mode in report["modes"]:
-        lines.append(f"{mode['count']:>4}  {mode['mode']}  ({mode['contacts']} contact, {mode['near_misses']} near miss)")
-        lines.append(f"      worst: fitness {mode['worst']['fitness']:.3f}, {mode['worst']['log']}")
-        lines.append(f"      typical: fitness {mode['typical']['fitness']:.3f}, {mode['typical']['log']}")
-    for skipped in report["skipped"]:
+    for mode in report.modes:
+        lines.append(f"{mode.count:>4}  {mode.mode}  ({mode.contacts} contact, {mode.near_misses} near miss)")
+        lines.append(f"      worst: fitness {mode.worst.fitness:.3f}, {mode.worst.log}")
+        lines.append(f"      typical: fitness {mode.typical.fitness:.3f}, {mode.typical.log}")
+    for skipped in report.skipped:
         lines.append(f"not triaged: {skipped['algorithm']} run {skipped['run']} evaluation {skipped['evaluation']}: {skipped['why']}")
     return "\n".join(lines)

@@ -47,8 +47,8 @@ def fault_list() -> list[dict[str, Any]]:
     return [{**asdict(fault), "witness": str(witness_path(fault.name)) if witness_path(fault.name).is_file() else None} for fault in seeded_faults().values()]
 
 
-def reveals(faulty: dict[str, Any], clean: dict[str, Any] | None) -> bool:
-    return faulty["status"] in REVEALING and clean is not None and clean["status"] == Status.OK
+def reveals(faulty: EvaluationResult, clean: EvaluationResult | None) -> bool:
+    return faulty.status in REVEALING and clean is not None and clean.status == Status.OK
 
 
 def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None) -> RunOptions:
@@ -56,9 +56,8 @@ def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None
     return RunOptions(sut=SutConfig(params=dict(sut_params or {}), fault=fault))
 
 
-def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> dict[str, Any]:
-    options = options_for(fault)
-    return _outcome(evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options, name=name))
+def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> EvaluationResult:
+    return evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options_for(fault), name=name)
 
 
 def _outcome(result: EvaluationResult) -> dict[str, Any]:
@@ -87,11 +86,11 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
         for fault, suffix in ((name, "with-fault"), (None, "without")):
             witness_of[len(jobs)] = name
             jobs.append(Job.of(len(jobs), space, x, seed=WITNESS_SEED, out_dir=out_dir, name=f"{name}-{suffix}", options=options_for(fault)))
-    flown: dict[str, dict[str, Any]] = {}
+    flown: dict[str, EvaluationResult] = {}
     executor = make_executor("local", workers)
     try:
         for job, result in executor.run(jobs):
-            flown[job.name] = _outcome(result)
+            flown[job.name] = result
             name = witness_of[job.key]
             if f"{name}-with-fault" in flown and f"{name}-without" in flown:
                 progress(_line(_entry(name, flown)))
@@ -100,9 +99,9 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
     return [unflown[name] if name in unflown else _entry(name, flown) for name in names]
 
 
-def _entry(name: str, flown: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def _entry(name: str, flown: dict[str, EvaluationResult]) -> dict[str, Any]:
     faulty, clean = flown[f"{name}-with-fault"], flown[f"{name}-without"]
-    return {"fault": name, "witness": str(witness_path(name)), "with_fault": faulty, "without": clean, "revealed": reveals(faulty, clean)}
+    return {"fault": name, "witness": str(witness_path(name)), "with_fault": _outcome(faulty), "without": _outcome(clean), "revealed": reveals(faulty, clean)}
 
 
 def _line(entry: dict[str, Any]) -> str:
@@ -127,7 +126,7 @@ def find_witness(fault: str, scenario: Path, tries: int, seed: int, out_dir: Pat
     space = SearchSpace(load_logical(scenario, profile), profile)
     for index, x in enumerate(space.sample_feasible(np.random.default_rng(seed), tries), 1):
         faulty = _fly(space, x, fault, out_dir, f"{fault}-try{index}-with-fault")
-        if faulty["status"] not in REVEALING:
+        if faulty.status not in REVEALING:
             continue
         if reveals(faulty, _fly(space, x, None, out_dir, f"{fault}-try{index}-without")):
             return space.to_concrete(x), index

@@ -184,7 +184,7 @@ def cmd_triage(args: argparse.Namespace) -> int:
     from harness.campaigns.triage import triage, triage_text
 
     report = triage(Path(args.store))
-    emit(args, report, triage_text(report))
+    emit(args, report.as_dict(), triage_text(report))
     return 0
 
 

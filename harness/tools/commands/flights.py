@@ -132,8 +132,7 @@ def _repeat(args: argparse.Namespace, space, x, options) -> list[EvaluationResul
                 print(f"repeat {index + 1}/{args.repeat}: {results[-1].status}, fitness {results[-1].fitness:.6f}", file=sys.stderr)
     finally:
         warm.close_all()
-    documents = [result.as_dict() for result in results]
-    report = {**spread(documents), "runs": documents}
+    report = {**spread(results), "runs": [result.as_dict() for result in results]}
     lines = [f"{report['repeats']} repeats: " + ", ".join(f"{n} {status}" for status, n in report["statuses"].items())]
     for name in ("fitness", "min_clearance_m"):
         if report[name]:

@@ -266,7 +266,7 @@ def triage(name: str = Depends(known), campaigns: Campaigns = Depends(campaigns_
     if store is None:
         raise HTTPException(404, "no store yet")
     with store:
-        report = group(store.path)
+        report = group(store.path).as_dict()
         examples = [mode[which] for mode in report["modes"] for which in ("worst", "typical")]
         stored = {example["id"]: store.evaluation(example["id"]) for example in examples}
     for example in examples:
