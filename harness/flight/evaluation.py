@@ -28,7 +28,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop, SutConnected
+from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SystemUnderTest
@@ -301,9 +301,6 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             return FlightOutcome(Failure(Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), finished.summary if finished else {}, info)
         return FlightOutcome(None, finished.summary, info)
     finally:
-        while control.poll(0.0):  # what the simulator said and the flight did not wait for
-            pass
-        stack.sut_connected = control.seen(SutConnected) is not None
         control.close()
 
 

@@ -54,9 +54,6 @@ class Stack:
     load: Load | None = None
     # Set once the flight ended normally: a warm stack may then fly the next evaluation.
     clean: bool = False
-    # Whether the SUT ever connected to the simulator, as its flight saw: a simulator still waiting
-    # for its SUT will not end by itself once the SUT is stopped.
-    sut_connected: bool = True
 
 
 def cores_for(options: RunOptions) -> int:
@@ -163,7 +160,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     def stop() -> None:
         session.close()
         sut_exit = sut.stop()
-        if bridge_log is not None and stack.sut_connected:  # a bridge flying one world ends by itself once its log is written
+        if bridge_log is not None:  # a bridge flying one world ends by itself once its log is written
             bridge.wait(5.0)
         bridge.stop()
         log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
@@ -172,8 +169,7 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
     if options.pin_cpu:
         pin_to_cores(bridge.pid, sut.pids, ports.slot, cores)
     placement = {"cores": cores, "transport": transport}
-    stack = Stack(ports, bridge, bridge_log, tap, sut, session, placement)
-    return stack
+    return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
 
 
 class _ServingStack:
