@@ -109,7 +109,8 @@ def main() -> int:
         sock.sendto(FRAME.pack(MAGIC, 400, count, *([args.pwm] * 4 + [0] * 12)), target)
 
     while parsed < args.frames:
-        for _ in range(args.junk):
+        # None before the simulator has answered: it may not be listening yet, and what it never got it cannot count.
+        for _ in range(args.junk if parsed else 0):
             sock.sendto(junk_datagram(rng, count), target)
             junk += 1
         send_frame()

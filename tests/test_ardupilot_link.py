@@ -220,8 +220,10 @@ def test_the_bridge_flies_on_through_ten_thousand_junk_datagrams_between_the_fra
     code, summary, seen = fly_fake(tmp_path, "--junk", "7", "--seed", "3", time_limit_s=4.0)
     assert seen["junk"] >= 10_000
     assert code == 0 and summary["end_reason"] == "time_limit" and seen["parsed"] == summary["steps"] == 4 * 400
-    # Each step's frame came after seven junk datagrams, each counted and skipped.
-    assert summary["bad_frames"] == 7 * summary["steps"]
+    # Each frame after the first came after seven junk datagrams, each counted and skipped (the
+    # fake sends none before the first answer, when the simulator may not be listening yet; the
+    # seven after the last answer count if they come before the simulator closes its socket).
+    assert 7 * (summary["steps"] - 1) <= summary["bad_frames"] <= 7 * summary["steps"]
 
 
 @pytest.mark.slow
