@@ -141,16 +141,13 @@ class JsonSteps:
         self._last_line = line
         return line
 
-    def receive_answer(self, sut, lockstep: bool, waiting_since: float) -> bool:
-        """Read until this step's servo frame (lockstep), or for one step at most (before it);
-        whether it came. A frame sent again means our line was lost: it gets the same line again,
+    def receive_answer(self, sut, waiting_since: float) -> bool:
+        """Read until this step's servo frame; whether it came. A frame sent again means our line was lost: it gets the same line again,
         and the world takes no second step. A count that starts again is an ArduPilot restarted:
         recorded, and flown on. What is no servo frame is counted and skipped."""
         world = self.world
         while True:
             try:
-                if not lockstep and not sut.readable(world.dt):
-                    return False
                 datagram = sut.receive(self.config.spin_s)
             except BlockingIOError:
                 world.end(EndReason.SUT_STALLED)

@@ -384,7 +384,9 @@ class Bridge:
             if json_steps is None:
                 answered = self._receive_answer(sut, splitter, lockstep, t0)
             else:
-                answered = json_steps.receive_answer(sut, lockstep, t0)
+                # ArduPilot waits for the answer to each of its servo frames, the first included:
+                # its link is in lockstep from the frame that opened it, one step per frame.
+                answered = json_steps.receive_answer(sut, t0)
             if not world.running:
                 break
             if answered and not lockstep:
