@@ -51,12 +51,15 @@ def listen_unix(name: str) -> socket.socket:
     return listener
 
 
-def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], SutLink] | None) -> SutLink:
+def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], SutLink] | None, control: ControlChannel) -> SutLink:
+    """The SUT's link once it connected; socket.timeout when it did not within the connect
+    timeout or the harness stopped the wait."""
     if inline_sut is not None:
         return inline_sut()
     if args.sim_protocol == "ardupilot-json":
-        return ardupilot_link.accept(listener, args.connect_timeout_s, args.stall_timeout_s)
-    listener.settimeout(args.connect_timeout_s)
+        return ardupilot_link.accept(listener, args.connect_timeout_s, args.stall_timeout_s, control.wait_readable)
+    if not control.wait_readable(listener, args.connect_timeout_s):
+        raise socket.timeout(f"no SUT connected within {args.connect_timeout_s:.0f} s, or the harness stopped waiting for it")
     sock, _ = listener.accept()
     if args.sim_shared_memory:
         try:
@@ -192,7 +195,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     control = ControlChannel(control_listener)
     try:
         # A SUT inside this process goes when we do: there is no link to keep open for it.
-        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut), args.mcap_compression,
+        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut, control), args.mcap_compression,
                       0.0 if inline_sut is not None else args.linger_s)
     finally:
         control.close()

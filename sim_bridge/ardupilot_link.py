@@ -30,17 +30,22 @@ def listen_udp(port: int, host: str = "127.0.0.1") -> socket.socket:
     return sock
 
 
-def accept(sock: socket.socket, timeout_s: float, stall_timeout_s: float) -> "UdpLink":
-    """The link once ArduPilot's first servo frame came (socket.timeout if none within timeout_s),
-    opened by the newest frame waiting: ArduPilot sends its first frame again every second until
-    it has an answer, so those before it are the same frame, stale. What is no servo frame is ignored."""
+def _readable(sock: socket.socket, timeout_s: float) -> bool:
+    return bool(select.select([sock], [], [], timeout_s)[0])
+
+
+def accept(sock: socket.socket, timeout_s: float, stall_timeout_s: float, wait_readable: Callable[[socket.socket, float], bool] = _readable) -> "UdpLink":
+    """The link once ArduPilot's first servo frame came (socket.timeout if none within timeout_s,
+    or wait_readable gave up), opened by the newest frame waiting: ArduPilot sends its first frame
+    again every second until it has an answer, so those before it are the same frame, stale. What
+    is no servo frame is ignored."""
     deadline = time.monotonic() + timeout_s
     first: tuple[bytes, tuple[str, int]] | None = None
     while True:
         wait_s = 0.0 if first is not None else deadline - time.monotonic()
-        if wait_s < 0 or not select.select([sock], [], [], wait_s)[0]:
+        if wait_s < 0 or not (_readable(sock, 0.0) if first is not None else wait_readable(sock, wait_s)):
             if first is None:
-                raise socket.timeout(f"no servo frame within {timeout_s:.0f} s")
+                raise socket.timeout(f"no servo frame within {timeout_s:.0f} s, or the harness stopped waiting for one")
             return UdpLink(sock, first[1], stall_timeout_s, first=first[0])
         datagram, peer = sock.recvfrom(65536)
         try:
@@ -73,7 +78,7 @@ class UdpLink:
         return datagram
 
     def readable(self, timeout_s: float) -> bool:
-        return bool(select.select([self.sock], [], [], timeout_s)[0])
+        return _readable(self.sock, timeout_s)
 
     def idle(self) -> bytes:
         data = b""

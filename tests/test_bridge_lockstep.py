@@ -232,6 +232,39 @@ def test_a_harness_that_hangs_up_mid_flight_ends_the_run_at_once(tmp_path, momen
     assert ended_after_s < 10.0
 
 
+@pytest.mark.parametrize("protocol", ["mavlink", "ardupilot-json"])
+@pytest.mark.parametrize("harness", ["says stop", "hangs up"])
+def test_a_simulator_waiting_for_a_sut_that_never_comes_ends_when_the_harness_gives_up(tmp_path, protocol, harness):
+    """A harness that saw its SUT die at once, or never hear of it, stops the simulator waiting for
+    it: ended at once with a whole log that says so, not after its connect timeout or by a signal
+    that would leave no log (and a campaign's try 5 s longer)."""
+    from harness.flight.bridge_control import BridgeControl
+
+    world_path = tmp_path / "world.json"
+    world_path.write_text(json.dumps(world()))
+    log_path = tmp_path / "never.mcap"
+    with PortLease(first_slot=120) as ports:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+             "--mcap", str(log_path), "--sim-protocol", protocol, "--connect-timeout-s", "120"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)
+        try:
+            control = BridgeControl(ports.control)
+            time.sleep(0.3)  # the simulator is waiting for its SUT by now
+            given_up_at = time.monotonic()
+            if harness == "says stop":
+                control.send(Stop())
+                assert control.wait_for(Finished, 30.0).summary["end_reason"] == "sut_never_connected"
+            control.close()
+            out, _err = bridge.communicate(timeout=30)
+            ended_after_s = time.monotonic() - given_up_at
+        finally:
+            bridge.kill()
+    assert bridge.returncode == 3 and json.loads(out.decode().strip().splitlines()[-1])["end_reason"] == "sut_never_connected"
+    assert json.loads(logs.metadata(log_path)["bridge_summary"]["json"])["end_reason"] == "sut_never_connected"
+    assert ended_after_s < 10.0
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("pace", [1.0, 4.0])
 def test_a_paced_hold_runs_simulated_time_at_its_pace(tmp_path, pace):
