@@ -10,11 +10,14 @@ import socket
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
 
 from conftest import ROOT, alive, described, descendants, port_bound
+from harness.flight import scratch
 from harness.flight.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
 pytestmark = pytest.mark.slow
@@ -39,12 +42,14 @@ def our_processes() -> list[str]:
     return found
 
 
-def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_port(tmp_path):
+def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_port_or_folder(tmp_path):
     assert our_processes() == [], "processes of an earlier test are still running"
     rng = random.Random(7)
     endings = ["finish"] * 10 + ["interrupt"] * 5 + ["kill"] * 5
     rng.shuffle(endings)
+    assert "finish" in endings[len(endings) - endings[::-1].index("kill"):]  # a run after the last kill sweeps what it left
     outcomes = []
+    left_by_kills: list[Path] = []
     for index, ending in enumerate(endings):
         command = [sys.executable, "-m", "harness.tools.cli", "run", str(SCENARIO), "--seed", str(index), "--out", str(tmp_path), "--json"]
         run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=ROOT)
@@ -57,6 +62,8 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
         run.send_signal(signal.SIGINT if ending == "interrupt" else signal.SIGKILL)
         run.communicate(timeout=60)
         outcomes.append(ending)
+        if ending == "kill":  # its own cleanup never runs: its evaluation's folder stays until another run starts
+            left_by_kills += [path for path in Path(tempfile.gettempdir()).iterdir() if (scratch.owner(path.name) or (0, ""))[0] == run.pid]
     deadline = time.monotonic() + 15
     while our_processes() and time.monotonic() < deadline:
         time.sleep(0.2)
@@ -66,6 +73,7 @@ def test_twenty_runs_including_interrupted_and_killed_ones_leave_no_process_or_p
         assert not port_bound(CONTROL_BASE + slot, socket.SOCK_STREAM)
         assert not port_bound(API_BASE + slot, socket.SOCK_DGRAM)
     assert outcomes.count("ok") + outcomes.count("violation") == 10
+    assert left_by_kills and [path for path in left_by_kills if path.exists()] == []
 
 
 def stored(store) -> list[tuple]:

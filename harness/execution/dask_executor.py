@@ -24,6 +24,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Mapping
 
+from harness.flight import scratch
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
@@ -34,7 +35,7 @@ def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str
     """The task: one try in its own process group, ended after timeout_s; its result as JSON data
     (the cluster's workers may run another build of this package than the client)."""
     job = Job.from_json(document)
-    with tempfile.TemporaryDirectory(prefix="stella-task-") as folder:
+    with tempfile.TemporaryDirectory(prefix=scratch.prefix("task")) as folder:
         job_file, result_file = Path(folder) / "job.json", Path(folder) / "result.json"
         job_file.write_text(json.dumps(document))
         process = subprocess.Popen([sys.executable, "-m", "harness.execution.worker", "--job", str(job_file), "--result", str(result_file)],

@@ -29,6 +29,7 @@ from typing import Iterator
 
 from harness.errors import InfrastructureError
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
+from harness.flight import scratch
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.paths import project_root
@@ -70,7 +71,7 @@ def make_base(tag: str = BASE_IMAGE, mirror: str = DEBIAN_MIRROR) -> str:
     """A minimal Debian bookworm with python3, venv and what compiles the hot path, made with debootstrap and imported."""
     if shutil.which("debootstrap") is None:
         raise InfrastructureError("debootstrap is not installed (apt-get install debootstrap)")
-    with tempfile.TemporaryDirectory(prefix="stella-rootfs-") as rootfs:
+    with tempfile.TemporaryDirectory(prefix=scratch.prefix("rootfs")) as rootfs:
         subprocess.run(["debootstrap", "--variant=minbase", "--include=python3,python3-venv,python3-dev,gcc,libc6-dev,ca-certificates", "bookworm", rootfs, mirror],
                        check=True, stdout=subprocess.DEVNULL)
         tar = subprocess.Popen(["tar", "-C", rootfs, "-c", "."], stdout=subprocess.PIPE)
@@ -137,7 +138,7 @@ class DockerExecutor(Executor):
     def _try(self, job: Job) -> EvaluationResult:
         with self._lock:
             core = self._free_cores.pop(0) if self._free_cores else None
-        folder = Path(tempfile.mkdtemp(prefix=f"stella-{job.name}-"))
+        folder = scratch.folder(job.name)
         try:
             (folder / "out").mkdir()
             inside = replace(job, out_dir="/job/out")

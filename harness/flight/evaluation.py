@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
@@ -20,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight import fitness as scoring
-from harness.flight import logs
+from harness.flight import logs, scratch
 from harness.flight.bridge_control import BridgeControl
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
@@ -145,7 +144,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     wall_start = time.monotonic()
     stem = logs.slug(name or f"{world.scenario}-seed{seed}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    workdir = Path(tempfile.mkdtemp(prefix=f"stella-{stem}-"))
+    workdir = scratch.folder(stem)
     log_path = out_dir / f"{stem}.mcap"
     timings: dict[str, float] = {}
     outcome = NOT_FLOWN

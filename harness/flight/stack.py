@@ -10,13 +10,12 @@ import logging
 import os
 import shutil
 import sys
-import tempfile
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterator
 
-from harness.flight import warm
+from harness.flight import scratch, warm
 from harness.flight.api_tap import ApiTap
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortBlock, PortLease
@@ -183,7 +182,7 @@ class _ServingStack:
 
     @classmethod
     def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
-        home = Path(tempfile.mkdtemp(prefix="stella-warm-"))
+        home = scratch.folder("warm")
         contexts = ExitStack()
         contexts.callback(shutil.rmtree, home, ignore_errors=True)
         try:

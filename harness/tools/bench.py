@@ -26,7 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from harness.flight import warm
+from harness.flight import scratch, warm
 from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.flight.stack import transport_problem
@@ -74,7 +74,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     sut_alone = None
     if limit:
         from harness.tools.sut_alone import sut_alone as replay_alone
-    with tempfile.TemporaryDirectory(prefix="stella-bench-") as out:
+    with tempfile.TemporaryDirectory(prefix=scratch.prefix("bench")) as out:
         # A SUT that runs in its own process only (PX4, a command) has no in-memory placement; one
         # that connects over TCP only, no Unix-domain socket or shared memory one.
         system = sut_adapter.system_for(sut.sut)
@@ -242,7 +242,7 @@ def run_campaign_bench(evaluations: int, workers: int | None, scenario: Path | N
     path = scenario or scenarios_dir() / "table3" / "scenario_09.json"
     executor = LocalExecutor(workers)
     config = CampaignConfig((str(path),), ("NSGAII",), evaluations, 1, seed, population, batch=executor.workers, sut=sut)
-    with tempfile.TemporaryDirectory(prefix="stella-bench-campaign-") as folder:
+    with tempfile.TemporaryDirectory(prefix=scratch.prefix("bench-campaign")) as folder:
         started = time.monotonic()
         with Store(Path(folder) / "campaign.db") as store:
             try:
@@ -296,7 +296,7 @@ def run_executor_bench(executor_name: str, workers: int, evaluations: int, scena
     space = SearchSpace(load_logical(path, profile), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     executor = make_executor(executor_name, workers)
-    with tempfile.TemporaryDirectory(prefix="stella-bench-executor-") as out:
+    with tempfile.TemporaryDirectory(prefix=scratch.prefix("bench-executor")) as out:
         jobs = [Job.of(index, space, x, seed=seed, out_dir=out, name=f"bench-{index}", options=RunOptions()) for index in range(evaluations)]
         started = time.monotonic()
         try:

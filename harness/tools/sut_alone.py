@@ -19,14 +19,13 @@ from __future__ import annotations
 import os
 import shutil
 import statistics
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from harness.flight import logs
+from harness.flight import logs, scratch
 from harness.flight.ports import PortLease
 from sim_bridge.__main__ import listen
 from sim_bridge.sut_link import SocketLink
@@ -127,7 +126,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     runs = []
     own_cores = os.sched_getaffinity(0)
     for _ in range(max(1, repeats)):
-        workdir = Path(tempfile.mkdtemp(prefix="stella-alone-"))
+        workdir = scratch.folder("alone")
         try:
             # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
             limited = system.capabilities.instance_count

@@ -13,15 +13,14 @@ arming took. The first stage that fails ends the check and says why; nothing fli
 from __future__ import annotations
 
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any, Callable
 
 from mavsdk.plugins.telemetry import FlightMode
 
 from harness.errors import InfrastructureError
+from harness.flight import scratch
 from harness.flight.bridge_control import BridgeControl
 from harness.flight.evaluation import arm_retry_for
 from harness.flight.results import RunOptions
@@ -48,7 +47,7 @@ class Stage:
 def check(space: SearchSpace, x, options: RunOptions, timeout_s: float = 60.0) -> list[Stage]:
     system = sut_adapter.system_for(options.sut)
     world = world_spec(space, x, 0)
-    workdir = Path(tempfile.mkdtemp(prefix="stella-sut-check-"))
+    workdir = scratch.folder("sut-check")
     stages = [Stage(name, None) for name in (*STAGES, LAST_STAGE[world.drive])]
     start = time.monotonic()
     try:
