@@ -70,9 +70,10 @@ def candidates(space, tmp_path, combination, seed, budget=20, name="store.db", e
 def test_same_seed_same_candidates_and_the_budget_holds(space, tmp_path, combination, budget):
     first, problem = candidates(space, tmp_path, combination, seed=3, budget=budget, name="a.db")
     second, _ = candidates(space, tmp_path, combination, seed=3, budget=budget, name="b.db")
-    other, _ = candidates(space, tmp_path, combination, seed=4, budget=budget, name="c.db")
+    # Another seed draws another first population already: searching on would show nothing more.
+    other, _ = candidates(space, tmp_path, combination, seed=4, budget=6, name="c.db")
     assert first == second
-    assert [r[1] for r in first] != [r[1] for r in other]
+    assert [r[1] for r in first[:6]] != [r[1] for r in other]
     assert len(first) == budget and [r[0] for r in first] == list(range(budget))
     assert problem.best.fitness == min(r[2] for r in first)
 
