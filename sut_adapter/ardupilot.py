@@ -75,7 +75,9 @@ DEFAULT_PARAMS: dict[str, float] = {
 
 
 def resolve_binary(given: str | None) -> Path:
-    """The arducopter binary from a binary, a build folder (build/sitl) or a source tree."""
+    """The arducopter binary from a binary, a build folder (build/sitl) or a source tree, or
+    STELLA_ARDUPILOT_BIN's where none is given."""
+    given = given or os.environ.get("STELLA_ARDUPILOT_BIN")
     if not given:
         raise SutError("ardupilot", "no ArduCopter SITL build given; pass --ardupilot-bin PATH (the arducopter binary or its build folder, "
                                     "e.g. ardupilot/build/sitl) or set STELLA_ARDUPILOT_BIN")
@@ -133,7 +135,7 @@ class ArduPilotSitl:
         unknown = sorted(set(config) - {"ardupilot_bin"})
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes ardupilot_bin (--ardupilot-bin)")
-        self.binary = resolve_binary(config.get("ardupilot_bin") or os.environ.get("STELLA_ARDUPILOT_BIN"))
+        self.binary = resolve_binary(config.get("ardupilot_bin"))
 
     def check_params(self, params: Mapping[str, float]) -> None:
         """Its parameters are known only to the running SUT, which reports a bad one when set."""

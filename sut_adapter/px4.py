@@ -47,7 +47,9 @@ MAVLINK_SCRIPT = "px4-rc.mavlink"
 
 
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
-    """(px4 binary, its etc/ folder with the init scripts) from a binary or build folder path."""
+    """(px4 binary, its etc/ folder with the init scripts) from a binary or build folder path,
+    or STELLA_PX4_BIN's where none is given."""
+    given = given or os.environ.get("STELLA_PX4_BIN")
     if not given:
         raise SutError("px4", "no PX4 build given; pass --px4-bin PATH (the px4 binary or its build folder, e.g. PX4-Autopilot/build/px4_sitl_default) or set STELLA_PX4_BIN")
     path = Path(given).expanduser().resolve()
@@ -78,7 +80,7 @@ class Px4Sitl:
         unknown = sorted(set(config) - {"px4_bin"})
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes px4_bin (--px4-bin)")
-        self.binary, self.etc = resolve_binary(config.get("px4_bin") or os.environ.get("STELLA_PX4_BIN"))
+        self.binary, self.etc = resolve_binary(config.get("px4_bin"))
 
     def command(self, *, instance: int, workdir: Path) -> tuple[list[str], dict[str, str]]:
         """PX4's command line and environment for an instance in workdir (where it writes a script

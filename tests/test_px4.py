@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -18,7 +19,7 @@ from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
 from harness.tools.cli import main
-from sut_adapter.px4 import API_STREAM_RATES_HZ
+from sut_adapter.px4 import API_STREAM_RATES_HZ, resolve_binary
 
 pytestmark = [
     pytest.mark.slow,
@@ -161,3 +162,21 @@ def test_bench_limit_replays_a_px4_flight_to_px4_alone_in_lockstep_and_reports_t
     # (not PX4's paced set-up before it, whose simulated length follows the wall clock).
     assert abs(alone["timed_steps"] - placement["per_run"][0]["run_steps"]) <= 2
     assert 0.0 < placement["median"]["flight_speed_of_sut_alone"] < math.inf
+
+
+def test_a_px4_campaigns_failure_mode_becomes_a_bundle_with_px4s_ulog_and_the_binarys_digest(capsys, tmp_path):
+    store = tmp_path / "px4.db"
+    scenario = str(ROOT / "tests" / "data" / "scenarios" / "wall_range_off_baro_off.json")
+    assert main(["campaign", scenario, "--algorithm", "RANDOM", "--evaluations", "3", "--seed", "3", "--executor", "sequential", "--sut", "px4",
+                 "--store", str(store), "--json"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "findings"
+    assert main(["export-findings", str(store), "--out", str(out), "--json"]) == 0
+    exported = json.loads(capsys.readouterr().out)
+    assert exported["findings"], "with its range sensor off, PX4 meets the wall on the mission in one of these candidates"
+    first = out / exported["findings"][0]
+    assert any(path.stat().st_size > 0 for path in (first / "sut").glob("**/*.ulg")), "PX4's own log goes with the bundle"
+    finding = (first / "FINDING.md").read_text()
+    binary = resolve_binary(os.environ["STELLA_PX4_BIN"])[0]
+    assert hashlib.sha256(binary.read_bytes()).hexdigest() in finding
+    assert f"--px4-bin {binary.parent.parent}" in finding or f"--px4-bin {binary}" in finding

@@ -49,17 +49,21 @@ def build_identity(config: SutConfig) -> dict[str, object]:
 
 def build_record(config: SutConfig) -> dict[str, object]:
     """Where the SUT's build lay and what it was, for a person reading a finding later: its
-    identity, the binary's or source folder's path, and `git describe` of the tree it lies in."""
+    identity, the binary's or source folder's path and digest, and `git describe` of the tree it
+    lies in. The binary is the one flown, also where the environment named it (STELLA_PX4_BIN),
+    which the identity leaves out for the stores made before."""
     record = build_identity(config)
     where: Path | None = None
-    if config.px4_bin:
+    if config.name == "px4":
         from sut_adapter.px4 import resolve_binary
 
         where = resolve_binary(config.px4_bin)[0]
-    elif config.ardupilot_bin:
+        record.setdefault("px4_sha256", _file_digest(where))
+    elif config.name == "ardupilot":
         from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
 
         where = resolve_arducopter(config.ardupilot_bin)
+        record.setdefault("ardupilot_sha256", _file_digest(where))
     elif config.name == "bundled":
         where = Path(config.autopilot_dir) if config.autopilot_dir else Path(__file__).resolve().parents[2]
     if where is not None:
