@@ -15,6 +15,7 @@ from harness.campaigns.campaign import least_explored, run_sequence
 from harness.campaigns.problem import CampaignProblem
 from harness.campaigns.statistics import a12, compare, p_value, relative_performance, spread, table
 from harness.campaigns.store import Store
+from harness.errors import InputError
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.search.optimizers import OPTIMIZERS, _OwnStreams, nsgaii, parse_algorithm, smpso
@@ -303,6 +304,31 @@ def test_a_store_copied_to_another_clone_at_another_path_resumes_there(tmp_path,
     with sqlite3.connect(copy) as db:  # where it was made is kept, as information
         assert db.execute("SELECT scenario_file FROM runs").fetchall() == [(str(here / "sphere.json"),)]
         assert json.loads(db.execute("SELECT sources FROM campaigns").fetchone()[0])["scenario_files"] == [str(here / "sphere.json")]
+
+
+def test_a_rebuilt_firmware_is_another_campaign_also_where_the_environment_names_it(tmp_path, monkeypatch):
+    """A developer rebuilds PX4 with a fix and runs the same command on the same store: the store
+    must not replay the old build's flights as the new one's. Stores made before builds named by
+    STELLA_PX4_BIN counted resume once more, and are known with their build from then on."""
+    from harness.campaigns.campaign import CampaignConfig
+    from sut_adapter import SutConfig
+    from test_sut_adapters import fake_px4_build
+
+    build = fake_px4_build(tmp_path, "exit 0\n")
+    monkeypatch.setenv("STELLA_PX4_BIN", str(build))
+    config = CampaignConfig(scenarios=(str(SPHERE),), algorithms=("RANDOM",), evaluations=3, sut=SutConfig("px4"))
+    before_builds_counted = config.legacy_identities()[1]
+    assert "sut_build" not in before_builds_counted and config.identity()["sut_build"]["px4_sha256"]
+    with Store(tmp_path / "c.db") as store:
+        made = store.campaign(before_builds_counted)
+        assert store.campaign(config.identity(), legacy=config.legacy_identities()) == made  # re-keyed with the build flown
+        assert store.campaign(config.identity(), legacy=config.legacy_identities()) == made
+        (build / "bin" / "px4").write_text("#!/bin/sh\n# rebuilt with the fix\nexit 0\n")
+        with pytest.raises(InputError, match="SUT build"):
+            store.campaign(config.identity(), legacy=config.legacy_identities())
+    # The same bytes from another folder are the same build.
+    moved = shutil.copytree(build, tmp_path / "moved")
+    assert CampaignConfig(scenarios=(str(SPHERE),), algorithms=("RANDOM",), evaluations=3, sut=SutConfig("px4", px4_bin=str(moved))).identity() == config.identity()
 
 
 @pytest.mark.slow

@@ -82,14 +82,18 @@ class CampaignConfig:
         documents = documents or self.read()
         return self._identity(scenarios=[content_key(s.document) for s in documents.scenarios], profile=content_key(documents.profile.document))
 
-    def legacy_identity(self) -> dict[str, Any]:
-        """The identity stores were made with before it was by content: the scenario files' (and
-        the mission plan's) absolute paths and the profile's name. Such a store resumes where it
-        was made."""
-        identity = self._identity(scenarios=[str(Path(s).resolve()) for s in self.scenarios], profile=self.profile)
+    def legacy_identities(self, documents: CampaignDocuments | None = None) -> list[dict[str, Any]]:
+        """The identities stores were made with before: by the scenario files' (and the mission
+        plan's) absolute paths and the profile's name, before they were known by content; and
+        without the firmware's digest where the environment named the build (STELLA_PX4_BIN),
+        before such builds counted. Such a store is that campaign, and is re-keyed by today's."""
+        documents = documents or self.read()
+        by_path = self._identity(scenarios=[str(Path(s).resolve()) for s in self.scenarios], profile=self.profile, from_environment=False)
         if self.mission_plan:
-            identity["mission_plan"] = str(Path(self.mission_plan).resolve())
-        return identity
+            by_path["mission_plan"] = str(Path(self.mission_plan).resolve())
+        by_content = self._identity(scenarios=[content_key(s.document) for s in documents.scenarios], profile=content_key(documents.profile.document),
+                                    from_environment=False)
+        return [by_path, by_content]
 
     def sources(self) -> dict[str, Any]:
         """Where the campaign's documents were read from: information, not identity."""
@@ -99,7 +103,9 @@ class CampaignConfig:
                 **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {}),
                 "sut_build": build_record(self.sut), **({"reference_build": build_record(self.reference)} if self.reference else {})}
 
-    def _identity(self, *, scenarios: list[str], profile: str) -> dict[str, Any]:
+    def _identity(self, *, scenarios: list[str], profile: str, from_environment: bool = True) -> dict[str, Any]:
+        from harness.campaigns.pairs import build_identity, firmware_digest
+
         overrides: dict[str, Any] = {"drive": self.drive} if self.drive else {}
         if self.batch != DEFAULT_BATCH:  # stores made before the batch was a setting resume as they were
             overrides["batch"] = self.batch
@@ -108,10 +114,15 @@ class CampaignConfig:
         if self.sut.fault:
             overrides["sut_fault"] = self.sut.fault
         if self.reference is not None:
-            from harness.campaigns.pairs import build_identity
-
-            overrides.update(reference=build_identity(self.reference), objective=self.objective, subject=build_identity(self.sut))
-        elif self.objective != "subject":  # the optimizer hears other values, so it asks other candidates
+            overrides.update(reference=build_identity(self.reference, from_environment=from_environment), objective=self.objective,
+                             subject=build_identity(self.sut, from_environment=from_environment))
+        else:
+            # Another build is another campaign: a store does not replay the last build's flights
+            # as this one's (a firmware rebuilt with a fix, flown again with the same command).
+            build = firmware_digest(self.sut, from_environment=from_environment)
+            if build:
+                overrides["sut_build"] = build
+        if self.reference is None and self.objective != "subject":  # the optimizer hears other values, so it asks other candidates
             overrides["objective"] = self.objective
         if self.stop_at_reveal:
             overrides["stop_at_reveal"] = True
@@ -233,7 +244,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     documents = config.read()
-    campaign_id = store.campaign(config.identity(documents), legacy=config.legacy_identity(), sources=config.sources())
+    campaign_id = store.campaign(config.identity(documents), legacy=config.legacy_identities(documents), sources=config.sources())
     pairs = None
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache

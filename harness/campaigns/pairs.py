@@ -27,20 +27,25 @@ from harness.flight.results import EvaluationResult
 from sut_adapter import SutConfig
 
 
-def build_identity(config: SutConfig) -> dict[str, object]:
-    """What tells two reference configurations apart, builds included: the SUT's identity plus a
-    digest of the firmware binary's bytes (the same build from another folder is the same build) or
-    the bundled autopilot's source folder."""
-    identity: dict[str, object] = {**config.identity()}
-    if config.px4_bin:
-        from sut_adapter.px4 import resolve_binary
+def firmware_digest(config: SutConfig, *, from_environment: bool = True) -> dict[str, str]:
+    """The digest of the firmware binary the SUT flies, by its bytes (the same build from another
+    folder is the same build): given on the command line, or named by the environment as its
+    adapter reads it (STELLA_PX4_BIN); empty for a SUT without one. from_environment=False: as
+    identities were before builds named by the environment counted (stores made then)."""
+    from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+    from sut_adapter.px4 import resolve_binary as resolve_px4
 
-        binary, _etc = resolve_binary(config.px4_bin)
-        identity["px4_sha256"] = _file_digest(binary)
-    if config.ardupilot_bin:
-        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+    if config.px4_bin or (from_environment and config.name == "px4"):
+        return {"px4_sha256": _file_digest(resolve_px4(config.px4_bin)[0])}
+    if config.ardupilot_bin or (from_environment and config.name == "ardupilot"):
+        return {"ardupilot_sha256": _file_digest(resolve_arducopter(config.ardupilot_bin))}
+    return {}
 
-        identity["ardupilot_sha256"] = _file_digest(resolve_arducopter(config.ardupilot_bin))
+
+def build_identity(config: SutConfig, *, from_environment: bool = True) -> dict[str, object]:
+    """What tells two SUT configurations apart, builds included: the SUT's identity plus its
+    firmware's digest or the bundled autopilot's source folder."""
+    identity: dict[str, object] = {**config.identity(), **firmware_digest(config, from_environment=from_environment)}
     for name in ("autopilot_dir", "command", "hold"):
         if getattr(config, name):
             identity[name] = str(getattr(config, name))
@@ -49,21 +54,16 @@ def build_identity(config: SutConfig) -> dict[str, object]:
 
 def build_record(config: SutConfig) -> dict[str, object]:
     """Where the SUT's build lay and what it was, for a person reading a finding later: its
-    identity, the binary's or source folder's path and digest, and `git describe` of the tree it
-    lies in. The binary is the one flown, also where the environment named it (STELLA_PX4_BIN),
-    which the identity leaves out for the stores made before."""
+    identity, the binary's or source folder's path, and `git describe` of the tree it lies in."""
+    from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
+    from sut_adapter.px4 import resolve_binary as resolve_px4
+
     record = build_identity(config)
     where: Path | None = None
-    if config.name == "px4":
-        from sut_adapter.px4 import resolve_binary
-
-        where = resolve_binary(config.px4_bin)[0]
-        record.setdefault("px4_sha256", _file_digest(where))
-    elif config.name == "ardupilot":
-        from sut_adapter.ardupilot import resolve_binary as resolve_arducopter
-
+    if "px4_sha256" in record:
+        where = resolve_px4(config.px4_bin)[0]
+    elif "ardupilot_sha256" in record:
         where = resolve_arducopter(config.ardupilot_bin)
-        record.setdefault("ardupilot_sha256", _file_digest(where))
     elif config.name == "bundled":
         where = Path(config.autopilot_dir) if config.autopilot_dir else Path(__file__).resolve().parents[2]
     if where is not None:

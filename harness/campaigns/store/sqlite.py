@@ -12,7 +12,7 @@ import sqlite3
 import time
 from contextlib import closing
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -169,24 +169,24 @@ class Store:
 
     # -- campaigns and runs --------------------------------------------------------------------
 
-    def campaign(self, config: Mapping[str, Any], *, legacy: Mapping[str, Any] | None = None, sources: Mapping[str, Any] | None = None) -> int:
+    def campaign(self, config: Mapping[str, Any], *, legacy: Sequence[Mapping[str, Any]] = (), sources: Mapping[str, Any] | None = None) -> int:
         """The campaign with exactly this configuration; a store holds one campaign. A store made
-        with its `legacy` configuration (before campaigns were known by content) is that
+        with one of its `legacy` configurations (as identities were made before) is that
         campaign: it is re-keyed by `config` from now on, so a copy of it resumes anywhere.
         `sources` (where its files lie) is kept as information."""
         text = json.dumps(config, sort_keys=True)
         row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (text,)).fetchone()
         if row:
             return row[0]
-        if legacy is not None:
-            row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (json.dumps(legacy, sort_keys=True),)).fetchone()
+        for old in legacy:
+            row = self.db.execute("SELECT id FROM campaigns WHERE config = ?", (json.dumps(old, sort_keys=True),)).fetchone()
             if row:
                 with self.db:
                     self.db.execute("UPDATE campaigns SET config = ?, sources = ? WHERE id = ?", (text, json.dumps(sources), row[0]))
                 return row[0]
         other = self.db.execute("SELECT config FROM campaigns").fetchone()
         if other:
-            raise InputError([Problem(str(self.path), "", "this store holds a different campaign (other scenarios, algorithms, budget, runs or seed); "
+            raise InputError([Problem(str(self.path), "", "this store holds a different campaign (other scenarios, algorithms, budget, runs, seed or SUT build); "
                                       "resume it with the same arguments or use a new --store")])
         with self.db:
             return self.db.execute("INSERT INTO campaigns (created, config, sources) VALUES (?, ?, ?)",
