@@ -410,7 +410,8 @@ def test_cancel_is_ctrl_c_and_resume_finishes_the_campaign_without_repeating_any
     except ProcessLookupError:
         pass
     cancel.join(timeout=90)
-    assert replies == [{"state": "stopped"}]
+    # Seen once in CI: "finished" (the cause unknown; not reproduced in 9 runs here, 5 of them under load).
+    assert replies == [{"state": "stopped"}], (frozen_at, campaigns.progress("c1")["done"], campaigns._processes["c1"].returncode, campaigns.console_tail("c1"))
     # Stopped by its own Ctrl-C handling (exit 130), not killed after the cancel's grace period,
     # also where the page was started with SIGINT ignored (the background of a script).
     assert campaigns._processes["c1"].returncode == 130
