@@ -43,7 +43,7 @@ def accept(sock: socket.socket, timeout_s: float, stall_timeout_s: float, wait_r
     first: tuple[bytes, tuple[str, int]] | None = None
     while True:
         wait_s = 0.0 if first is not None else deadline - time.monotonic()
-        if wait_s < 0 or not (_readable(sock, 0.0) if first is not None else wait_readable(sock, wait_s)):
+        if wait_s < 0 or not wait_readable(sock, wait_s):
             if first is None:
                 raise socket.timeout(f"no servo frame within {timeout_s:.0f} s, or the harness stopped waiting for one")
             return UdpLink(sock, first[1], stall_timeout_s, first=first[0])
@@ -147,9 +147,10 @@ class JsonSteps:
         return line
 
     def receive_answer(self, sut, waiting_since: float) -> bool:
-        """Read until this step's servo frame; whether it came. A frame sent again means our line was lost: it gets the same line again,
-        and the world takes no second step. A count that starts again is an ArduPilot restarted:
-        recorded, and flown on. What is no servo frame is counted and skipped."""
+        """Read until this step's servo frame; whether it came. A frame sent again means our line
+        was lost: it gets the same line again, and the world takes no second step. A count that
+        starts again is an ArduPilot restarted: recorded, and flown on. What is no servo frame is
+        counted and skipped."""
         world = self.world
         while True:
             try:

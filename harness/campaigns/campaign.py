@@ -122,8 +122,8 @@ class CampaignConfig:
             build = firmware_digest(self.sut, from_environment=from_environment)
             if build:
                 overrides["sut_build"] = build
-        if self.reference is None and self.objective != "subject":  # the optimizer hears other values, so it asks other candidates
-            overrides["objective"] = self.objective
+            if self.objective != "subject":  # the optimizer hears other values, so it asks other candidates
+                overrides["objective"] = self.objective
         if self.stop_at_reveal:
             overrides["stop_at_reveal"] = True
         return {
