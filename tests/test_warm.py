@@ -14,7 +14,7 @@ import pytest
 
 from conftest import ROOT, alive, port_bound
 from test_transport import SIMULATED
-from harness.flight import logs, warm
+from harness.flight import logs, stack
 from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.flight.mavsdk_session import MavsdkSession
@@ -42,7 +42,7 @@ def simulator_pid(result) -> str:
 @pytest.fixture(autouse=True)
 def nothing_kept_after():
     yield
-    warm.close_all()
+    stack.close_kept()
 
 
 @pytest.mark.slow
@@ -110,7 +110,7 @@ def test_closing_what_is_kept_frees_its_process_and_ports(tmp_path, profile):
     result = evaluate(*point(profile, "table3/scenario_31.json", 4), seed=4, out_dir=tmp_path, options=WARM)
     pid = int(simulator_pid(result))
     assert port_bound(free.control)
-    warm.close_all()
+    stack.close_kept()
     deadline = time.monotonic() + 5.0
     while alive(pid) and time.monotonic() < deadline:
         time.sleep(0.05)

@@ -33,7 +33,7 @@ from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from harness.flight import warm
+from harness.flight import stack
 from harness.flight.evaluation import fly
 from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import COULD_NOT_FINISH, PENALTY, Status
@@ -191,4 +191,4 @@ class Executor:
 
     def close(self) -> None:
         self.cancel()
-        warm.close_all()  # what evaluations in this process kept (RunOptions.warm)
+        stack.close_kept()  # what evaluations in this process kept (RunOptions.warm)

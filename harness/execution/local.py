@@ -8,7 +8,7 @@ import multiprocessing.util
 import os
 import signal
 
-from harness.flight import warm
+from harness.flight import stack
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, run_job_with_watchdog
 from sut_adapter.processes import die_with_parent
 
@@ -73,4 +73,4 @@ def _start_worker(parent_pid: int) -> None:
     """A pool worker dies with the campaign; when the pool shuts it down, it first closes the
     stack its evaluations kept warm (RunOptions.warm), so that no process or port outlives it."""
     die_with_parent(signal.SIGKILL, parent_pid)
-    multiprocessing.util.Finalize(None, warm.close_all, exitpriority=0)
+    multiprocessing.util.Finalize(None, stack.close_kept, exitpriority=0)

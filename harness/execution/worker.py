@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from harness.execution.executor import Job, run_job
-from harness.flight import warm
+from harness.flight import stack
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = run_job(Job.from_json(document))
     finally:
-        warm.close_all()  # one job per process: nothing to keep it for
+        stack.close_kept()  # one job per process: nothing to keep it for
     text = json.dumps(result.as_dict())
     if args.result:
         temporary = Path(args.result).with_suffix(".tmp")

@@ -43,7 +43,7 @@ class RunOptions:
     # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
     # fly this process's next evaluation with the same options in it: a fresh world and a fresh
     # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
-    # is kept (warm.close_all); executors do when they close.
+    # is kept (stack.close_kept); executors do when they close.
     warm: bool = False
 
     def __post_init__(self) -> None:

@@ -1,6 +1,14 @@
 """One evaluation's running parts and where they run: the simulator, the API tap, the SUT and
 MAVSDK on a free port block, placed on the evaluation's cores with the transport that carries
 the simulator link (RunOptions.transport, .cores), and a warm stack kept for the next flight.
+
+Warm stacks: starting an evaluation's simulator process costs about a quarter of a second of one
+core in Python imports before the flight begins, and MAVSDK a connection; a campaign pays that on
+every evaluation. A process that flies evaluation after evaluation with the same options keeps one
+stack (the simulator with the SUT inside, serving flight after flight) and hands it to the next
+evaluation if the last flight ended cleanly. One stack per process: a warm evaluation with other
+options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
+before it exits or when its campaign ends.
 """
 
 from __future__ import annotations
@@ -13,9 +21,9 @@ import sys
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-from harness.flight import scratch, warm
+from harness.flight import scratch
 from harness.flight.api_tap import ApiTap
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortBlock, PortLease
@@ -97,12 +105,12 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
     """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
     on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first).
     With options.warm and the SUT in memory, a stack kept from this process's last evaluation
-    flies it instead (harness/flight/warm.py), and is kept for the next if the flight ended cleanly."""
+    flies it instead, and is kept for the next if the flight ended cleanly."""
     world_path = workdir / "world.json"
     world_path.write_text(json.dumps(world.as_dict()))
     bridge_log = workdir / "bridge.mcap"
     if options.warm and in_memory(options, system):
-        with warm.reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
+        with _reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
             yield serving.begin(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)))
         return
     with ExitStack() as contexts:
@@ -209,6 +217,50 @@ class _ServingStack:
         if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
             log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
         self._contexts.close()
+
+
+_kept: tuple[str, "_ServingStack"] | None = None  # (the options it was started for, the stack)
+
+
+@contextmanager
+def _reuse(key: str, start: Callable[[], "_ServingStack"]) -> Iterator["_ServingStack"]:
+    """The stack kept for key if it is still fit, else a new one from start(); kept again
+    afterwards if it is still fit then. Whatever is not kept is closed, however the body ends
+    (an executor's time limit arrives as an exception at any point)."""
+    global _kept
+    kept, _kept = _kept, None
+    stack = None
+    try:
+        if kept is not None:
+            if kept[0] == key and kept[1].reusable():
+                stack = kept[1]
+            else:
+                _close(kept[1])
+            kept = None
+        if stack is None:
+            stack = start()
+        yield stack
+        if stack.reusable():
+            _kept, stack = (key, stack), None
+    finally:
+        for leftover in (kept[1] if kept is not None else None, stack):
+            if leftover is not None:
+                _close(leftover)
+
+
+def close_kept() -> None:
+    """Close the stack this process kept warm, if any."""
+    global _kept
+    kept, _kept = _kept, None
+    if kept is not None:
+        _close(kept[1])
+
+
+def _close(stack: "_ServingStack") -> None:
+    try:
+        stack.close()
+    except Exception as error:  # closing is best effort: its processes die with this one anyway
+        log.warning("closing a kept stack failed: %s", error)
 
 
 def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:

@@ -26,7 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from harness.flight import scratch, warm
+from harness.flight import scratch, stack
 from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.flight.stack import transport_problem
@@ -106,7 +106,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     if physics_alone is None:
                         physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
             finally:
-                warm.close_all()
+                stack.close_kept()
             median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
             workers = machine_cores // cores
             alone_s = median["sim_time_s"] / physics_alone["real_time_factor"]

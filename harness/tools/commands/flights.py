@@ -117,7 +117,7 @@ def _run_pair(args: argparse.Namespace, space, x, options, reference: SutConfig)
 
 def _repeat(args: argparse.Namespace, space, x, options) -> list[EvaluationResult]:
     """The same concrete scenario flown --repeat times with the same seed: what differs is the SUT's."""
-    from harness.flight import warm
+    from harness.flight import stack
     from harness.flight.evaluation import evaluate
     from harness.flight.logs import slug
     from harness.campaigns.statistics import spread
@@ -131,7 +131,7 @@ def _repeat(args: argparse.Namespace, space, x, options) -> list[EvaluationResul
             if not args.json:
                 print(f"repeat {index + 1}/{args.repeat}: {results[-1].status}, fitness {results[-1].fitness:.6f}", file=sys.stderr)
     finally:
-        warm.close_all()
+        stack.close_kept()
     report = {**spread(results), "runs": [result.as_dict() for result in results]}
     lines = [f"{report['repeats']} repeats: " + ", ".join(f"{n} {status}" for status, n in report["statuses"].items())]
     for name in ("fitness", "min_clearance_m"):

@@ -58,7 +58,7 @@ def _with_recorded_sut(args: argparse.Namespace, recorded) -> argparse.Namespace
                      "same command again after a stop and it replays its journal. See docs/shrink.md.")
 def cmd_shrink(args: argparse.Namespace) -> int:
     from harness.campaigns import shrink
-    from harness.flight import warm
+    from harness.flight import stack
     from harness.flight.evaluation import RunOptions
 
     case = shrink.load_case(Path(args.source), args.evaluation, args.seed)
@@ -81,7 +81,7 @@ def cmd_shrink(args: argparse.Namespace) -> int:
     try:
         report = shrinker.shrink(start, case.label)
     finally:
-        warm.close_all()
+        stack.close_kept()
     written = shrink.write_outputs(report, case, out, name, sut.identity(), args.expect)
     if not report.stopped:
         shutil.rmtree(out / f"{name}-flights", ignore_errors=True)
