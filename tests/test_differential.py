@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from harness.flight.differential import CLEARANCE_RESOLUTION_M, Outcome, Reveal, compare, objective_value, record
+from harness.campaigns.regression import verdict
+from harness.flight.differential import CLEARANCE_RESOLUTION_M, Difference, Outcome, Reveal, compare, objective_value, record
+from harness.flight.results import EvaluationResult
 from harness.flight.fitness import PENALTY, Status
 from harness.tools.cli import main
 
@@ -43,6 +45,44 @@ def test_clearances_differ_only_beyond_the_references_measured_spread():
 def test_flight_time_differs_as_a_behaviour_too():
     assert compare([flight(Status.OK, 1.3, 60.0)], [flight(Status.OK, 1.3, 40.0)]).reveals == Reveal.BEHAVIOUR
     assert compare([flight(Status.OK, 1.3, 40.4)], [flight(Status.OK, 1.3, 40.0)]).reveals is None
+
+
+def test_a_behaviour_difference_says_by_what_from_the_subjects_side():
+    reference = [flight(Status.OK, 2.0, 60.0), flight(Status.OK, 2.1, 61.0)]
+    assert compare([flight(Status.MISSION_FAILED, 9.0)], reference).difference == Difference.STATUS
+    assert compare([flight(Status.OK, 1.5, 60.0)], reference).difference == Difference.CLOSER
+    assert compare([flight(Status.OK, 3.0, 60.0)], reference).difference == Difference.FARTHER
+    assert compare([flight(Status.OK, 2.0, 50.0)], reference).difference == Difference.SHORTER
+    assert compare([flight(Status.OK, 2.0, 70.0)], reference).difference == Difference.LONGER
+    assert compare([flight(Status.VIOLATION, 0.4)], reference).difference is None  # unsafe: the safety distance says it
+
+
+def result_of(status: Status, clearance: float, time_s: float) -> EvaluationResult:
+    return EvaluationResult(status=status, fitness=clearance - 1.0, why=None, min_clearance_m=clearance, min_clearance_at_s=1.0,
+                            min_clearance_obstacle="obstacle_1", sim_time_s=time_s, wall_time_s=1.0, real_time_factor=None, seed=0,
+                            log_path=None, scenario="wall", sut="px4")
+
+
+# What the fix of PX4's db13b9cb50 did on its own regression cases: its parent was blocked where
+# the fix flew on, and the fix flew 3.4 s longer than on the two flights the case was made from.
+REFERENCE = {"level": "behaviour", "min_clearance_m": 15.70, "max_clearance_m": 15.74, "tolerance_m": 0.05, "statuses": ["ok"],
+             "sim_time_s": [79.1, 79.7], "time_tolerance_s": 1.0}
+
+
+def test_a_revealing_case_holds_the_build_to_what_revealed_it_and_to_the_references_safety():
+    # GIVEN a case revealed by the subject's status: the good build passes it although its flight
+    # time lies beyond the two reference flights' spread; the bad build, blocked, fails it
+    by_status = {**REFERENCE, "difference": "status"}
+    assert verdict("as_reference", result_of(Status.OK, 15.78, 83.1), 1.0, by_status) is None
+    assert "not flown to its end" in verdict("as_reference", result_of(Status.MISSION_FAILED, 13.2, 46.0), 1.0, by_status)
+    # a case revealed by a longer flight fails a longer flight only
+    by_time = {**REFERENCE, "difference": "longer"}
+    assert "flew 83.1 s" in verdict("as_reference", result_of(Status.OK, 15.72, 83.1), 1.0, by_time)
+    assert verdict("as_reference", result_of(Status.OK, 15.72, 70.0), 1.0, by_time) is None
+    # coming closer than the reference fails whatever revealed the case
+    assert "came closer" in verdict("as_reference", result_of(Status.OK, 12.0, 79.5), 1.0, by_time)
+    # a case written before `difference` holds the flight to every aspect, as it did
+    assert "flew 83.1 s" in verdict("as_reference", result_of(Status.OK, 15.78, 83.1), 1.0, REFERENCE)
 
 
 def test_a_side_that_could_not_finish_reveals_nothing():

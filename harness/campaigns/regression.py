@@ -18,6 +18,7 @@ import numpy as np
 
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
+from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
@@ -106,8 +107,9 @@ def verdict(expect: str, result: EvaluationResult, safety_distance_m: float, ref
 def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: str) -> str | None:
     """The flight against what the reference build did: its safety distance and mission kept where
     the reference kept them, its minimum clearance kept within the reference's tolerance; for a
-    behaviour difference also the same end, and clearance and flight time no farther from the
-    reference's than its spread."""
+    behaviour difference also not that difference again (`difference`: the same end as the
+    reference's, or clearance or flight time on the subject's side of the reference's no farther
+    than its spread). Cases written before `difference` hold the flight to all of these."""
     statuses = set(reference["statuses"])
     if result.status == Status.VIOLATION and Status.VIOLATION not in statuses:
         return f"safety distance violated where the reference build kept it: {what}"
@@ -119,27 +121,31 @@ def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: 
                 f"- {reference['tolerance_m']:.3f} m tolerance: {what}")
     if reference.get("level") != "behaviour":
         return None
-    if result.status not in statuses:
+    held_to = {Difference(reference["difference"])} if "difference" in reference else set(Difference)
+    if Difference.STATUS in held_to and result.status not in statuses:
         return f"ended {result.status} where the reference build ended {'/'.join(sorted(statuses))}: {what}"
     ceiling = reference["max_clearance_m"] + reference["tolerance_m"]
-    if result.min_clearance_m > ceiling:
+    if Difference.FARTHER in held_to and result.min_clearance_m > ceiling:
         return f"kept farther away than the reference build: min clearance above its {reference['max_clearance_m']:.3f} m + {reference['tolerance_m']:.3f} m: {what}"
     shortest, longest = reference["sim_time_s"]
-    if not shortest - reference["time_tolerance_s"] <= result.sim_time_s <= longest + reference["time_tolerance_s"]:
+    if (Difference.SHORTER in held_to and result.sim_time_s < shortest - reference["time_tolerance_s"]
+            or Difference.LONGER in held_to and result.sim_time_s > longest + reference["time_tolerance_s"]):
         return f"flew {result.sim_time_s:.1f} s where the reference build flew {shortest:.1f}-{longest:.1f} s: {what}"
     return None
 
 
 def revealing_case(case: StoredEvaluation) -> dict[str, Any]:
     """The `reference` entry of a revealing case (expect as_reference) from its stored pair."""
-    from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S
-
     flights = case.differential["reference"]
     clearances = [f["min_clearance_m"] for f in flights]
     times = [f["sim_time_s"] for f in flights]
-    return {"level": str(case.reveals), "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
-            "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
-            "sim_time_s": [min(times), max(times)], "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
+    entry = {"level": str(case.reveals), "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
+             "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
+             "sim_time_s": [min(times), max(times)], "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
+    difference = compare([Outcome.from_dict(f) for f in case.differential["subject"]], [Outcome.from_dict(f) for f in flights]).difference
+    if difference is not None:
+        entry["difference"] = str(difference)
+    return entry
 
 
 def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, StoredEvaluation]]]:

@@ -44,6 +44,18 @@ class Reveal(StrEnum):
     BEHAVIOUR = "behaviour"
 
 
+class Difference(StrEnum):
+    """What a behaviour difference was, seen from the subject: what its regression case holds
+    the subject to, and nothing else, since PX4's flights of one build vary beyond two flights'
+    spread in whatever the pair did not differ by."""
+
+    STATUS = "status"
+    CLOSER = "closer"
+    FARTHER = "farther"
+    SHORTER = "shorter"
+    LONGER = "longer"
+
+
 @dataclass(frozen=True)
 class Outcome:
     """What one flight of one side gave, as far as a comparison needs it."""
@@ -72,20 +84,22 @@ class Verdict:
     reveals: Reveal | None
     why: str
     comparable: bool  # both sides flew to a recorded end, so there is something to compare
+    difference: Difference | None = None  # with reveals BEHAVIOUR: by what
 
 
 def _interval(values: Sequence[float]) -> tuple[float, float]:
     return min(values), max(values)
 
 
-def _apart(subject: Sequence[float], reference: Sequence[float], resolution: float) -> float | None:
+def _apart(subject: Sequence[float], reference: Sequence[float], resolution: float) -> tuple[float, bool] | None:
     """How far the subject's values lie outside the reference's, beyond the reference's spread
-    and the resolution (None: they do not)."""
+    and the resolution, and whether above them (None: they do not)."""
     s_low, s_high = _interval(subject)
     r_low, r_high = _interval(reference)
     margin = max(resolution, r_high - r_low)
-    gap = max(r_low - s_high, s_low - r_high)
-    return gap if gap > margin else None
+    below, above = r_low - s_high, s_low - r_high
+    gap = max(below, above)
+    return (gap, above > below) if gap > margin else None
 
 
 def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict:
@@ -106,16 +120,19 @@ def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict
     reference_statuses = {o.status for o in reference}
     if not subject_statuses & reference_statuses:
         return Verdict(Reveal.BEHAVIOUR, f"the subject ends {'/'.join(sorted(subject_statuses))} where the reference ends "
-                                         f"{'/'.join(sorted(reference_statuses))}", True)
-    gap = _apart([o.min_clearance_m for o in subject], [o.min_clearance_m for o in reference], CLEARANCE_RESOLUTION_M)
-    if gap is not None:
+                                         f"{'/'.join(sorted(reference_statuses))}", True, Difference.STATUS)
+    apart = _apart([o.min_clearance_m for o in subject], [o.min_clearance_m for o in reference], CLEARANCE_RESOLUTION_M)
+    if apart is not None:
+        gap, farther = apart
         return Verdict(Reveal.BEHAVIOUR, f"min clearance {_interval([o.min_clearance_m for o in subject])[0]:.2f} m against the reference's "
-                                         f"{_interval([o.min_clearance_m for o in reference])[0]:.2f} m ({gap:.2f} m beyond its spread)", True)
+                                         f"{_interval([o.min_clearance_m for o in reference])[0]:.2f} m ({gap:.2f} m beyond its spread)", True,
+                       Difference.FARTHER if farther else Difference.CLOSER)
     if subject_statuses <= FLOWN_TO_THE_END and reference_statuses <= FLOWN_TO_THE_END:
-        gap = _apart([o.sim_time_s for o in subject], [o.sim_time_s for o in reference], TIME_RESOLUTION_S)
-        if gap is not None:
+        apart = _apart([o.sim_time_s for o in subject], [o.sim_time_s for o in reference], TIME_RESOLUTION_S)
+        if apart is not None:
+            gap, longer = apart
             return Verdict(Reveal.BEHAVIOUR, f"flight time {subject[0].sim_time_s:.1f} s against the reference's {reference[0].sim_time_s:.1f} s "
-                                             f"({gap:.1f} s beyond its spread)", True)
+                                             f"({gap:.1f} s beyond its spread)", True, Difference.LONGER if longer else Difference.SHORTER)
     return Verdict(None, "no difference beyond the reference's spread", True)
 
 
