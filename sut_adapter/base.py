@@ -77,6 +77,9 @@ class SutHandle:
     stderr_tail: Callable[[], str] = lambda: ""
     pids: list[int] = field(default_factory=list)
     mavlink_params: Mapping[str, int | float] = field(default_factory=dict)
+    # Whether it has finished starting up: a SUT may speak MAVLink before it answers all of it
+    # (PX4 drops parameter messages until the end of its start-up script).
+    booted: Callable[[], bool] = lambda: True
 
 
 def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:

@@ -87,6 +87,29 @@ class ManagedProcess:
         return non_empty([self.stdout_path, self.stderr_path])
 
 
+def printed(path: Path, text: str) -> Callable[[], bool]:
+    """Whether a process has written text to its console file (path) yet; each call reads only
+    what came since the last, and a text written in pieces counts once whole."""
+    needle = text.encode()
+    offset, tail, seen = 0, b"", False
+
+    def check() -> bool:
+        nonlocal offset, tail, seen
+        if not seen:
+            try:
+                with open(path, "rb") as console:
+                    console.seek(offset)
+                    data = console.read()
+            except OSError:
+                return False
+            offset += len(data)
+            window = tail + data
+            seen = needle in window
+            tail = window[-(len(needle) - 1):] if len(needle) > 1 else b""
+        return seen
+    return check
+
+
 def non_empty(paths: list[Path]) -> list[Path]:
     return [p for p in paths if p.exists() and p.stat().st_size > 0]
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Mapping
 
 from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
-from sut_adapter.processes import ManagedProcess, non_empty
+from sut_adapter.processes import ManagedProcess, non_empty, printed
 
 AIRFRAME = "10016"
 MODEL = "none_iris"
@@ -44,6 +44,12 @@ API_STREAM_RATES_HZ = {"ATTITUDE": 10, "ATTITUDE_QUATERNION": 10, "HIGHRES_IMU":
                        "ODOMETRY": 10}
 # The script PX4's rcS sources to start its MAVLink instances, found first on PATH.
 MAVLINK_SCRIPT = "px4-rc.mavlink"
+# What PX4 prints once its rcS has returned, whatever it returned (INFO or ERROR). PX4's MAVLink drops parameter
+# messages unanswered until `mavlink boot_complete`, near the end of rcS; its API link sends
+# heartbeats from the start of px4-rc.mavlink, and the simulated clock runs ahead of rcS, so the
+# harness can find PX4 and reach its hold in between: its first PARAM_SET went unanswered and
+# MAVSDK sent it again only after its 0.5 s timeout.
+STARTED_UP = "[px4] Startup script returned"
 
 
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
@@ -106,7 +112,7 @@ class Px4Sitl:
         argv, env = self.command(instance=instance, workdir=px4_dir)
         process = ManagedProcess("px4", argv, log_dir=workdir, cwd=px4_dir, env=env)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
-                             mavlink_params={**DEFAULT_PARAMS, **params})
+                             mavlink_params={**DEFAULT_PARAMS, **params}, booted=printed(process.stdout_path, STARTED_UP))
 
 
 def collect_artifacts(px4_dir: Path, console_logs: list[Path]) -> list[Path]:

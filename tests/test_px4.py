@@ -51,6 +51,10 @@ def test_px4_flies_a_table3_scenario_with_a_finite_fitness_a_log_and_its_ulog(ca
     for name, rate_hz in API_STREAM_RATES_HZ.items():
         assert received[name] <= 1.2 * rate_hz * result["sim_time_s"], (name, received[name])
     assert received["ATTITUDE"] >= 0.8 * API_STREAM_RATES_HZ["ATTITUDE"] * (result["sim_time_s"] - 5.0)
+    # Each parameter was asked for once: PX4 had finished starting up and answered the first.
+    asked = Counter(message.param_id for _t, _ns, m in logs.messages(Path(result["log_path"]), ["/mavlink/api"]) if m["direction"] == "to_sut"
+                    for message in parser.parse_buffer(bytes.fromhex(m["hex"])) or [] if message.get_type() == "PARAM_SET")
+    assert asked and set(asked.values()) == {1}, asked
 
 
 def test_a_small_campaign_completes_against_px4_with_two_instances(tmp_path):

@@ -146,6 +146,38 @@ def test_px4s_rcs_sources_its_own_mavlink_start_up_and_then_the_adapters_lower_a
     assert API_STREAM_RATES_HZ["ATTITUDE"] < 100 and "DISTANCE_SENSOR" not in API_STREAM_RATES_HZ  # its relayed ranges stay as PX4 sends them
 
 
+@pytest.mark.parametrize("returned", ["INFO  [px4] Startup script returned successfully", "ERROR [px4] Startup script returned with return value: 1"])
+def test_px4_counts_as_booted_only_once_its_start_up_script_returned(tmp_path, returned):
+    """PX4 heartbeats on its API link before its rcS ends, and drops parameter messages until then."""
+    build = fake_px4_build(tmp_path, f"""\
+        echo "INFO  [mavlink] mode: Onboard, data rate: 4000000 B/s on udp port 14582 remote port 14542"
+        until [ -e go ]; do sleep 0.01; done
+        printf '{returned[:30]}'
+        until [ -e go-on ]; do sleep 0.01; done
+        echo '{returned[30:]}'
+        sleep 10
+        """)
+    workdir = tmp_path / "evaluation"
+    workdir.mkdir()
+    handle = Px4Sitl({"px4_bin": str(build)}).start(sim_port=4562, api_port=14542, instance=2, workdir=workdir, params={})
+    console = workdir / "px4.stdout.log"
+
+    def after(printed: str) -> bool:
+        deadline = time.monotonic() + 10.0
+        while printed not in console.read_text() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return handle.booted()
+
+    try:
+        assert not after("mode: Onboard")
+        (workdir / "px4" / "go").touch()
+        assert not after(returned[:30])
+        (workdir / "px4" / "go-on").touch()
+        assert after(returned)
+    finally:
+        handle.stop()
+
+
 def test_px4_ulogs_and_console_are_its_artifacts(tmp_path):
     (tmp_path / "log" / "2026-11-22").mkdir(parents=True)
     (tmp_path / "log" / "2026-11-22" / "10_00_01.ulg").write_bytes(b"ULog\x01\x12\x35")

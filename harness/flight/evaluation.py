@@ -30,7 +30,7 @@ from harness.scenario.world import world_spec
 from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
-from sut_adapter import SystemUnderTest
+from sut_adapter import SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -42,11 +42,21 @@ ARDUCOPTER_POSITION_MODES = (5, 16)
 # arming before the denial counts: PX4's arming checks flicker just after its start-up. Held
 # frozen, a SUT cannot change its mind, so its first answer counts.
 ARM_RETRY_S = 10.0
+BOOT_POLL_S = 0.005
 
 
 def arm_retry_for(system: SystemUnderTest) -> float:
     """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
     return ARM_RETRY_S if system.capabilities.hold_mode == "paced" else 0.0
+
+
+def wait_booted(sut: SutHandle, timeout_s: float, alive: Callable[[], bool]) -> None:
+    """Until the SUT has finished starting up (SutHandle.booted), or raise InfrastructureError."""
+    deadline = time.monotonic() + timeout_s
+    while not sut.booted():
+        if time.monotonic() > deadline or not alive():
+            raise InfrastructureError(f"the SUT did not finish starting up within {timeout_s:.0f} s")
+        time.sleep(BOOT_POLL_S)
 
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
@@ -263,6 +273,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if failure is not None:
                 return FlightOutcome(failure, control_summary(control), {})
         try:
+            wait_booted(sut, options.setup_timeout_s, alive)
             session.set_params(sut.mavlink_params)
             if not system.capabilities.injects_failures:
                 session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events

@@ -22,7 +22,7 @@ from mavsdk.plugins.telemetry import FlightMode
 from harness.errors import InfrastructureError
 from harness.flight import scratch
 from harness.flight.bridge_control import BridgeControl
-from harness.flight.evaluation import arm_retry_for
+from harness.flight.evaluation import arm_retry_for, wait_booted
 from harness.flight.results import RunOptions
 from harness.flight.stack import Stack, simulation_stack
 from harness.flight.mavsdk_session import mission_items
@@ -87,7 +87,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
             passed(index, f"at simulated t={seen.t:.3f} s")
         steps: list[tuple[int, str, Callable[[], Any]]] = [
             (3, "API heartbeat", lambda: session.discover(timeout_s, alive)),
-            (4, "health ok", lambda: (session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
+            (4, "health ok", lambda: (wait_booted(sut, timeout_s, alive), session.set_params(sut.mavlink_params), session.wait_healthy(timeout_s))),
             (5, "armable", lambda: _arm_and_disarm(session, arm_retry_s)),
             (6, "mission upload ok", lambda: session.mission.upload_mission(mission_items(world, system.capabilities.mission_home_item))) if world.drive == "mission" else
             (6, "position mode with stick input accepted", lambda: _position_mode_by_stick(session, control, timeout_s, pilot_params, pilot_mode)),
