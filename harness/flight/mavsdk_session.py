@@ -192,15 +192,13 @@ class MavsdkSession:
         self.arm(arm_retry_s)
         self.mission.start_mission()
 
-    def arm_and_take_off(self, altitude_m: float, arm_retry_s: float, altitude_param: str | None = "MIS_TAKEOFF_ALT") -> None:
+    def arm_and_take_off(self, arm_retry_s: float, command_altitude_m: float | None = None) -> None:
         """The pilot drive's start: the rest is the simulated pilot's, at the simulation's clock.
-        The altitude goes in MIS_TAKEOFF_ALT, which PX4 and the bundled autopilot read for a
-        takeoff without one (MAVSDK's set_takeoff_altitude did not reach PX4 v1.16 here); for a
-        SUT without such a parameter (altitude_param None: ArduPilot) in the take-off command."""
-        if altitude_param is None:
-            self.action.set_takeoff_altitude(float(altitude_m))
-        else:
-            self.set_params({altitude_param: float(altitude_m)})
+        A SUT that reads its take-off altitude from a parameter (PX4's and the bundled
+        autopilot's MIS_TAKEOFF_ALT) has it set with the set-up's parameters; one without such a
+        parameter (ArduPilot) gets command_altitude_m in the take-off command."""
+        if command_altitude_m is not None:
+            self.action.set_takeoff_altitude(float(command_altitude_m))
         self.arm(arm_retry_s)
         self.action.takeoff()
 
