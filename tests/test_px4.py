@@ -18,6 +18,7 @@ from harness.campaigns.store import Store
 from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
+from harness.scenario.world import load_concrete, world_spec
 from harness.tools.cli import main
 from sut_adapter.px4 import API_STREAM_RATES_HZ, resolve_binary
 
@@ -83,6 +84,12 @@ def test_px4_flies_into_a_wall_on_a_mission_and_its_collision_prevention_stops_t
     pilot = run_wall(capsys, tmp_path, "pilot")
     assert pilot["min_clearance_m"] > 0.0 and pilot["status"] != "violation", pilot["why"]
     assert pilot["status"] in ("ok", "mission_failed"), pilot["why"]
+    # to the scenario's take-off altitude, not PX4's default 2.5 m (a parameter set just before
+    # the take-off command reaches PX4's navigator too late)
+    space, x = load_concrete(Path(WALL), drive="pilot")
+    altitude = world_spec(space, x, 0).mission.takeoff_altitude_m
+    [console] = (tmp_path / "pilot").rglob("px4.stdout.log")
+    assert f"Using default takeoff altitude: {altitude:.1f} m" in console.read_text()
 
 
 def test_sut_check_with_the_pilot_drive_sees_px4_accept_position_mode_from_the_rc_link(capsys):
