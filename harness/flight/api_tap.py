@@ -90,6 +90,11 @@ class ApiTap:
         self._sut_side.close()
         self._client_side.close()
 
+    @property
+    def sut_time_ns(self) -> int:
+        """The SUT's own clock as its API link last told it (0 before it spoke)."""
+        return self._clock.time_ns
+
     def restart(self) -> None:
         """A new SUT behind the same port (a warm stack's next flight): new records, its own clock,
         and nothing relayed to it before it speaks."""

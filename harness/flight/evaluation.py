@@ -20,6 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight import fitness as scoring
 from harness.flight import logs, scratch
+from harness.flight.api_tap import ApiTap
 from harness.flight.bridge_control import BridgeControl
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
@@ -43,11 +44,21 @@ ARDUCOPTER_POSITION_MODES = (5, 16)
 # frozen, a SUT cannot change its mind, so its first answer counts.
 ARM_RETRY_S = 10.0
 BOOT_POLL_S = 0.005
+PARAMS_APPLIED_NS = 300_000_000  # of the SUT's clock: many cycles of PX4's slowest module loops
 
 
 def arm_retry_for(system: SystemUnderTest) -> float:
     """How long a flight (and `stella sut check`) asks again while this SUT denies arming."""
     return ARM_RETRY_S if system.capabilities.hold_mode == "paced" else 0.0
+
+
+def wait_for_sut_clock(tap: ApiTap, until_ns: int, timeout_s: float, alive: Callable[[], bool]) -> None:
+    """Until the SUT's own clock (its time_boot_ms on the API link) reaches until_ns, or raise InfrastructureError."""
+    deadline = time.monotonic() + timeout_s
+    while tap.sut_time_ns < until_ns:
+        if time.monotonic() > deadline or not alive():
+            raise InfrastructureError(f"the SUT's clock did not reach {until_ns / 1e9:.2f} s within {timeout_s:.0f} s")
+        time.sleep(BOOT_POLL_S)
 
 
 def wait_booted(sut: SutHandle, timeout_s: float, alive: Callable[[], bool]) -> None:
@@ -281,14 +292,19 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             elif any(f.delivery == "sut" for f in world.failures or ()):
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
             if world.drive == "pilot":
-                # The take-off altitude goes with the set-up's parameters, not just before the
-                # take-off: PX4's navigator applies a parameter some steps after acknowledging it,
-                # and set 3-10 ms before the command it took off to its default 2.5 m in 495 of
-                # 720 flights (the CP mutants' screening, 2026-11).
+                # The take-off altitude goes with the set-up's parameters (see the wait below).
                 altitude = {takeoff_altitude_param: float(world.mission.takeoff_altitude_m)} if takeoff_altitude_param else {}
                 # A parameter the user set (--sut-param) is the user's to decide.
                 session.set_params({name: value for name, value in {**pilot_params, **altitude}.items() if name not in options.sut.params})
+            params_acknowledged_ns = stack.tap.sut_time_ns
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
+            if system.capabilities.hold_mode == "paced" and params_acknowledged_ns > 0:  # 0: no clock on its API link
+                # PX4's modules apply a parameter some steps after MAVLink acknowledged it: with
+                # MIS_TAKEOFF_ALT set 3-10 ms before the take-off command, PX4 took off to its
+                # default 2.5 m in 495 of 720 pilot flights (the CP mutants' screening, 2026-11),
+                # and still in 2 of 12 with it set before a health wait that found PX4 healthy at
+                # once. Its clock runs during a paced hold, so this wait costs milliseconds.
+                wait_for_sut_clock(stack.tap, params_acknowledged_ns + PARAMS_APPLIED_NS, options.setup_timeout_s, alive)
             if world.drive == "pilot":
                 session.arm_and_take_off(arm_retry_s, None if takeoff_altitude_param else world.mission.takeoff_altitude_m)
             else:
