@@ -53,5 +53,8 @@ docker: setup
 		for i in $$(seq 60); do docker info >/dev/null 2>&1 && break; sleep 1; done; docker info >/dev/null)
 	$(BIN)/stella docker build --make-base
 
+# The tests run two at a time, a test module to a worker (most fly on one core); those marked
+# `alone` count every process and port of the machine, so they run afterwards by themselves.
 test: setup browser docker
-	$(BIN)/pytest
+	$(BIN)/pytest -n auto --dist loadfile -m "not alone"
+	$(BIN)/pytest -m alone

@@ -20,7 +20,7 @@ from conftest import ROOT, alive, described, descendants, port_bound
 from harness.flight import scratch
 from harness.flight.ports import API_BASE, CONTROL_BASE, SIM_BASE
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.alone]
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_05.json"
 
 
