@@ -39,6 +39,7 @@ def no_leftovers() -> None:
     assert slot == 0 and not port_bound(4560)
 
 
+@pytest.mark.alone  # no_leftovers: every port block of the machine free
 def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
     [(_job, result)] = list(executor.run([fig4_job(tmp_path, profile, sut=SutConfig("command", command=SILENT_SUT), setup_timeout_s=3.0)]))
@@ -48,6 +49,7 @@ def test_a_sut_that_never_connects_is_retried_and_each_cause_recorded(tmp_path, 
     no_leftovers()
 
 
+@pytest.mark.alone  # no_leftovers: every port block of the machine free
 def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
     executor = SequentialExecutor(attempts=2)
     options = {"sut": SutConfig("command", command=HANGING_SUT, hold="frozen"), "setup_timeout_s": 5.0}
@@ -57,6 +59,7 @@ def test_a_sut_that_hangs_is_classified_and_retried(tmp_path, profile):
     no_leftovers()
 
 
+@pytest.mark.alone  # no_leftovers: every port block of the machine free
 def test_the_hard_limit_per_try_ends_a_try_and_frees_everything(tmp_path, profile):
     executor = SequentialExecutor(attempts=1, timeout_s=2.0)
     started = time.monotonic()
@@ -66,6 +69,7 @@ def test_the_hard_limit_per_try_ends_a_try_and_frees_everything(tmp_path, profil
     no_leftovers()
 
 
+@pytest.mark.alone  # no_leftovers: every port block of the machine free
 def test_a_worker_killed_mid_evaluation_is_replaced_and_the_evaluation_flown_again(tmp_path, profile):
     executor = LocalExecutor(workers=1, attempts=2)
     try:
@@ -139,6 +143,7 @@ def test_the_executor_benchmark_reports_its_figures(capsys):
     assert report["overhead_per_evaluation_s"] >= 0.0
 
 
+@pytest.mark.alone  # no_leftovers: every port block of the machine free
 def test_cancel_drops_what_has_not_started_and_reports_what_ran(tmp_path, profile):
     executor = LocalExecutor(workers=1)
     jobs = [fig4_job(tmp_path, profile, key=k) for k in range(6)]
