@@ -43,7 +43,7 @@ ARDUCOPTER_POSITION_MODES = (5, 16)
 # arming before the denial counts: PX4's arming checks flicker just after its start-up. Held
 # frozen, a SUT cannot change its mind, so its first answer counts.
 ARM_RETRY_S = 10.0
-BOOT_POLL_S = 0.005
+SETUP_POLL_S = 0.005
 PARAMS_APPLIED_NS = 300_000_000  # of the SUT's clock: many cycles of PX4's slowest module loops
 
 
@@ -52,22 +52,22 @@ def arm_retry_for(system: SystemUnderTest) -> float:
     return ARM_RETRY_S if system.capabilities.hold_mode == "paced" else 0.0
 
 
+def _wait_until(done: Callable[[], bool], timeout_s: float, alive: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        if time.monotonic() > deadline or not alive():
+            raise InfrastructureError(f"{what} within {timeout_s:.0f} s")
+        time.sleep(SETUP_POLL_S)
+
+
 def wait_for_sut_clock(tap: ApiTap, until_ns: int, timeout_s: float, alive: Callable[[], bool]) -> None:
     """Until the SUT's own clock (its time_boot_ms on the API link) reaches until_ns, or raise InfrastructureError."""
-    deadline = time.monotonic() + timeout_s
-    while tap.sut_time_ns < until_ns:
-        if time.monotonic() > deadline or not alive():
-            raise InfrastructureError(f"the SUT's clock did not reach {until_ns / 1e9:.2f} s within {timeout_s:.0f} s")
-        time.sleep(BOOT_POLL_S)
+    _wait_until(lambda: tap.sut_time_ns >= until_ns, timeout_s, alive, f"the SUT's clock did not reach {until_ns / 1e9:.2f} s")
 
 
 def wait_booted(sut: SutHandle, timeout_s: float, alive: Callable[[], bool]) -> None:
     """Until the SUT has finished starting up (SutHandle.booted), or raise InfrastructureError."""
-    deadline = time.monotonic() + timeout_s
-    while not sut.booted():
-        if time.monotonic() > deadline or not alive():
-            raise InfrastructureError(f"the SUT did not finish starting up within {timeout_s:.0f} s")
-        time.sleep(BOOT_POLL_S)
+    _wait_until(sut.booted, timeout_s, alive, "the SUT did not finish starting up")
 
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
