@@ -4,8 +4,8 @@ around what is in the way.
 
 The harness arms the vehicle and commands a takeoff; once the vehicle is airborne and has
 stopped climbing the pilot flips the mode switch to Position and pushes the sticks towards
-the route, facing where it flies and holding the route's altitude with the throttle stick; near the goal it slows down, and over the goal it flips the
-switch to Land. Its aim is a line parallel to the route, `aim_offset_m` to the right of it
+the route, facing where it flies and holding the route's altitude with the throttle stick; near the goal it slows down and lets go in time to stop over it,
+and over the goal it flips the switch to Land. Its aim is a line parallel to the route, `aim_offset_m` to the right of it
 (negative: left), which fades into the route over the last CONVERGE_M before the goal; its
 aggressiveness is the largest stick deflection it uses, `max_stick` (0..1).
 
@@ -58,6 +58,11 @@ SLOWDOWN_M = 20.0
 MIN_STICK = 0.3  # well above PX4's 0.1 stick dead zone (MPC_HOLD_DZ), so the last metres are flown
 GOAL_RADIUS_M = 1.0
 SETTLED_SPEED_M_S = 0.5
+# The braking the pilot counts on when it lets go of the sticks on the last leg: below PX4's
+# MPC_ACC_HOR (3) and ArduCopter's LOIT_BRK_ACCEL (2.5), so it lets go early rather than late.
+# How fast the smallest stick flies differs by SUT (about 2 m/s in PX4's Position mode, 3.7 m/s in
+# ArduCopter's Loiter); a pilot who kept pushing into the goal circle would orbit it.
+BRAKE_M_S2 = 2.0
 AIRBORNE_M = 1.0
 ALTITUDE_GAIN = 0.3  # throttle stick per metre below the route's altitude
 YAW_GAIN = 1.0  # yaw stick per radian of heading error
@@ -175,6 +180,9 @@ class Pilot:
         if to_goal <= GOAL_RADIUS_M and speed < SETTLED_SPEED_M_S:
             self.phase, self._settled_at_s = "settle", time_s
             return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_POSITION)
+        throttle = _clip(ALTITUDE_GAIN * (self.altitudes[self.leg + 1] - altitude), self.max_stick)
+        if self.leg == len(self.points) - 2 and to_goal <= GOAL_RADIUS_M / 2 + self._stopping_m(goal_n - north, goal_e - east, to_goal, state):
+            return RcFrame(0.0, 0.0, throttle, 0.0, SLOT_POSITION)
         d_n, d_e = self.aim[0] - north, self.aim[1] - east
         distance = math.hypot(d_n, d_e)
         stick = min(self.max_stick, max(MIN_STICK, self.max_stick * min(1.0, to_goal / SLOWDOWN_M)))
@@ -185,5 +193,10 @@ class Pilot:
         if distance > FACE_BEYOND_M:
             error = math.atan2(right, forward)
             yaw = _clip(YAW_GAIN * error, self.max_stick)
-        throttle = _clip(ALTITUDE_GAIN * (self.altitudes[self.leg + 1] - altitude), self.max_stick)
         return RcFrame(right * scale, forward * scale, throttle, yaw, SLOT_POSITION)
+
+    @staticmethod
+    def _stopping_m(d_n: float, d_e: float, to_goal: float, state: VehicleState) -> float:
+        """How far towards the goal the vehicle would still go if the pilot let go now."""
+        closing = (d_n * state.v_north_m_s + d_e * state.v_east_m_s) / to_goal if to_goal > 1e-9 else 0.0
+        return max(0.0, closing) ** 2 / (2.0 * BRAKE_M_S2)

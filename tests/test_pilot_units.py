@@ -275,3 +275,40 @@ def test_bench_refuses_a_drive_it_would_not_use(capsys):
 
     assert main(["bench", "--executor", "local", "--drive", "pilot"]) == 2
     assert "--drive" in capsys.readouterr().err
+
+
+def _fly_to_the_goal(p: Pilot, full_stick_m_s: float, dead_zone: float, accel_m_s2: float, seconds: float) -> float:
+    """A vehicle in Position mode as a point mass: the stick outside the dead zone asks for a
+    velocity (PX4's MPC_VEL_MANUAL, ArduPilot's LOIT_SPEED at full stick), which it reaches at
+    `accel_m_s2`; sticks let go, it brakes at that rate to a standstill. The time the pilot
+    switches to Land, or inf."""
+    dt, north, east, v_n, v_e, yaw = 0.02, 40.0, 0.0, 0.0, 0.0, 0.0
+    for step in range(int(seconds / dt)):
+        t = step * dt
+        frame = p.update(t, State(north_m=north, east_m=east, up_m=8.0, v_north_m_s=v_n, v_east_m_s=v_e, yaw_rad=yaw))
+        if frame.slot == SLOT_LAND:
+            return t
+        stick = math.hypot(frame.pitch, frame.roll)
+        wanted = max(0.0, (stick - dead_zone) / (1.0 - dead_zone)) * full_stick_m_s
+        heading = yaw + math.atan2(frame.roll, frame.pitch)
+        want_n, want_e = (wanted * math.cos(heading), wanted * math.sin(heading)) if stick > dead_zone else (0.0, 0.0)
+        d_n, d_e = want_n - v_n, want_e - v_e
+        change = math.hypot(d_n, d_e)
+        if change > accel_m_s2 * dt:
+            d_n, d_e = d_n * accel_m_s2 * dt / change, d_e * accel_m_s2 * dt / change
+        v_n, v_e = v_n + d_n, v_e + d_e
+        north, east = north + v_n * dt, east + v_e * dt
+        yaw += frame.yaw * dt
+    return math.inf
+
+
+@pytest.mark.parametrize(("full_stick_m_s", "dead_zone", "accel_m_s2"), [
+    (10.0, 0.1, 3.0),  # PX4's defaults: MPC_VEL_MANUAL, MPC_HOLD_DZ, MPC_ACC_HOR
+    (12.5, 0.06, 2.5),  # ArduCopter's Loiter: LOIT_SPEED, RC_DZ 30 of 500 us, LOIT_BRK_ACCEL
+    (20.0, 0.0, 2.0),  # a SUT faster at small sticks and slower to brake than either
+])
+def test_the_pilot_settles_over_the_goal_and_lands_whatever_speed_the_sut_gives_its_smallest_stick(full_stick_m_s, dead_zone, accel_m_s2):
+    p = Pilot(Point(north_m=0.0, east_m=0.0, up_m=0.0), [Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0)], 8.0, 1.0, 0.0)
+    p.update(0.0, State(up_m=8.0))
+    landed_at = _fly_to_the_goal(p, full_stick_m_s, dead_zone, accel_m_s2, seconds=BLOCKED_AFTER_S)
+    assert landed_at < BLOCKED_AFTER_S and not p.blocked
