@@ -58,7 +58,7 @@ SLOWDOWN_M = 20.0
 MIN_STICK = 0.3  # well above PX4's 0.1 stick dead zone (MPC_HOLD_DZ), so the last metres are flown
 GOAL_RADIUS_M = 1.0
 SETTLED_SPEED_M_S = 0.5
-# The braking the pilot counts on when it lets go of the sticks on the last leg: below PX4's
+# The braking the pilot counts on when it lets go of its smallest stick on the last leg: below PX4's
 # MPC_ACC_HOR (3) and ArduCopter's LOIT_BRK_ACCEL (2.5), so it lets go early rather than late.
 # How fast the smallest stick flies differs by SUT (about 2 m/s in PX4's Position mode, 3.7 m/s in
 # ArduCopter's Loiter); a pilot who kept pushing into the goal circle would orbit it.
@@ -181,11 +181,14 @@ class Pilot:
             self.phase, self._settled_at_s = "settle", time_s
             return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_POSITION)
         throttle = _clip(ALTITUDE_GAIN * (self.altitudes[self.leg + 1] - altitude), self.max_stick)
-        if self.leg == len(self.points) - 2 and to_goal <= GOAL_RADIUS_M / 2 + self._stopping_m(goal_n - north, goal_e - east, to_goal, state):
+        slowed = self.max_stick * min(1.0, to_goal / SLOWDOWN_M)
+        # Above the smallest stick the SUT slows down with the stick; at it, only letting go does.
+        if slowed <= MIN_STICK and self.leg == len(self.points) - 2 \
+                and to_goal <= GOAL_RADIUS_M / 2 + self._stopping_m(goal_n - north, goal_e - east, to_goal, state):
             return RcFrame(0.0, 0.0, throttle, 0.0, SLOT_POSITION)
         d_n, d_e = self.aim[0] - north, self.aim[1] - east
         distance = math.hypot(d_n, d_e)
-        stick = min(self.max_stick, max(MIN_STICK, self.max_stick * min(1.0, to_goal / SLOWDOWN_M)))
+        stick = min(self.max_stick, max(MIN_STICK, slowed))
         cos_y, sin_y = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
         forward, right = (d_n * cos_y + d_e * sin_y, -d_n * sin_y + d_e * cos_y) if distance > 1e-9 else (0.0, 0.0)
         scale = stick / distance if distance > 1e-9 else 0.0

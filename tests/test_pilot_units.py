@@ -312,3 +312,14 @@ def test_the_pilot_settles_over_the_goal_and_lands_whatever_speed_the_sut_gives_
     p.update(0.0, State(up_m=8.0))
     landed_at = _fly_to_the_goal(p, full_stick_m_s, dead_zone, accel_m_s2, seconds=BLOCKED_AFTER_S)
     assert landed_at < BLOCKED_AFTER_S and not p.blocked
+
+
+def test_while_a_smaller_stick_still_slows_the_vehicle_the_pilot_keeps_pushing_towards_the_goal():
+    p = pilot()
+    p.update(0.0, State(up_m=8.0))
+    fast = p.update(1.0, State(north_m=45.0, up_m=8.0, v_north_m_s=10.0))  # 15 m to go at 10 m/s: its stopping distance is longer
+    assert fast.pitch == pytest.approx(0.75)
+    # at the smallest stick's speed: it pushes while the vehicle would stop short, lets go once it would coast in
+    assert p.update(2.0, State(north_m=56.0, up_m=8.0, v_north_m_s=3.0)).pitch == pytest.approx(0.3)  # 4 m to go, 2.25 m to stop
+    near = p.update(2.5, State(north_m=57.5, up_m=8.0, v_north_m_s=3.0))  # 2.5 m to go
+    assert near.pitch == 0.0 and near.slot == SLOT_POSITION
