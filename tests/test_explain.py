@@ -184,3 +184,21 @@ def test_the_stopping_distance_is_the_one_the_bundled_collision_prevention_plans
     # autopilot/collision.py allows exactly this speed with that much room left to brake in.
     assert max_speed_from_distance(limits.jerk_m_s3, limits.acc_m_s2, braking_m) == pytest.approx(speed_m_s)
     assert ("CP_DELAY" in limits.assumed) == (sut["params"] == {})
+
+
+@pytest.mark.parametrize(("params", "described"), [
+    ({}, "AVOID_MARGIN 1.0 m, AVOID_ACCEL_MAX 3.0 m/s^2 (assumed defaults: AVOID_MARGIN, AVOID_ACCEL_MAX)"),
+    ({"AVOID_MARGIN": 2.0, "AVOID_ACCEL_MAX": 1.5}, "AVOID_MARGIN 2.0 m, AVOID_ACCEL_MAX 1.5 m/s^2"),
+])
+def test_ardupilots_stop_is_modelled_with_its_own_avoidance_parameters(params, described):
+    limits = Limits.of({"name": "ardupilot", "params": params})
+    assert limits.describe() == described
+    margin, acc = params.get("AVOID_MARGIN", 1.0), params.get("AVOID_ACCEL_MAX", 3.0)
+    # simple avoidance has no delay or jerk limit: the margin, then v^2 / 2a
+    assert limits.stopping_distance_m(6.0) == pytest.approx(margin + 36.0 / (2.0 * acc))
+    assert Limits.of({"name": "ardupilot", "params": {**params, "AVOID_ENABLE": 0}}).cp_dist_m < 0
+
+
+def test_a_sut_without_its_own_stopping_model_is_described_with_px4s_parameters():
+    assert Limits.of({"name": "mavlink", "params": {"CP_DIST": 2.0}}).describe() == (
+        "CP_DIST 2.0 m, CP_DELAY 0.4 s, MPC_ACC_HOR 3.0 m/s^2, MPC_JERK_AUTO 4.0 m/s^3 (assumed defaults: CP_DELAY, MPC_ACC_HOR, MPC_JERK_AUTO)")

@@ -59,33 +59,60 @@ SIGHTING_GAP_S = 0.5
 SLOWED_M_S = 0.5  # for the timeline only: a drop in speed towards the obstacle that is braking, not jitter
 TOPICS = ["/clearance", "/uav/state", "/events", "/sensor/obstacle_distance", "/wind", "/pilot"]
 FINAL_APPROACH_S = 1.0  # before entering the safety distance: who closed the gap
-# Limits collision prevention plans its stop with: PX4's names, the bundled autopilot's defaults
-# (autopilot/params.py), used where the log's SUT metadata does not set them.
-LIMIT_DEFAULTS = {"CP_DIST": 1.0, "CP_DELAY": 0.4, "MPC_ACC_HOR": 3.0, "MPC_JERK_AUTO": 4.0}
+# The parameters a SUT's collision prevention plans its stop with (distance kept, reaction delay,
+# braking acceleration, jerk), with the defaults its adapter flies, for the SUTs stella starts:
+# PX4's names and the bundled autopilot's defaults (autopilot/params.py) for every SUT but
+# ArduPilot, whose simple avoidance keeps AVOID_MARGIN (1 m as sut_adapter/ardupilot.py sets it)
+# and brakes at up to AVOID_ACCEL_MAX, without a delay or a jerk limit of its own.
+LIMIT_PARAMS: dict[str, dict[str, tuple[str, float] | None]] = {
+    "px4": {"distance": ("CP_DIST", 1.0), "delay": ("CP_DELAY", 0.4), "acc": ("MPC_ACC_HOR", 3.0), "jerk": ("MPC_JERK_AUTO", 4.0)},
+    "ardupilot": {"distance": ("AVOID_MARGIN", 1.0), "delay": None, "acc": ("AVOID_ACCEL_MAX", 3.0), "jerk": None},
+}
+UNITS = {"distance": "m", "delay": "s", "acc": "m/s^2", "jerk": "m/s^3"}
 
 
 @dataclass(frozen=True)
 class Limits:
-    cp_dist_m: float
+    cp_dist_m: float  # negative: collision prevention off
     cp_delay_s: float
     acc_m_s2: float
-    jerk_m_s3: float
+    jerk_m_s3: float  # inf: no jerk limit
     assumed: tuple[str, ...]  # the parameters taken from the defaults, not from the log
+    names: tuple[str, ...] = ()  # the SUT's names of the limits above that it has
 
     @classmethod
     def of(cls, sut: Mapping[str, Any] | None) -> "Limits":
         params = dict((sut or {}).get("params") or {})
-        value = {name: float(params.get(name, default)) for name, default in LIMIT_DEFAULTS.items()}
-        return cls(value["CP_DIST"], value["CP_DELAY"], value["MPC_ACC_HOR"], value["MPC_JERK_AUTO"],
-                   tuple(name for name in LIMIT_DEFAULTS if name not in params))
+        kind = LIMIT_PARAMS.get(str((sut or {}).get("name")), LIMIT_PARAMS["px4"])
+        value = {"distance": 0.0, "delay": 0.0, "acc": math.inf, "jerk": math.inf}
+        for limit, named in kind.items():
+            if named is not None:
+                value[limit] = float(params.get(named[0], named[1]))
+        if "AVOID_ENABLE" in params and float(params["AVOID_ENABLE"]) == 0.0:  # ArduPilot's avoidance off
+            value["distance"] = -1.0
+        named = [n for n in kind.values() if n is not None]
+        return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params),
+                   tuple(name for name, _ in named))
+
+    @property
+    def distance_name(self) -> str:
+        return self.names[0] if self.names else "CP_DIST"
 
     def stopping_distance_m(self, speed_m_s: float) -> float:
-        """From a reading to standing still CP_DIST before the obstacle: the delay flown at this
-        speed, then PX4's jerk-limited stop (the inverse of math::computeMaxSpeedFromDistance).
-        With collision prevention off (CP_DIST < 0) the same stop to the obstacle itself."""
+        """From a reading to standing still the kept distance before the obstacle: the delay
+        flown at this speed, then PX4's jerk-limited stop (the inverse of
+        math::computeMaxSpeedFromDistance; without a jerk limit, v^2 / 2a). With collision
+        prevention off the same stop to the obstacle itself."""
         v = max(0.0, speed_m_s)
         braking = (v * v + v * 4.0 * self.acc_m_s2 ** 2 / self.jerk_m_s3) / (2.0 * self.acc_m_s2)
         return max(0.0, self.cp_dist_m) + self.cp_delay_s * v + braking
+
+    def describe(self) -> str:
+        values = {"CP_DIST": self.cp_dist_m, "AVOID_MARGIN": self.cp_dist_m, "CP_DELAY": self.cp_delay_s, "MPC_ACC_HOR": self.acc_m_s2,
+                  "AVOID_ACCEL_MAX": self.acc_m_s2, "MPC_JERK_AUTO": self.jerk_m_s3}
+        units = {name: UNITS[limit] for kind in LIMIT_PARAMS.values() for limit, named in kind.items() if named for name in [named[0]]}
+        assumed = f" (assumed defaults: {', '.join(self.assumed)})" if self.assumed else ""
+        return ", ".join(f"{name} {values[name]} {units[name]}" for name in self.names) + assumed
 
 
 @dataclass(frozen=True)
@@ -332,7 +359,8 @@ def explain(path: Path) -> dict[str, Any]:
         "obstacle_velocity_m_s": [round(v, 3) for v in geometry.velocity(t_closest).tolist()],
         "wind_ned_m_s": [round(v, 3) for v in air], "wind_towards_obstacle_m_s": round(wind_in, 3), **situation,
         "sut": {"name": sut.get("name"), "fault": sut.get("fault"), "params": dict(sut.get("params") or {})},
-        "limits": {**asdict(limits), "assumed": list(limits.assumed)},
+        "limits": {**asdict(limits), "jerk_m_s3": limits.jerk_m_s3 if math.isfinite(limits.jerk_m_s3) else None,  # JSON has no infinity
+                   "assumed": list(limits.assumed), "names": list(limits.names), "described": limits.describe()},
         "sensor": {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg},
     }
     numbers = {
@@ -409,7 +437,7 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
         return "pushed", [in_time, f"the vehicle slowed from {first:.2f} to {entry:.2f} m/s towards it, but the air moved towards it at "
                           f"{wind_in:.2f} m/s when the safety distance was entered ({carried})"]
     if own > 0.0:
-        cp = "collision prevention off (CP_DIST < 0)" if limits.cp_dist_m < 0 else f"CP_DIST {limits.cp_dist_m:.2f} m"
+        cp = "collision prevention off" if limits.cp_dist_m < 0 else f"{limits.distance_name} {limits.cp_dist_m:.2f} m"
         return "braked_too_little", [in_time, f"the vehicle itself still closed at {entry:.2f} m/s when it entered the safety distance "
                                      f"({own:.2f} m/s over the final approach); {cp}"]
     return "other", [in_time, f"neither the vehicle ({own:.2f} m/s), the obstacle ({theirs:.2f} m/s) nor the wind ({wind_in:.2f} m/s) "
@@ -439,8 +467,5 @@ def explain_text(report: Mapping[str, Any]) -> str:
         sut = context["sut"]
         lines.append(f"SUT: {sut['name']}" + (f", seeded fault {sut['fault']}" if sut["fault"] else "")
                      + (f", parameters {', '.join(f'{k}={v}' for k, v in sut['params'].items())}" if sut["params"] else ""))
-        limits = context["limits"]
-        assumed = f" (assumed defaults: {', '.join(limits['assumed'])})" if limits["assumed"] else ""
-        lines.append(f"stopping model: CP_DIST {limits['cp_dist_m']} m, CP_DELAY {limits['cp_delay_s']} s, MPC_ACC_HOR {limits['acc_m_s2']} m/s^2, "
-                     f"MPC_JERK_AUTO {limits['jerk_m_s3']} m/s^3{assumed}")
+        lines.append(f"stopping model: {context['limits']['described']}")
     return "\n".join(lines)
