@@ -90,6 +90,7 @@ CORPUS = [
     (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "TEXT"], "not a campaign store"),
     (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--workers", "1", "--store", "OTHER_SQLITE"], "not a campaign store"),
     (["campaign", "BROKEN_JSON", "--algorithm", "NSGAII", "--evaluations", "3", "--store", "OUT"], "invalid JSON"),
+    (["campaign", FIG4, "--algorithm", "NSGAII", "--evaluations", "3", "--store", "OUT", "--sut-logs", "some"], "--sut-logs: invalid choice: 'some'"),
     (["report", "MISSING", "--out", "OUT"], "no such campaign store"),
     (["export-regressions", "OTHER_SQLITE", "--out", "OUT"], "not a campaign store"),
     (["export-regressions", "TEXT", "--out", "OUT", "--threshold", "abc"], "--threshold: invalid float value"),

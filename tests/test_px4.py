@@ -58,14 +58,18 @@ def test_px4_flies_a_table3_scenario_with_a_finite_fitness_a_log_and_its_ulog(ca
     assert asked and set(asked.values()) == {1}, asked
 
 
-def test_a_small_campaign_completes_against_px4_with_two_instances(tmp_path):
+def test_a_small_campaign_completes_against_px4_with_two_instances_keeping_the_ulogs_of_failing_flights_only(tmp_path):
     store = tmp_path / "px4.db"
-    assert main(["campaign", SCENARIO, "--algorithm", "RANDOM", "--evaluations", "4", "--workers", "2", "--sut", "px4", "--store", str(store), "--json"]) == 0
+    assert main(["campaign", SCENARIO, "--algorithm", "RANDOM", "--evaluations", "4", "--workers", "2", "--sut", "px4", "--store", str(store),
+                 "--sut-logs", "failures", "--json"]) == 0
     with Store(store) as opened:
         [run] = opened.runs()
-        statuses = [row[0] for row in opened.db.execute("SELECT status FROM evaluations")]
+        flown = list(opened.db.execute("SELECT status, log_path FROM evaluations WHERE status != 'infeasible'"))
     assert run.evaluations == 4 and run.finished is not None
-    assert not set(statuses) & {"sut_crashed", "sim_crashed", "timeout"}, statuses
+    assert not {status for status, _log in flown} & {"sut_crashed", "sim_crashed", "timeout"}, flown
+    for status, log_path in flown:
+        kept = {path.suffix for path in Path(log_path).with_suffix(".artifacts").iterdir()}
+        assert ".log" in kept and (".ulg" in kept) == (status != "ok"), (status, kept)
 
 
 WALL = str(ROOT / "scenarios" / "examples" / "wall_concrete.json")

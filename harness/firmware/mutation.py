@@ -61,6 +61,7 @@ class MutationPlan:
     drive: str | None = None
     objective: str = "difference"
     sut_params: Mapping[str, float] = field(default_factory=dict)
+    sut_logs: str = "all"  # RunOptions.sut_logs: which flights keep the SUT's own logs
 
     def screening(self) -> dict[str, Any]:
         """What decides the suite's verdicts: a folder's mutants are screened once with these.
@@ -133,7 +134,7 @@ def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequ
     run_path = mutants_dir / RUN
     document = _load(run_path, plan)
     cache = ReferenceCache(mutants_dir / CACHE)
-    options = RunOptions(sut=reference)
+    options = RunOptions(sut=reference, sut_logs=plan.sut_logs)
     try:
         for entry in sorted(built["mutants"].values(), key=lambda e: e["id"]):
             if entry["state"] != "built" or (only and entry["id"] not in only):
@@ -197,7 +198,7 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
                             confirm=plan.confirm, reference=reference, objective=plan.objective)
     store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
     with Store.for_campaign(store_path) as store:
-        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(), reference_cache=cache,
+        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs), reference_cache=cache,
                      on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
 

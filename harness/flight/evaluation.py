@@ -220,6 +220,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
         score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
+        if options.sut_logs == "failures" and score.status == Status.OK:
+            artifacts = _drop_flight_logs(artifacts)
         result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
@@ -246,6 +248,17 @@ def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
         shutil.copy2(source, destination)
         kept.append(str(destination))
     return kept
+
+
+def _drop_flight_logs(kept: list[str]) -> list[str]:
+    """Delete the SUT's own flight logs among kept artifacts; its consoles (*.log) stay."""
+    consoles = []
+    for artifact in map(Path, kept):
+        if artifact.suffix == ".log":
+            consoles.append(str(artifact))
+        else:
+            artifact.unlink(missing_ok=True)
+    return consoles
 
 
 def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:

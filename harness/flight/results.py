@@ -11,6 +11,8 @@ from typing import Any, Mapping, NamedTuple
 from harness.flight.fitness import Clearance, Status
 from sim_bridge.control import EndReason
 from sim_bridge.sut_link import TRANSPORTS
+
+SUT_LOGS = ("all", "failures")
 from sut_adapter import SutConfig
 
 
@@ -45,10 +47,17 @@ class RunOptions:
     # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
     # is kept (stack.close_kept); executors do when they close.
     warm: bool = False
+    # The SUT's own flight logs beside each MCAP (PX4's ULog, about 19 MB for a 50 s flight;
+    # ArduPilot's dataflash .BIN): "all" flights keep them, or only the "failures" (every status
+    # but ok), so that a campaign of thousands of real-firmware flights fits on a disk. Consoles
+    # are kept either way.
+    sut_logs: str = "all"
 
     def __post_init__(self) -> None:
         if self.transport not in TRANSPORTS:
             raise ValueError(f"transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}")
+        if self.sut_logs not in SUT_LOGS:
+            raise ValueError(f"sut_logs {self.sut_logs!r} is not one of {', '.join(SUT_LOGS)}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -72,7 +72,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # An output that cannot be written (no such folder, no permission, a full disk): the
         # user's to mend, so one line naming the path rather than a traceback.
         resume = "; the store keeps every finished evaluation: run the same command again to resume" if args.command == "campaign" else ""
-        print(f"{error.filename or 'writing the campaign store or logs'}: {error.strerror}: give a path in a writable folder with room{resume}", file=sys.stderr)
+        fewer = "; --sut-logs failures keeps the SUT's own logs of failing flights only" if getattr(args, "sut_logs", None) == "all" else ""
+        print(f"{error.filename or 'writing the campaign store or logs'}: {error.strerror}: give a path in a writable folder with room{resume}{fewer}", file=sys.stderr)
         return 2
 
 

@@ -15,7 +15,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
 from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int
-from harness.tools.commands.sut_options import add_reference_options, add_sut_options, check_transport, mission_plan, reference_spec, sut_spec
+from harness.tools.commands.sut_options import add_reference_options, add_sut_logs_option, add_sut_options, check_transport, mission_plan, reference_spec, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
@@ -48,6 +48,7 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cold-start", action="store_true",
                    help="start the simulator and the SUT afresh for every evaluation; by default a worker flying in memory keeps them for its next "
                         "evaluation (a fresh world and autopilot in the same process: the same flights, about a fifth of a second less each)")
+    add_sut_logs_option(p)
     p.add_argument("--attempts", type=positive_int, default=2, help="tries per evaluation that ends sut_crashed, sim_crashed or timeout, or loses its worker (default 2)")
     p.add_argument("--eval-timeout-s", type=positive_float, default=600.0, help="hard wall-clock limit of one try (default 600)")
     p.add_argument("--dask-scheduler", help="with --executor dask: a scheduler address such as tcp://10.0.0.5:8786 (default: start a local cluster)")
@@ -128,7 +129,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         with store:
             summary = run_campaign(config, store, executor, store_path.parent / f"{store_path.stem}-logs", on_result=progress,
-                                   on_run=print_run_line, options=RunOptions(transport=args.transport, warm=not args.cold_start))
+                                   on_run=print_run_line, options=RunOptions(transport=args.transport, warm=not args.cold_start,
+                                                                                         sut_logs=args.sut_logs))
     finally:
         bar.close()
         executor.close()

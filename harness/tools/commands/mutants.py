@@ -13,7 +13,7 @@ from typing import Any
 from harness.errors import InputError, Problem
 from harness.tools.commands.common import command, command_with_actions, emit, non_negative_int, positive_int
 from harness.tools.commands.sut import worktree_option
-from harness.tools.commands.sut_options import sut_param_values
+from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
 
 command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, report",
                      description="Mutants of one C/C++ or Python file, built as cached variants, each attacked by differential "
@@ -71,6 +71,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--objective", choices=["subject", "difference"], default="difference", help="what the searches minimise (default difference)")
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
+    add_sut_logs_option(p)
     p.add_argument("--sut-param", action="append", metavar="NAME=VALUE", help="a SUT parameter for both sides, e.g. CP_DIST=2.0; repeatable")
     p.add_argument("--sut-params-file", metavar="FILE", help="SUT parameters from a QGroundControl .params export or a NAME,VALUE CSV")
 
@@ -87,7 +88,8 @@ def mutants_run(args: argparse.Namespace) -> int:
         params.update(load_params_file(Path(args.sut_params_file)))
     params.update(sut_param_values(args.sut_param))
     plan = mutation.MutationPlan(_suite(args.suite), tuple(args.scenario), tuple(a.upper() for a in (args.algorithm or ["NSGAII", "RANDOM"])),
-                                 args.evaluations, args.population, args.confirm, args.seed, args.drive, args.objective, params)
+                                 args.evaluations, args.population, args.confirm, args.seed, args.drive, args.objective, params,
+                                 sut_logs=args.sut_logs)
     executor = LocalExecutor(args.workers or len(os.sched_getaffinity(0)))
     try:
         document = mutation.run(Path(args.folder), plan, executor, only=args.only, progress=lambda line: print(line, file=sys.stderr))

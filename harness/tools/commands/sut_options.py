@@ -35,6 +35,12 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
                                                    "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
 
 
+def add_sut_logs_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sut-logs", choices=["all", "failures"], default="all",
+                   help="which flights keep the SUT's own log beside their MCAP (PX4's ULog, about 19 MB a flight; ArduPilot's .BIN): all "
+                        "(default), or only those that did not end ok; consoles are kept either way")
+
+
 def add_reference_options(p: argparse.ArgumentParser, *, campaign: bool = False) -> None:
     group = p.add_argument_group("differential", "fly every scenario against a reference SUT too, and say where the subject (the --sut) differs")
     group.add_argument("--reference-sut", metavar="NAME", help="the reference SUT (default: the subject's, with the changes below)")
