@@ -78,7 +78,7 @@ class Limits:
     acc_m_s2: float
     jerk_m_s3: float  # inf: no jerk limit
     assumed: tuple[str, ...]  # the parameters taken from the defaults, not from the log
-    names: tuple[str, ...] = ()  # the SUT's names of the limits above that it has
+    named: tuple[tuple[str, str], ...] = ()  # (the SUT's parameter, which limit) for the limits it has
 
     @classmethod
     def of(cls, sut: Mapping[str, Any] | None) -> "Limits":
@@ -90,13 +90,12 @@ class Limits:
                 value[limit] = float(params.get(named[0], named[1]))
         if "AVOID_ENABLE" in params and float(params["AVOID_ENABLE"]) == 0.0:  # ArduPilot's avoidance off
             value["distance"] = -1.0
-        named = [n for n in kind.values() if n is not None]
-        return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params),
-                   tuple(name for name, _ in named))
+        named = tuple((named[0], limit) for limit, named in kind.items() if named is not None)
+        return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params), named)
 
     @property
     def distance_name(self) -> str:
-        return self.names[0] if self.names else "CP_DIST"
+        return next(name for name, limit in self.named if limit == "distance")
 
     def stopping_distance_m(self, speed_m_s: float) -> float:
         """From a reading to standing still the kept distance before the obstacle: the delay
@@ -108,11 +107,9 @@ class Limits:
         return max(0.0, self.cp_dist_m) + self.cp_delay_s * v + braking
 
     def describe(self) -> str:
-        values = {"CP_DIST": self.cp_dist_m, "AVOID_MARGIN": self.cp_dist_m, "CP_DELAY": self.cp_delay_s, "MPC_ACC_HOR": self.acc_m_s2,
-                  "AVOID_ACCEL_MAX": self.acc_m_s2, "MPC_JERK_AUTO": self.jerk_m_s3}
-        units = {name: UNITS[limit] for kind in LIMIT_PARAMS.values() for limit, named in kind.items() if named for name in [named[0]]}
+        value = {"distance": self.cp_dist_m, "delay": self.cp_delay_s, "acc": self.acc_m_s2, "jerk": self.jerk_m_s3}
         assumed = f" (assumed defaults: {', '.join(self.assumed)})" if self.assumed else ""
-        return ", ".join(f"{name} {values[name]} {units[name]}" for name in self.names) + assumed
+        return ", ".join(f"{name} {value[limit]} {UNITS[limit]}" for name, limit in self.named) + assumed
 
 
 @dataclass(frozen=True)
@@ -360,7 +357,7 @@ def explain(path: Path) -> dict[str, Any]:
         "wind_ned_m_s": [round(v, 3) for v in air], "wind_towards_obstacle_m_s": round(wind_in, 3), **situation,
         "sut": {"name": sut.get("name"), "fault": sut.get("fault"), "params": dict(sut.get("params") or {})},
         "limits": {**asdict(limits), "jerk_m_s3": limits.jerk_m_s3 if math.isfinite(limits.jerk_m_s3) else None,  # JSON has no infinity
-                   "assumed": list(limits.assumed), "names": list(limits.names), "described": limits.describe()},
+                   "assumed": list(limits.assumed), "named": [list(pair) for pair in limits.named], "described": limits.describe()},
         "sensor": {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg},
     }
     numbers = {

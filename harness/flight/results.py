@@ -11,9 +11,9 @@ from typing import Any, Mapping, NamedTuple
 from harness.flight.fitness import Clearance, Status
 from sim_bridge.control import EndReason
 from sim_bridge.sut_link import TRANSPORTS
+from sut_adapter import SutConfig
 
 SUT_LOGS = ("all", "failures")
-from sut_adapter import SutConfig
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from harness.errors import InputError, Problem
+from harness.flight.results import SUT_LOGS
 from harness.scenario.logical import DRIVES, load_logical
 from harness.scenario.profile import load_profile
 
@@ -36,7 +37,7 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_sut_logs_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sut-logs", choices=["all", "failures"], default="all",
+    p.add_argument("--sut-logs", choices=SUT_LOGS, default="all",
                    help="which flights keep the SUT's own log beside their MCAP (PX4's ULog, about 19 MB a flight; ArduPilot's .BIN): all "
                         "(default), or only those that did not end ok; consoles are kept either way")
 
