@@ -136,6 +136,17 @@ def _add_mutant(folder: Path, index: dict, ident: str, line: int, new_text: str)
                              "mutated": new_text.rstrip("\n")})
 
 
+@pytest.mark.parametrize(("search", "said"), [
+    (None, "survived the suite"),  # screened, its searches still to come
+    ({"NSGAII": {"wall": {"evaluation": None, "level": None}}}, "survived the suite; survived 1 search"),
+    ({"NSGAII": {"wall": {"evaluation": None, "level": None}, "scenario_10": {"evaluation": 12, "level": "behaviour"}}},
+     "survived the suite; killed by NSGAII on scenario_10 (behaviour at evaluation 12)"),
+])
+def test_the_progress_line_says_what_a_survivor_has_been_through_so_far(search, said):
+    outcome = {"state": "survived_suite", "suite_flights": 17, **({"search": search} if search else {})}
+    assert mutation.describe(outcome) == said
+
+
 @pytest.mark.slow
 def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_path):
     folder = tmp_path / "mutation"

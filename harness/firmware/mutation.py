@@ -206,9 +206,11 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
 def describe(outcome: Mapping[str, Any]) -> str:
     if outcome["state"] != "survived_suite":
         return f"{outcome['state']}" + (f" ({outcome['level']})" if outcome.get("level") else "") + f" by {outcome.get('case')}: {outcome.get('why')}"
-    kills = [f"{algorithm} on {scenario} ({first['level']} at evaluation {first['evaluation']})"
-             for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items() if first["evaluation"]]
-    return "survived the suite; " + ("killed by " + ", ".join(kills) if kills else "survived every search")
+    searches = [(algorithm, scenario, first) for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items()]
+    kills = [f"{algorithm} on {scenario} ({first['level']} at evaluation {first['evaluation']})" for algorithm, scenario, first in searches if first["evaluation"]]
+    if kills:
+        return "survived the suite; killed by " + ", ".join(kills)
+    return "survived the suite" + (f"; survived {len(searches)} search{'es' if len(searches) > 1 else ''}" if searches else "")
 
 
 # -- the report --------------------------------------------------------------------------------
