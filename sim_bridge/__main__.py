@@ -2,7 +2,8 @@
 
 Listens for the SUT on the simulator port, runs the lockstep simulation, records to MCAP and
 prints the run's summary as one JSON line on stdout. Exit code 0 when the run ended normally
-(landed, time limit, stopped), 3 when the SUT never connected, stalled or disconnected.
+(landed, time limit, stopped), 3 when the SUT never connected, stalled or disconnected, or when
+SIGTERM came as the recording was being finished (held until the file was complete).
 With a SUT inside the process (`python -m sut_adapter.inline`), `--serve` instead flies world
 after world, each named on the control channel (sim_bridge/bridge.py has the protocol).
 """
@@ -18,8 +19,9 @@ import signal
 import socket
 import sys
 import time
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from sim_bridge import ardupilot_link
 from sim_bridge.bridge import Bridge, BridgeConfig
@@ -70,8 +72,34 @@ def _connect_sut(listener: socket.socket | None, args, inline_sut: Callable[[], 
     return SocketLink(sock, args.stall_timeout_s)
 
 
+class _Stop:
+    """The harness's SIGTERM: raised as KeyboardInterrupt where it lands, except while a flight's
+    recording is being finished, when it waits until the file is complete. Landing inside the
+    MCAP writer's finish cut the file's end off: the harness closing a warm stack after a failed
+    set-up, as the simulator was ending the flight by itself, lost that flight's log."""
+
+    held = False
+    pending = False
+
+
 def _interrupt(signum, frame) -> None:
+    if _Stop.held:
+        _Stop.pending = True
+        return
     raise KeyboardInterrupt
+
+
+@contextmanager
+def _stop_held() -> Iterator[None]:
+    """SIGTERM held for the block, then raised at its end if one came."""
+    _Stop.held = True
+    try:
+        yield
+    finally:
+        _Stop.held = False
+        if _Stop.pending:
+            _Stop.pending = False
+            raise KeyboardInterrupt
 
 
 def _number(text: str) -> float:
@@ -197,6 +225,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         # A SUT inside this process goes when we do: there is no link to keep open for it.
         summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut, control), args.mcap_compression,
                       0.0 if inline_sut is not None else args.linger_s)
+    except KeyboardInterrupt:  # stopped as its recording was being finished: the file is complete, the harness gone
+        return 3
     finally:
         control.close()
         if sim_listener is not None:
@@ -223,7 +253,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
         optional_topics += ("/wind",)
     sut = None
     try:
-        with open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
+        with ExitStack() as finishing, open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
             recorder.metadata("world", {"json": json.dumps(world.as_dict())})
             recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
             bridge = Bridge(world, config, recorder)
@@ -241,6 +271,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
                 except KeyboardInterrupt:
                     bridge.settle_outcome()
                     bridge.summary.end_reason = EndReason.INTERRUPTED
+            finishing.enter_context(_stop_held())
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})
         control.send(Finished(summary))
