@@ -6,7 +6,8 @@ working directory and parameters; it answers with a handle. Its adapter declares
 `Capabilities` record (`capabilities`), how the harness is to meet it without knowing which SUT
 it is; the fields say what each capability means. A `start` takes, besides the port block,
 `sim_socket` (and `sim_shared_memory`) where its transports include "unix" ("shm"), `world`
-where it `needs_world`; an adapter whose transports include "memory" gives `inline_arguments`.
+where it `needs_world`, `flight_params` (`Capabilities.flight_params`) where it takes
+`params_at_start`; an adapter whose transports include "memory" gives `inline_arguments`.
 `spin_s` (a hint to `start`): the SUT has a core of its own, the simulator another, so it may
 poll for the simulator's next message this long before sleeping. The bundled autopilot does;
 PX4 and command SUTs wait their own way.
@@ -134,6 +135,12 @@ class Capabilities:
     pilot_params: Mapping[str, float] | None = None
     takeoff_altitude_param: str | None = "MIS_TAKEOFF_ALT"
     pilot_flight_mode: str = "POSCTL"
+    # It takes parameters with its start, set before its modules run: the flight's own (the
+    # pilot drive's) go there instead of over MAVLink, where a module may apply one late. PX4's
+    # navigator took off to its default MIS_TAKEOFF_ALT of 2.5 m in 40 of 217 pilot flights of a
+    # mutant's wall searches (2026-11), with the parameter set and acknowledged 0.4-0.6 s of its
+    # clock before the take-off command.
+    params_at_start: bool = False
     # Whether it takes MAV_CMD_INJECT_FAILURE (with SYS_FAILURE_EN), as PX4 and the bundled
     # autopilot do. Without it each failure it is to be told of is answered UNSUPPORTED
     # (`failure_refused`) unless failure_params(unit, type) gives parameters that fail the unit,
@@ -165,6 +172,16 @@ class Capabilities:
         from sim_bridge.pilot import SUT_PARAMS
 
         return dict(SUT_PARAMS if self.pilot_params is None else self.pilot_params), self.takeoff_altitude_param, self.pilot_flight_mode
+
+    def flight_params(self, world: "WorldSpec") -> dict[str, float]:
+        """The parameters a flight in this world needs beyond the SUT's own: the pilot drive's RC
+        layout and take-off altitude (none for a mission)."""
+        if world.drive != "pilot":
+            return {}
+        params, altitude_param, _mode = self.pilot_setup()
+        if altitude_param is not None:
+            params[altitude_param] = float(world.mission.takeoff_altitude_m)
+        return params
 
     def rc_port(self, instance: int) -> int | None:
         """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""

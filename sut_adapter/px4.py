@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import shlex
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
@@ -27,9 +28,10 @@ AIRFRAME = "10016"
 MODEL = "none_iris"
 # PX4 maps instances above 9 onto one shared API port (ROMFS px4-rc.mavlink).
 MAX_INSTANCE = 9
-# Set over MAVLink before the flight. CP_DIST as the paper's setting; with the simulation
-# running many times faster than the wall clock, MAVSDK's 1 Hz heartbeats arrive seconds of
-# simulated time apart, which PX4 would take for a lost data link.
+# Set at its start (ENV_PARAM_PREFIX), or over MAVLink before the flight by a PX4 too old for
+# that. CP_DIST as the paper's setting; with the simulation running many times faster than the
+# wall clock, MAVSDK's 1 Hz heartbeats arrive seconds of simulated time apart, which PX4 would
+# take for a lost data link.
 DEFAULT_PARAMS: dict[str, int | float] = {"CP_DIST": 1.0, "NAV_DLL_ACT": 0}
 # PX4 stretches its link-loss and preflight-disarm timeouts by this factor (ROMFS rcS), so its
 # paced hold can run this many times faster than real time: it reaches its first heartbeat (1 s
@@ -50,6 +52,9 @@ MAVLINK_SCRIPT = "px4-rc.mavlink"
 # harness can find PX4 and reach its hold in between: its first PARAM_SET went unanswered and
 # MAVSDK sent it again only after its 0.5 s timeout.
 STARTED_UP = "[px4] Startup script returned"
+# PX4's rcS (since 2023-09) sets PX4_PARAM_{name}={value} from its environment before it starts
+# its modules, so each reads the value from its start, without a MAVLink round trip.
+ENV_PARAM_PREFIX = "PX4_PARAM_"
 
 
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
@@ -78,6 +83,11 @@ def api_stream_script(etc: Path, instance: int) -> str:
                       *(f"mavlink stream -u {api_port_local} -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()), ""])
 
 
+def takes_params_from_environment(etc: Path) -> bool:
+    """Whether this build's start-up script sets parameters from ENV_PARAM_PREFIX variables."""
+    return ENV_PARAM_PREFIX in (etc / "init.d-posix" / "rcS").read_text(errors="replace")
+
+
 class Px4Sitl:
     name = "px4"
     capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1)
@@ -87,32 +97,39 @@ class Px4Sitl:
         if unknown:
             raise SutError(self.name, f"unknown configuration {unknown}; it takes px4_bin (--px4-bin)")
         self.binary, self.etc = resolve_binary(config.get("px4_bin"))
+        self.capabilities = replace(Px4Sitl.capabilities, params_at_start=takes_params_from_environment(self.etc))
 
-    def command(self, *, instance: int, workdir: Path) -> tuple[list[str], dict[str, str]]:
+    def command(self, *, instance: int, workdir: Path, params: Mapping[str, float] | None = None) -> tuple[list[str], dict[str, str]]:
         """PX4's command line and environment for an instance in workdir (where it writes a script
-        of its own for PX4's rcS, found on PATH before PX4's: api_stream_script)."""
+        of its own for PX4's rcS, found on PATH before PX4's: api_stream_script), with params
+        set by its start-up (ENV_PARAM_PREFIX)."""
         if not 0 <= instance <= MAX_INSTANCE:
             raise SutError(self.name, f"instance {instance} is out of range: PX4 gives instances above {MAX_INSTANCE} one shared API port; run at most {MAX_INSTANCE + 1} PX4 evaluations at once")
         scripts = workdir / "stella-rc"
         scripts.mkdir(parents=True, exist_ok=True)
         (scripts / MAVLINK_SCRIPT).write_text(api_stream_script(self.etc, instance))
         env = {**os.environ, "PX4_SYS_AUTOSTART": AIRFRAME, "PX4_SIM_MODEL": MODEL, "PX4_SIM_SPEED_FACTOR": str(SPEED_FACTOR),
-               "PATH": os.pathsep.join([str(scripts), os.environ.get("PATH", os.defpath)])}
+               "PATH": os.pathsep.join([str(scripts), os.environ.get("PATH", os.defpath)]),
+               **{f"{ENV_PARAM_PREFIX}{name}": str(value) for name, value in (params or {}).items()}}
         return [str(self.binary), "-i", str(instance), "-d", "-w", str(workdir), str(self.etc)], env
 
     def check_params(self, params: Mapping[str, float]) -> None:
         """Its parameters are known only to the running SUT, which reports a bad one when set."""
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
-              spin_s: float = 0.0) -> SutHandle:
+              spin_s: float = 0.0, flight_params: Mapping[str, float] | None = None) -> SutHandle:
+        """PX4 with its DEFAULT_PARAMS, the flight's and the user's params set by its start-up
+        where it can; the user's go over MAVLink as well, where PX4 refuses a name it does not
+        have (its rcS passes over one)."""
         if (sim_port, api_port) != (4560 + instance, 14540 + instance):
             raise SutError(self.name, f"PX4 instance {instance} uses simulator port {4560 + instance} and API port {14540 + instance}, not {sim_port} and {api_port}")
         px4_dir = workdir / "px4"
         px4_dir.mkdir()
-        argv, env = self.command(instance=instance, workdir=px4_dir)
+        at_start = {**DEFAULT_PARAMS, **(flight_params or {}), **params} if self.capabilities.params_at_start else {}
+        argv, env = self.command(instance=instance, workdir=px4_dir, params=at_start)
         process = ManagedProcess("px4", argv, log_dir=workdir, cwd=px4_dir, env=env)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
-                             mavlink_params={**DEFAULT_PARAMS, **params}, booted=printed(process.stdout_path, STARTED_UP))
+                             mavlink_params=dict(params) if at_start else {**DEFAULT_PARAMS, **params}, booted=printed(process.stdout_path, STARTED_UP))
 
 
 def collect_artifacts(px4_dir: Path, console_logs: list[Path]) -> list[Path]:

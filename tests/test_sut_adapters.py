@@ -19,6 +19,7 @@ from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
+from harness.scenario.world import world_spec
 from harness.tools.cli import main
 import sut_adapter
 from sut_adapter import SutConfig, registry
@@ -122,6 +123,38 @@ def test_px4_is_started_in_a_fresh_directory_with_its_parameters_for_mavlink(tmp
     assert (px4_dir / "env.txt").read_text().split() == ["10016", "none_iris"]
     assert (px4_dir / "cwd.txt").read_text().strip() == str(px4_dir)
     assert handle.mavlink_params == {**DEFAULT_PARAMS, "CP_DIST": 2.5, "MPC_XY_CRUISE": 4.0}
+
+
+def test_a_px4_whose_start_up_takes_parameters_from_its_environment_gets_the_flights_there(tmp_path, profile):
+    """PX4's rcS sets PX4_PARAM_* before it starts its modules: the pilot drive's take-off
+    altitude reaches its navigator from the start, not over MAVLink just before the take-off."""
+    build = fake_px4_build(tmp_path, """\
+        env | grep '^PX4_PARAM_' | sort > params.txt
+        """)
+    (build / "etc" / "init.d-posix" / "rcS").write_text("# PX4's startup script\n# export PX4_PARAM_{name}={value}\n")
+    px4 = Px4Sitl({"px4_bin": str(build)})
+    assert px4.capabilities.params_at_start and not Px4Sitl.capabilities.params_at_start
+    world = wall_world(profile, "pilot")
+    flight = px4.capabilities.flight_params(world)
+    assert flight["MIS_TAKEOFF_ALT"] == world.mission.takeoff_altitude_m and flight["COM_RC_IN_MODE"] == 0
+    workdir = tmp_path / "evaluation"
+    workdir.mkdir()
+    handle = px4.start(sim_port=4562, api_port=14542, instance=2, workdir=workdir, params={"CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}, flight_params=flight)
+    deadline = time.monotonic() + 10.0
+    while handle.alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert handle.stop() == 0
+    expected = {**DEFAULT_PARAMS, **flight, "CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}  # the user's values win
+    assert (workdir / "px4" / "params.txt").read_text().splitlines() == sorted(f"PX4_PARAM_{name}={value}" for name, value in expected.items())
+    # The user's go over MAVLink too, where PX4 refuses a name it does not have.
+    assert handle.mavlink_params == {"CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}
+    # A mission takes none of the pilot's.
+    assert px4.capabilities.flight_params(wall_world(profile, "mission")) == {}
+
+
+def wall_world(profile, drive: str):
+    space = SearchSpace(load_logical(ROOT / "scenarios" / "examples" / "wall.json", profile, drive), profile)
+    return world_spec(space, space.sample_feasible(np.random.default_rng(3), 1)[0], 3)
 
 
 def test_px4s_rcs_sources_its_own_mavlink_start_up_and_then_the_adapters_lower_api_rates(tmp_path):

@@ -264,7 +264,7 @@ def _drop_flight_logs(kept: list[str]) -> list[str]:
 def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:
     """Set the SUT up while the simulation holds, release it and see the flight to its end."""
     arm_retry_s = arm_retry_for(system)
-    pilot_params, takeoff_altitude_param, _mode = system.capabilities.pilot_setup()
+    takeoff_altitude_param = system.capabilities.takeoff_altitude_param
     bridge, sut, session = stack.bridge, stack.sut, stack.session
     t0 = time.monotonic()
     control = BridgeControl(stack.ports.control)
@@ -302,21 +302,24 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if not system.capabilities.injects_failures:
                 session.answer_without_injection = "UNSUPPORTED"  # each failure it is to be told of: failure_refused in /events
                 session.failure_params = system.capabilities.failure_params  # unless it fails the unit through its parameters
-            elif any(f.delivery == "sut" for f in world.failures or ()):
+            injecting = system.capabilities.injects_failures and any(f.delivery == "sut" for f in world.failures or ())
+            if injecting:
                 session.enable_failure_injection()  # as PX4, the bundled autopilot refuses injections without it
-            if world.drive == "pilot":
-                # The take-off altitude goes with the set-up's parameters (see the wait below).
-                altitude = {takeoff_altitude_param: float(world.mission.takeoff_altitude_m)} if takeoff_altitude_param else {}
-                # A parameter the user set (--sut-param) is the user's to decide.
-                session.set_params({name: value for name, value in {**pilot_params, **altitude}.items() if name not in options.sut.params})
+            # A SUT that took them with its start (params_at_start) has them already.
+            flight_params = {} if system.capabilities.params_at_start else system.capabilities.flight_params(world)
+            # A parameter the user set (--sut-param) is the user's to decide.
+            session.set_params({name: value for name, value in flight_params.items() if name not in options.sut.params})
             params_acknowledged_ns = stack.tap.sut_time_ns
+            set_over_mavlink = bool(sut.mavlink_params or flight_params or injecting)
             timings["healthy_after_s"] = session.wait_healthy(options.setup_timeout_s)
-            if system.capabilities.hold_mode == "paced" and params_acknowledged_ns > 0:  # 0: no clock on its API link
+            if set_over_mavlink and system.capabilities.hold_mode == "paced" and params_acknowledged_ns > 0:  # 0: no clock on its API link
                 # PX4's modules apply a parameter some steps after MAVLink acknowledged it: with
                 # MIS_TAKEOFF_ALT set 3-10 ms before the take-off command, PX4 took off to its
                 # default 2.5 m in 495 of 720 pilot flights (the CP mutants' screening, 2026-11),
                 # and still in 2 of 12 with it set before a health wait that found PX4 healthy at
-                # once. Its clock runs during a paced hold, so this wait costs milliseconds.
+                # once. Its clock runs during a paced hold, so this wait costs milliseconds. Even
+                # so its navigator missed MIS_TAKEOFF_ALT set 0.4 s of its clock before: a SUT
+                # that can takes the flight's parameters with its start (params_at_start).
                 wait_for_sut_clock(stack.tap, params_acknowledged_ns + PARAMS_APPLIED_NS, options.setup_timeout_s, alive)
             if world.drive == "pilot":
                 session.arm_and_take_off(arm_retry_s, None if takeoff_altitude_param else world.mission.takeoff_altitude_m)

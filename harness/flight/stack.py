@@ -160,6 +160,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
         extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
         if capabilities.needs_world:
             extra["world"] = world
+        if capabilities.params_at_start and world is not None:
+            extra["flight_params"] = capabilities.flight_params(world)
         if transport == "shm":
             extra["sim_shared_memory"] = True
         sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
