@@ -170,6 +170,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     timings: dict[str, float] = {}
     outcome = NOT_FLOWN
     artifacts: list[str] = []
+    flight_logs: list[Path] = []
 
     def finish(score: Score, log_path: Path | None, failures_refused: list[dict[str, Any]] | None = None) -> EvaluationResult:
         summary = outcome.summary
@@ -210,7 +211,12 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         failure = outcome.failure
         if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
             failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {stack.sut.stderr_tail()[-500:]}")
-        artifacts = _keep_artifacts(stack.sut.artifacts(), out_dir / f"{stem}.artifacts")
+        # The SUT's consoles (*.log) are always kept; its own flight log (a PX4 ULog, about 19 MB)
+        # with --sut-logs failures only once the flight is known not to have ended ok.
+        sut_files = stack.sut.artifacts()
+        consoles = [path for path in sut_files if path.suffix == ".log"]
+        flight_logs = [path for path in sut_files if path.suffix != ".log"]
+        artifacts = _keep_artifacts(consoles if options.sut_logs == "failures" else consoles + flight_logs, out_dir / f"{stem}.artifacts")
         api_records = list(stack.tap.records)
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
             raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
@@ -220,8 +226,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
         score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
-        if options.sut_logs == "failures" and score.status == Status.OK:
-            artifacts = _drop_flight_logs(artifacts)
+        if options.sut_logs == "failures" and score.status != Status.OK:
+            artifacts += _keep_artifacts(flight_logs, out_dir / f"{stem}.artifacts")
         result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
@@ -233,6 +239,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         return finish(Score(Status.SUT_CRASHED, scoring.PENALTY, str(error), None), None)
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
+        if options.sut_logs == "failures":
+            artifacts += _keep_artifacts(flight_logs, out_dir / f"{stem}.artifacts")
         return finish(Score(Status.SIM_CRASHED, scoring.PENALTY, str(error), None), None)
     finally:
         if not options.keep_workdir:
@@ -248,17 +256,6 @@ def _keep_artifacts(files: list[Path], target: Path) -> list[str]:
         shutil.copy2(source, destination)
         kept.append(str(destination))
     return kept
-
-
-def _drop_flight_logs(kept: list[str]) -> list[str]:
-    """Delete the SUT's own flight logs among kept artifacts; its consoles (*.log) stay."""
-    consoles = []
-    for artifact in map(Path, kept):
-        if artifact.suffix == ".log":
-            consoles.append(str(artifact))
-        else:
-            artifact.unlink(missing_ok=True)
-    return consoles
 
 
 def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str, float], system: SystemUnderTest) -> FlightOutcome:
