@@ -68,6 +68,9 @@ LIMIT_PARAMS: dict[str, dict[str, tuple[str, float] | None]] = {
     "px4": {"distance": ("CP_DIST", 1.0), "delay": ("CP_DELAY", 0.4), "acc": ("MPC_ACC_HOR", 3.0), "jerk": ("MPC_JERK_AUTO", 4.0)},
     "ardupilot": {"distance": ("AVOID_MARGIN", 1.0), "delay": None, "acc": ("AVOID_ACCEL_MAX", 3.0), "jerk": None},
 }
+# The parameter and value that switch a SUT's collision prevention off where its kept distance
+# does not (PX4's CP_DIST below 0 does).
+OFF_PARAMS: dict[str, tuple[str, float]] = {"ardupilot": ("AVOID_ENABLE", 0.0)}
 UNITS = {"distance": "m", "delay": "s", "acc": "m/s^2", "jerk": "m/s^3"}
 
 
@@ -83,12 +86,14 @@ class Limits:
     @classmethod
     def of(cls, sut: Mapping[str, Any] | None) -> "Limits":
         params = dict((sut or {}).get("params") or {})
-        kind = LIMIT_PARAMS.get(str((sut or {}).get("name")), LIMIT_PARAMS["px4"])
+        name = str((sut or {}).get("name"))
+        kind = LIMIT_PARAMS.get(name, LIMIT_PARAMS["px4"])
         value = {"distance": 0.0, "delay": 0.0, "acc": math.inf, "jerk": math.inf}
         for limit, named in kind.items():
             if named is not None:
                 value[limit] = float(params.get(named[0], named[1]))
-        if "AVOID_ENABLE" in params and float(params["AVOID_ENABLE"]) == 0.0:  # ArduPilot's avoidance off
+        off = OFF_PARAMS.get(name)
+        if off is not None and off[0] in params and float(params[off[0]]) == off[1]:
             value["distance"] = -1.0
         named = tuple((named[0], limit) for limit, named in kind.items() if named is not None)
         return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params), named)
