@@ -167,6 +167,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     out_dir.mkdir(parents=True, exist_ok=True)
     workdir = scratch.folder(stem)
     log_path = out_dir / f"{stem}.mcap"
+    kept_dir = out_dir / f"{stem}.artifacts"
     timings: dict[str, float] = {}
     outcome = NOT_FLOWN
     artifacts: list[str] = []
@@ -216,7 +217,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         sut_files = stack.sut.artifacts()
         consoles = [path for path in sut_files if path.suffix == ".log"]
         flight_logs = [path for path in sut_files if path.suffix != ".log"]
-        artifacts = _keep_artifacts(consoles if options.sut_logs == "failures" else sut_files, out_dir / f"{stem}.artifacts")
+        artifacts = _keep_artifacts(consoles if options.sut_logs == "failures" else sut_files, kept_dir)
         api_records = list(stack.tap.records)
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
             raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
@@ -227,7 +228,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
         if options.sut_logs == "failures" and score.status != Status.OK:
-            artifacts = _keep_artifacts(flight_logs, out_dir / f"{stem}.artifacts") + artifacts
+            artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
         result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
@@ -240,7 +241,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
         if options.sut_logs == "failures":
-            artifacts = _keep_artifacts(flight_logs, out_dir / f"{stem}.artifacts") + artifacts
+            artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
         return finish(Score(Status.SIM_CRASHED, scoring.PENALTY, str(error), None), None)
     finally:
         if not options.keep_workdir:
