@@ -18,8 +18,9 @@ STELLA = (sys.executable, "-m", "harness.tools.cli")
 @pytest.mark.slow
 def test_each_failure_mode_becomes_a_bundle_whose_command_flies_the_violation_again(tmp_path):
     store = tmp_path / "c.db"
+    # The store named relative to where the campaign ran; triage and export run from elsewhere.
     subprocess.run([*STELLA, "campaign", str(ROOT / "tests/data/scenarios/wall_range_off_baro_off.json"), "--algorithm", "RANDOM", "--evaluations", "3",
-                    "--seed", "3", "--executor", "sequential", "--store", str(store)], check=True, capture_output=True, cwd=tmp_path)
+                    "--seed", "3", "--executor", "sequential", "--store", store.name], check=True, capture_output=True, cwd=tmp_path)
     triage = json.loads(subprocess.run([*STELLA, "triage", str(store), "--json"], check=True, capture_output=True, text=True).stdout)
     assert triage["modes"], "with its range sensor off, the UAV meets the wall in one of these candidates"
     out = tmp_path / "findings"

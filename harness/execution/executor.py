@@ -72,7 +72,9 @@ class Job:
     @classmethod
     def of(cls, key: int, space: SearchSpace, x: np.ndarray, *, seed: int, out_dir: Path | str, name: str, options: RunOptions) -> "Job":
         """The job for point x of space, which must be feasible (evaluation.infeasible says)."""
-        return cls(key, world_spec(space, x, seed), space.to_concrete(x), seed, str(out_dir), name, options)
+        # Absolute: the log paths a store keeps are read later from anywhere (triage, report,
+        # export-findings), and a Dask worker's working directory is not the campaign's.
+        return cls(key, world_spec(space, x, seed), space.to_concrete(x), seed, str(Path(out_dir).absolute()), name, options)
 
 
 def run_job(job: Job) -> EvaluationResult:
