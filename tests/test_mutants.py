@@ -238,3 +238,77 @@ def test_a_revealing_case_fails_on_the_subjects_build_and_passes_on_the_referenc
     bad.assert_outcomes(failed=1)
     good = pytester.runpytest_subprocess(str(case), "-p", "no:cacheprovider", "--stella-autopilot-dir", original.folder, "--stella-out", str(tmp_path / "logs"))
     good.assert_outcomes(passed=1)
+
+
+# The other test method of the next test: the mutated collision.py of the tree it runs in must
+# still brake for a wall 3 m ahead.
+BRAKING_CHECK = """\
+import importlib.util, sys
+sys.path.insert(0, {root!r})
+from autopilot.params import Params
+spec = importlib.util.spec_from_file_location("mutated_collision", "autopilot/collision.py")
+collision = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(collision)
+with open("runs.log", "a") as log:
+    log.write("run\\n")
+obstacles = collision.ObstacleMap()
+distances = [collision.UINT16_MAX] * collision.BINS
+for sector in range(-10, 11):
+    distances[sector % collision.BINS] = 300
+obstacles.update(0.0, 0.0, distances, 5.0, 0.0, 20, 2000)
+north, _east = collision.constrain_velocity(Params(), obstacles, 0.0, (5.0, 0.0), (0.0, 0.0))
+sys.exit(0 if north < 4.0 else 1)
+"""
+
+
+def test_another_test_method_judges_each_mutant_in_its_tree_and_leaves_the_tree_as_it_was(tmp_path, capsys):
+    # GIVEN three built mutants of the CP module: one stops braking, one changes nothing a short
+    # test sees, one hangs at import (and a stillborn one); and a tree with the module and a
+    # test that checks braking
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder)
+    braking = _mutant_with(index, "vn -= (along - allowed) * bin_n", "pass")
+    quiet = _mutant_with(index, "STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0")
+    broken = next(m for m in index["mutants"] if m["mutated"].strip() == "pass" and m["original"].rstrip().endswith(":"))
+    index["mutants"] = [braking, quiet, broken]
+    _add_mutant(folder, index, "m9003", quiet["line"], "import time; time.sleep(60); STALE_AFTER_S = 0.5\n")
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+    tree = tmp_path / "tree"
+    (tree / "autopilot").mkdir(parents=True)
+    unmutated = (ROOT / COLLISION).read_bytes()
+    (tree / COLLISION).write_bytes(unmutated)
+    (tree / "check.py").write_text(BRAKING_CHECK.format(root=str(ROOT)))
+    command = f"{sys.executable} check.py"
+    argv = ["mutants", "test", str(folder), "--tree", str(tree), "--command", command, "--timeout", "10"]
+
+    # WHEN the test runs before the mutants are built, THEN it is refused: stillborn ones would count as killed
+    assert main(argv) == 2
+    assert "run `stella mutants build` first" in capsys.readouterr().err
+
+    # WHEN they are built (their builds are tested above: here only their states) and the test runs against each
+    states = {braking["id"]: "built", quiet["id"]: "built", "m9003": "built", broken["id"]: "stillborn"}
+    (folder / mutants.BUILT).write_text(json.dumps({"mutants": {key: {"id": key, "state": state} for key, state in states.items()}}))
+    assert main(argv) == 0
+    results = json.loads((folder / "other_tests.json").read_text())
+    # THEN it kills the one that stops braking and the one that hangs (on the timeout), not the quiet one
+    assert results["mutants"][braking["id"]]["killed"] and results["mutants"][braking["id"]]["exit"] == 1
+    assert not results["mutants"][quiet["id"]]["killed"]
+    assert results["mutants"]["m9003"]["killed"] and results["mutants"]["m9003"]["why"] == "timed out after 10 s"
+    assert results["original"]["why"] == "passed"
+    assert broken["id"] not in results["mutants"]  # a stillborn mutant fails any build: not judged
+    # and the tree is as it was
+    assert (tree / COLLISION).read_bytes() == unmutated
+    # AND a second run resumes: nothing runs again
+    runs = (tree / "runs.log").read_text().count("run")
+    assert main(argv) == 0
+    assert (tree / "runs.log").read_text().count("run") == runs
+    # AND the report takes the results beside the flights' kills (its table is tested above)
+    assert mutation.against_other_tests({braking["id"]: {"state": "killed_by_suite"}}, ["RANDOM"], mutation.load_other_tests(folder / "other_tests.json"))["both"] == [braking["id"]]
+
+    # WHEN the command fails on the unmutated tree, THEN it judges nothing and says so
+    capsys.readouterr()
+    assert main(["mutants", "test", str(folder), "--tree", str(tree), "--command", "false", "--out", str(tmp_path / "x.json")]) == 2
+    assert "fails on the unmutated tree" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
+    # nor does a tree without the file
+    assert main(["mutants", "test", str(folder), "--tree", str(tmp_path), "--command", command, "--out", str(tmp_path / "x.json")]) == 2
+    assert "does not exist" in capsys.readouterr().err

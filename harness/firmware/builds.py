@@ -119,7 +119,7 @@ def _patched_files(patch: Path) -> list[str]:
     return files
 
 
-def _apply(folder: Path, patches: Sequence[Path]) -> list[str]:
+def apply_patches(folder: Path, patches: Sequence[Path]) -> list[str]:
     """Apply the patches in order; the files they touch. A patch that does not apply is the user's."""
     touched: list[str] = []
     for patch in patches:
@@ -229,7 +229,7 @@ def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cac
     log_path = folder / BUILD_LOG
     with open(log_path, "w") as log_file:
         tree = _worktree(source, commit, cache, log_file, worktree_command)
-        touched = _apply(tree, patches)
+        touched = apply_patches(tree, patches)
         try:
             # The cache's worktree keeps the submodules at the pins checked out above; PX4's own
             # submodule update would reach for the network.
@@ -294,7 +294,7 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
         # Another commit's sources or static types: every compiled module is compiled again, as
         # a .pxd changed under one changes what the modules that cimport it compile to.
         changed = [f"autopilot/{so.name.split('.', 1)[0]}.py" for so in package.glob("*.so")]
-    touched = _apply(folder, patches)
+    touched = apply_patches(folder, patches)
     objects = {}
     with open(log_path, "w") as log_file:
         for name in dict.fromkeys([*touched, *watch]):

@@ -312,11 +312,11 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
                                 for level in LEVELS},
             "baseline": baseline.upper(), "scores": scores, "survivors": survivors, "screening": document["screening"],
             "searching": document["searching"], "searched": {a: sorted(s) for a, s in searched.items()},
-            **({"other_tests": {"name": other_name, "file": str(other_tests), **against_other_tests(outcomes, algorithms, _other(other_tests))}}
+            **({"other_tests": {"name": other_name, "file": str(other_tests), **against_other_tests(outcomes, algorithms, load_other_tests(other_tests))}}
                if other_tests else {})}
 
 
-def _other(path: Path) -> Mapping[str, Any]:
+def load_other_tests(path: Path) -> Mapping[str, Any]:
     if not Path(path).is_file():
         raise InputError([Problem(str(path), "", "no such file: give a JSON file {\"mutants\": {ID: {\"killed\": true|false}}}")])
     document = json.loads(Path(path).read_text())

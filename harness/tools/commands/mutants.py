@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import InputError, Problem
-from harness.tools.commands.common import command, command_with_actions, emit, non_negative_int, positive_int
+from harness.tools.commands.common import command, command_with_actions, emit, non_negative_int, positive_float, positive_int
 from harness.tools.commands.sut import worktree_option
 from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
 
@@ -112,6 +112,29 @@ def _suite(items: list[str]) -> tuple[str, ...]:
         else:
             raise InputError([Problem(item, "", "no such suite case: give regression cases, concrete scenarios or folders of them")])
     return tuple(files)
+
+
+def _test_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folder", help="the folder of generated and built mutants")
+    p.add_argument("--tree", required=True, help="a source tree with the unmutated file, configured and built once (e.g. a PX4 worktree with "
+                                                 "build/px4_sitl_test), where each mutant's patch is applied in turn and put back")
+    p.add_argument("--command", required=True, help="a shell command run in the tree for each mutant: exit 0 passes (the mutant survives), "
+                                                    "anything else kills it; e.g. 'make tests TESTFILTER=CollisionPrevention'")
+    p.add_argument("--timeout", type=positive_float, default=600.0, help="seconds before a hanging command counts as a kill (default 600)")
+    p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
+    p.add_argument("--out", help="the results file (default FOLDER/other_tests.json); resumable")
+
+
+@command("mutants test", "run another test method (e.g. PX4's unit tests) against each mutant, for the report's comparison", _test_options)
+def mutants_test(args: argparse.Namespace) -> int:
+    from harness.firmware import mutant_tests
+
+    document = mutant_tests.run(Path(args.folder), Path(args.tree), args.command, timeout_s=args.timeout, only=args.only,
+                                out=Path(args.out) if args.out else None, progress=lambda line: print(line, file=sys.stderr))
+    killed = sum(v["killed"] for v in document["mutants"].values())
+    emit(args, document, f"the command killed {killed} of {len(document['mutants'])} mutants; results in {document['out']}\n"
+                         f"`stella mutants report {args.folder} --other-tests {document['out']}` for the table beside the flights' kills")
+    return 0
 
 
 def _report_options(p: argparse.ArgumentParser) -> None:
