@@ -76,6 +76,9 @@ class SutHandle:
     stop: Callable[[], int | None]
     artifacts: Callable[[], list[Path]] = lambda: []
     stderr_tail: Callable[[], str] = lambda: ""
+    # Its process's exit status while the harness has not stopped it yet: None while it runs,
+    # -N for a signal (a SUT that dies of SIGFPE or SIGSEGV in flight says so), else its code.
+    exit_status: Callable[[], int | None] = lambda: None
     pids: list[int] = field(default_factory=list)
     mavlink_params: Mapping[str, int | float] = field(default_factory=dict)
     # Whether it has finished starting up: a SUT may speak MAVLink before it answers all of it
@@ -89,7 +92,8 @@ def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:
         process.__enter__()
     except OSError as error:
         raise SutError(sut, f"cannot start {process.argv[0]}: {error}") from None
-    defaults = {"alive": lambda: process.poll() is None, "stop": process.stop, "stderr_tail": process.console_tail, "pids": [process.pid]}
+    defaults = {"alive": lambda: process.poll() is None, "stop": process.stop, "stderr_tail": process.console_tail, "exit_status": process.poll,
+                "pids": [process.pid]}
     return SutHandle(name=sut, **{**defaults, **fields})
 
 

@@ -253,6 +253,21 @@ def test_the_command_adapter_flies_the_bundled_autopilot_exactly_as_the_bundled_
     assert generic.artifacts == []  # the autopilot printed nothing, so no empty console logs are kept
 
 
+def test_a_sut_that_dies_of_a_signal_says_which_rather_than_its_last_console_line(tmp_path, profile):
+    # GIVEN the bundled autopilot, printing start-up noise, that dies of SIGFPE a second after it starts
+    # (in flight or, on a slow machine, during set-up: both must say so)
+    dying = (f"{sys.executable} -c \"import os, signal, sys, threading, runpy; print('uxrce_dds_client: not found', file=sys.stderr); "
+             "threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGFPE)).start(); "
+             "sys.argv = ['autopilot', '--sim', 'tcp:127.0.0.1:{sim_port}', '--api', 'udp:127.0.0.1:{api_port}']; "
+             "runpy.run_module('autopilot', run_name='__main__')\"")
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    result = evaluate(space, x, seed=1, out_dir=tmp_path, options=RunOptions(sut=SutConfig("command", command=dying, hold="frozen")))
+    # THEN the flight is a crash that names the signal before the console's noise
+    assert result.status == "sut_crashed"
+    assert "command died of SIGFPE (Floating point exception); its console ends: uxrce_dds_client: not found" in result.why
+
+
 @pytest.mark.slow
 def test_parameters_reach_the_sut_over_mavlink(tmp_path, profile):
     """CP_DIST set through the generic adapter (over MAVLink) changes where a wall stops the vehicle."""
