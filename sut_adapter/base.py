@@ -18,6 +18,8 @@ PX4 and command SUTs wait their own way.
 from __future__ import annotations
 
 import math
+import signal
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Mapping, Protocol
@@ -30,6 +32,7 @@ if TYPE_CHECKING:
 HOLD_MODES = ("frozen", "paced")
 TRANSPORTS = ("tcp", "unix", "shm", "memory")
 DEFAULT_RATE_HZ = 250.0
+EXIT_STATUS_WAIT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,33 @@ class SutHandle:
     # Whether it has finished starting up: a SUT may speak MAVLink before it answers all of it
     # (PX4 drops parameter messages until the end of its start-up script).
     booted: Callable[[], bool] = lambda: True
+
+    def how_it_ended(self) -> str:
+        """Its exit (a signal by name: PX4 dying of SIGFPE in flight is a finding), then the end
+        of its console, which for a crash is often start-up noise printed long before. Asked
+        before the harness stops it, whose SIGTERM would be all its exit status then says."""
+        # A dying process closes its links before it can be reaped: the bridge may see the link
+        # go a moment before the exit status is there.
+        deadline = time.monotonic() + EXIT_STATUS_WAIT_S
+        status = self.exit_status()
+        while status is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+            status = self.exit_status()
+        if status is None:
+            ended = f"{self.name} still ran but stopped answering" if self.alive() else f"{self.name} is gone"
+        elif status < 0:
+            description = signal.strsignal(-status)
+            ended = f"{self.name} died of {_signal_name(-status)}" + (f" ({description})" if description else "")
+        else:
+            ended = f"{self.name} exited with code {status}"
+        return f"{ended}; its console ends: {self.stderr_tail()[-400:]}"
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return f"signal {number}"
 
 
 def start_process(sut: str, process: ManagedProcess, **fields) -> SutHandle:

@@ -12,6 +12,7 @@ import os
 import sqlite3
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -279,7 +280,7 @@ def test_another_test_method_judges_each_mutant_in_its_tree_and_leaves_the_tree_
     (tree / COLLISION).write_bytes(unmutated)
     (tree / "check.py").write_text(BRAKING_CHECK.format(root=str(ROOT)))
     command = f"{sys.executable} check.py"
-    argv = ["mutants", "test", str(folder), "--tree", str(tree), "--command", command, "--timeout", "10"]
+    argv = ["mutants", "test", str(folder), "--tree", str(tree), "--command", command, "--timeout-s", "10"]
 
     # WHEN the test runs before the mutants are built, THEN it is refused: stillborn ones would count as killed
     assert main(argv) == 2
@@ -291,7 +292,7 @@ def test_another_test_method_judges_each_mutant_in_its_tree_and_leaves_the_tree_
     assert main(argv) == 0
     results = json.loads((folder / "other_tests.json").read_text())
     # THEN it kills the one that stops braking and the one that hangs (on the timeout), not the quiet one
-    assert results["mutants"][braking["id"]]["killed"] and results["mutants"][braking["id"]]["exit"] == 1
+    assert results["mutants"][braking["id"]]["killed"] and results["mutants"][braking["id"]]["exit_code"] == 1
     assert not results["mutants"][quiet["id"]]["killed"]
     assert results["mutants"]["m9003"]["killed"] and results["mutants"]["m9003"]["why"] == "timed out after 10 s"
     assert results["original"]["why"] == "passed"
@@ -312,3 +313,50 @@ def test_another_test_method_judges_each_mutant_in_its_tree_and_leaves_the_tree_
     # nor does a tree without the file
     assert main(["mutants", "test", str(folder), "--tree", str(tmp_path), "--command", command, "--out", str(tmp_path / "x.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    # nor a tree whose file a run stopped with kill -9 left mutated
+    (tree / COLLISION).write_text((ROOT / COLLISION).read_text().replace("STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0"))
+    assert main(["mutants", "test", str(folder), "--tree", str(tree), "--command", command, "--out", str(tmp_path / "x.json")]) == 2
+    assert "differs from the file the mutants were generated from" in capsys.readouterr().err
+
+
+def test_a_stopped_test_run_puts_the_file_back_and_leaves_no_process(tmp_path):
+    # GIVEN a built mutant and a command that passes at once on the unmutated file and, on a
+    # mutated one, records its process group and then hangs
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder)
+    quiet = _mutant_with(index, "STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0")
+    index["mutants"] = [quiet]
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+    (folder / mutants.BUILT).write_text(json.dumps({"mutants": {quiet["id"]: {"id": quiet["id"], "state": "built"}}}))
+    tree = tmp_path / "tree"
+    (tree / "autopilot").mkdir(parents=True)
+    (tree / COLLISION).write_bytes((ROOT / COLLISION).read_bytes())
+    command = "grep -q 'STALE_AFTER_S = 0.5' autopilot/collision.py || { sleep 300 & echo $$ > group; wait; }"
+    run = subprocess.Popen([sys.executable, "-m", "harness.tools.cli", "mutants", "test", str(folder), "--tree", str(tree), "--command", command],
+                           cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (tree / "group").exists() and time.monotonic() < deadline and run.poll() is None:
+            time.sleep(0.1)
+        assert (tree / "group").exists(), run.stderr.read() if run.poll() is not None else "the mutant's command never started"
+        group = int((tree / "group").read_text())
+        # WHEN the run is stopped with SIGTERM while the mutant's command runs
+        run.terminate()
+        run.wait(timeout=30)
+    finally:
+        run.kill()
+    # THEN the file is as it was and nothing of the command's process group runs on
+    assert (tree / COLLISION).read_bytes() == (ROOT / COLLISION).read_bytes()
+    assert _running_in_group(group) == []
+    assert run.returncode != 0
+
+
+def _running_in_group(group: int) -> list[int]:
+    """The group's processes that are not zombies (an orphan waits for init to reap it)."""
+    running = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[2]) == group and fields[0] != "Z":
+                running.append(int(stat.parent.name))
+    return running

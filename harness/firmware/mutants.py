@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import hashlib
 import io
 import json
 import re
@@ -196,7 +197,8 @@ def generate(source: Path, file: str, out: Path, *, function: str | None = None,
         (folder / mutant.patch_name).write_text("".join(diff))
         mutants.append(mutant)
     commit = builds.git(source, "rev-parse", "HEAD", check=False).stdout.strip() if (source / ".git").exists() else None
-    index = {"format": FORMAT, "source": str(source), "commit": commit or None, "kind": builds.tree_kind(source), "file": file, "function": function,
+    index = {"format": FORMAT, "source": str(source), "commit": commit or None, "kind": builds.tree_kind(source), "file": file,
+             "file_sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "function": function,
              "lines": [first, last], "generated": len(unique), "limit": limit, "seed": seed, "mutants": [asdict(m) for m in mutants]}
     (Path(out) / INDEX).write_text(json.dumps(index, indent=1) + "\n")
     return index

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import signal
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
@@ -207,13 +206,14 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         with simulation_stack(world, options, system, workdir) as stack:
             timings["start_s"] = time.monotonic() - started
             outcome = _fly(world, options, stack, timings, system)
-            lost_sut = _how_the_sut_ended(stack.sut) if outcome.end_reason is not None and outcome.end_reason.sut_lost else ""
+            # Inside the stack: once it stops the SUT, the exit status is the harness's own SIGTERM.
+            sut_end = stack.sut.how_it_ended() if outcome.end_reason is not None and outcome.end_reason.sut_lost else ""
             stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
             stopping = time.monotonic()
         timings["stop_s"] = time.monotonic() - stopping
         failure = outcome.failure
         if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
-            failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {lost_sut}")
+            failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {sut_end}")
         # The SUT's consoles (*.log) are always kept; its own flight log (a PX4 ULog, about 19 MB)
         # with --sut-logs failures only once the flight is known not to have ended ok.
         sut_files = stack.sut.artifacts()
@@ -330,7 +330,8 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
             if _unanswered(error):
                 return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
-            refused = Failure(Status.SUT_CRASHED if not sut.alive() else Status.MISSION_FAILED, f"setup: the SUT refused: {error}")
+            refused = (Failure(Status.SUT_CRASHED, f"setup: {sut.how_it_ended()} ({error})") if not sut.alive()
+                       else Failure(Status.MISSION_FAILED, f"setup: the SUT refused: {error}"))
             return FlightOutcome(refused, control_summary(control), {})
         timings["setup_s"] = time.monotonic() - t0
         control.send(Run())
@@ -377,26 +378,9 @@ def _unanswered(error: Exception) -> bool:
     return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
-def _how_the_sut_ended(sut: SutHandle) -> str:
-    """Its exit (a signal by name: PX4 dying of SIGFPE in flight is a finding), then the end of
-    its console, which for a crash is often start-up noise printed long before."""
-    status = sut.exit_status()
-    if status is None:
-        ended = f"{sut.name} still ran but stopped answering" if sut.alive() else f"{sut.name} is gone"
-    elif status < 0:
-        try:
-            name = signal.Signals(-status).name
-        except ValueError:
-            name = f"signal {-status}"
-        ended = f"{sut.name} died of {name}" + (f" ({signal.strsignal(-status)})" if signal.strsignal(-status) else "")
-    else:
-        ended = f"{sut.name} exited with code {status}"
-    return f"{ended}; its console ends: {sut.stderr_tail()[-400:]}"
-
-
 def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> Failure:
     if bridge.poll() is not None:
         return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}")
     if not sut.alive():
-        return Failure(Status.SUT_CRASHED, f"{what}: {_how_the_sut_ended(sut)}")
+        return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
     return Failure(Status.TIMEOUT, what)

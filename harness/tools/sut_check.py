@@ -71,7 +71,7 @@ def _run_stages(stack: Stack, world, stages: list[Stage], start: float, timeout_
 
     def failed(index: int, detail: str) -> None:
         if not sut.alive():
-            detail += f"; the SUT exited: {sut.stderr_tail()[-800:]}"
+            detail += f"; {sut.how_it_ended()}"
         elif stack.bridge.poll() is not None:
             detail += f"; the simulator exited: {stack.bridge.stderr_tail()[-800:]}"
         stages[index].ok, stages[index].after_s, stages[index].detail = False, time.monotonic() - start, detail

@@ -120,7 +120,8 @@ def _test_options(p: argparse.ArgumentParser) -> None:
                                                  "build/px4_sitl_test), where each mutant's patch is applied in turn and put back")
     p.add_argument("--command", required=True, help="a shell command run in the tree for each mutant: exit 0 passes (the mutant survives), "
                                                     "anything else kills it; e.g. 'make tests TESTFILTER=CollisionPrevention'")
-    p.add_argument("--timeout", type=positive_float, default=600.0, help="seconds before a hanging command counts as a kill (default 600)")
+    p.add_argument("--timeout-s", type=positive_float, default=600.0,
+                   help="seconds before a hanging command counts as a kill, once and for good: well above the unmutated run's time (default 600)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
     p.add_argument("--out", help="the results file (default FOLDER/other_tests.json); resumable")
 
@@ -129,10 +130,11 @@ def _test_options(p: argparse.ArgumentParser) -> None:
 def mutants_test(args: argparse.Namespace) -> int:
     from harness.firmware import mutant_tests
 
-    document = mutant_tests.run(Path(args.folder), Path(args.tree), args.command, timeout_s=args.timeout, only=args.only,
+    document = mutant_tests.run(Path(args.folder), tree=Path(args.tree), command=args.command, timeout_s=args.timeout_s, only=args.only,
                                 out=Path(args.out) if args.out else None, progress=lambda line: print(line, file=sys.stderr))
     killed = sum(v["killed"] for v in document["mutants"].values())
-    emit(args, document, f"the command killed {killed} of {len(document['mutants'])} mutants; results in {document['out']}\n"
+    emit(args, document, f"the command killed {killed} of {len(document['mutants'])} mutants; results in {document['out']}, "
+                         f"each run's output in {document['logs']}\n"
                          f"`stella mutants report {args.folder} --other-tests {document['out']}` for the table beside the flights' kills")
     return 0
 
