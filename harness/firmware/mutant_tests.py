@@ -25,7 +25,7 @@ from typing import Callable, Iterator, Sequence
 
 from harness.errors import InputError, Problem
 from harness.firmware import builds
-from harness.firmware.mutants import BUILT, load_index
+from harness.firmware.mutants import BUILT, load_index, write_json_atomically
 from sut_adapter.processes import ManagedProcess
 
 OUT = "other_tests.json"
@@ -104,12 +104,6 @@ def _load(out: Path, identity: dict) -> dict:
     return document
 
 
-def _save(out: Path, document: dict) -> None:
-    temporary = out.with_suffix(".tmp")
-    temporary.write_text(json.dumps(document, indent=1) + "\n")
-    temporary.replace(out)
-
-
 def _write_atomically(path: Path, data: bytes) -> None:
     temporary = path.with_name(path.name + ".stella-tmp")
     temporary.write_bytes(data)
@@ -149,7 +143,7 @@ def run(folder: Path, *, tree: Path, command: str, timeout_s: float, only: Seque
             if verdict.killed:
                 raise InputError([Problem("--command", "", f"it fails on the unmutated tree {tree}, so it can judge no mutant: {verdict.why}")])
             document["original"] = verdict.as_json()
-            _save(out, document)
+            write_json_atomically(out, document)
             progress(f"original: passed ({verdict.seconds:.1f} s)")
         for mutant in mutants:
             if mutant["id"] in document["mutants"]:
@@ -160,7 +154,7 @@ def run(folder: Path, *, tree: Path, command: str, timeout_s: float, only: Seque
             finally:
                 _write_atomically(target, unmutated)
             document["mutants"][mutant["id"]] = verdict.as_json()
-            _save(out, document)
+            write_json_atomically(out, document)
             progress(f"{mutant['id']}: {'killed' if verdict.killed else 'survived'} ({verdict.seconds:.1f} s)"
                      + (f": {verdict.why.splitlines()[0]}" if verdict.killed else ""))
     return {**document, "out": str(out), "logs": str(log_dir)}

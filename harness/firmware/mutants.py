@@ -254,13 +254,13 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
             entry = {"id": mutant["id"], "state": state, "folder": variant.folder, "digest": digest, "build_s": variant.build_s,
                      "cached": variant.cached, **({"same_as": by_digest[digest]} if state == "duplicate" else {})}
         record["mutants"][mutant["id"]] = entry
-        _write_json(built_path, record)
+        write_json_atomically(built_path, record)
         progress(f"{mutant['id']} {entry['state']}" + (f" ({entry['build_s']:.1f} s)" if "build_s" in entry and not entry.get("cached") else ""))
-    _write_json(built_path, record)
+    write_json_atomically(built_path, record)
     return record
 
 
-def _write_json(path: Path, document: dict) -> None:
+def write_json_atomically(path: Path, document: dict) -> None:
     temporary = path.with_suffix(".tmp")
     temporary.write_text(json.dumps(document, indent=1) + "\n")
     temporary.replace(path)

@@ -36,7 +36,7 @@ from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
-from harness.firmware.mutants import BUILT, load_index
+from harness.firmware.mutants import BUILT, load_index, write_json_atomically
 from harness.flight.evaluation import infeasible
 from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
@@ -111,12 +111,6 @@ def _load(path: Path, plan: MutationPlan) -> dict[str, Any]:
     return document
 
 
-def _save(path: Path, document: dict[str, Any]) -> None:
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text(json.dumps(document, indent=1) + "\n")
-    temporary.replace(path)
-
-
 def _started_badly(result) -> bool:
     """A subject flight that never got to fly: it crashed, or setup (arming, takeoff) failed."""
     return result.status == Status.SUT_CRASHED or (result.status in (Status.MISSION_FAILED, Status.TIMEOUT) and (result.why or "").startswith("setup"))
@@ -144,7 +138,7 @@ def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequ
             if outcome is None:
                 outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject))
                 document["mutants"][entry["id"]] = outcome
-                _save(run_path, document)
+                write_json_atomically(run_path, document)
                 progress(f"{entry['id']}: {describe(outcome)}")
             if outcome["state"] != "survived_suite":
                 continue
@@ -155,7 +149,7 @@ def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequ
                         continue
                     done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir,
                                                         progress)
-                    _save(run_path, document)
+                    write_json_atomically(run_path, document)
                     progress(f"{entry['id']}: {describe(outcome)}")
     finally:
         cache.close()
