@@ -88,6 +88,7 @@ class Summary:
     steps: int = 0
     airborne: bool = False
     touchdown: dict[str, Any] | None = None
+    first_touchdown_s: float | None = None
     bad_frames: int = 0
     skipped_bytes: int = 0
     wall_time_s: float = 0.0
@@ -430,6 +431,7 @@ class Bridge:
         summary.end_reason = world.end_reason
         summary.airborne = world.airborne
         summary.touchdown = world.touchdown
+        summary.first_touchdown_s = world.first_touchdown_s
         summary.injections = world.injections
 
     def _paced_hold(self, control: ControlChannel, time_s: float) -> None:

@@ -16,7 +16,7 @@ cdef class World:
     cdef public list _nothing_in_reach, injections, _pending_ops
     cdef public long long dt_us, steps
     cdef public object motors
-    cdef public object run_start_s, end_reason, touchdown, forced_slot, _landed_since, pilot
+    cdef public object run_start_s, end_reason, touchdown, first_touchdown_s, forced_slot, _landed_since, pilot
 
     cpdef double run_time(self, double time_s)
 

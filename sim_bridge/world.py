@@ -88,6 +88,9 @@ class World:
         self.end_reason = EndReason.RUNNING
         self.airborne = False
         self.touchdown: dict[str, Any] | None = None
+        # The first touchdown once airborne, kept through any hop after it: when the flight came
+        # down, which the hops of a landing (the SUT's land detector against the skids) do not move.
+        self.first_touchdown_s: float | None = None
         self.injections: list[dict[str, Any]] = []
         self.forced_slot: int | None = None
         self._pending_ops: list[ObstacleOp] = []
@@ -259,6 +262,8 @@ class World:
                     "surface": "water" if is_water(self.water, s.north_m, s.east_m) else "land",
                 }
                 self.on_event(time_s, "touchdown", dict(self.touchdown))
+                if self.first_touchdown_s is None:
+                    self.first_touchdown_s = time_s
                 if speed > CRASH_SPEED_M_S:
                     self.end_reason = EndReason.CRASHED
                     return

@@ -47,6 +47,33 @@ def test_flight_time_differs_as_a_behaviour_too():
     assert compare([flight(Status.OK, 1.3, 40.4)], [flight(Status.OK, 1.3, 40.0)]).reveals is None
 
 
+def landed(time_s: float, first_touchdown_s: float) -> Outcome:
+    return Outcome(Status.OK, 0.3, 1.3, time_s, first_touchdown_s=first_touchdown_s)
+
+
+def test_flights_are_timed_by_their_first_touchdown_so_the_hops_of_a_landing_reveal_nothing():
+    # GIVEN PX4's landing as flown on m0020's 23rd wall candidate: both came down at 59.6-59.8 s,
+    # the original hopped once and ended at 61-64 s, the mutant hopped up to four times
+    reference = [landed(63.8, 59.67), landed(61.1, 59.70), landed(63.8, 59.68)]
+    hopping = [landed(72.9, 59.64), landed(69.3, 59.81), landed(71.1, 59.75)]
+    assert compare(hopping, reference).reveals is None
+    # a subject that comes down later beyond the spread still reveals, timed by its touchdown
+    late = compare([landed(75.0, 66.0)], reference)
+    assert late.reveals == Reveal.BEHAVIOUR and late.difference == Difference.LONGER and late.why.startswith("touchdown 66.0 s")
+    # outcomes recorded before the touchdown was kept (a cached reference) are timed as before, whole flights
+    assert compare(hopping, [flight(Status.OK, 1.3, 63.8)]).why.startswith("flight time 72.9 s")
+
+
+def test_a_revealing_case_holds_a_build_to_the_references_touchdown_not_its_hops():
+    by_touchdown = {**REFERENCE, "difference": "longer", "first_touchdown_s": [59.6, 59.8]}
+    del by_touchdown["sim_time_s"]
+    hopping = EvaluationResult(**{**result_of(Status.OK, 15.72, 72.9).as_dict(), "first_touchdown_s": 59.7})
+    assert verdict("as_reference", hopping, 1.0, by_touchdown) is None
+    late = EvaluationResult(**{**result_of(Status.OK, 15.72, 72.9).as_dict(), "first_touchdown_s": 66.0})
+    assert "touched down at 66.0 s where the reference build touched down at 59.6-59.8 s" in verdict("as_reference", late, 1.0, by_touchdown)
+    assert "never touched down" in verdict("as_reference", result_of(Status.OK, 15.72, 72.9), 1.0, by_touchdown)
+
+
 def test_a_behaviour_difference_says_by_what_from_the_subjects_side():
     reference = [flight(Status.OK, 2.0, 60.0), flight(Status.OK, 2.1, 61.0)]
     assert compare([flight(Status.MISSION_FAILED, 9.0)], reference).difference == Difference.STATUS

@@ -42,6 +42,8 @@ def test_static_obstacles_only_end_ok_or_violation_with_a_finite_fitness(tmp_pat
     assert result.status in ("ok", "violation"), result.why
     assert math.isfinite(result.fitness) and result.fitness < PENALTY
     assert result.min_clearance_m == pytest.approx(result.fitness + 1.0)
+    # It came down at the goal before its flight ended (landed: still, motors idle, for a second).
+    assert result.first_touchdown_s is not None and result.first_touchdown_s <= result.sim_time_s - 1.0
 
 
 def test_the_log_opens_as_foxglove_expects_every_message_matches_its_schema(tmp_path, profile):

@@ -18,7 +18,7 @@ import numpy as np
 
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InputError, Problem
-from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare
+from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare, flight_times
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
@@ -127,22 +127,35 @@ def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: 
     ceiling = reference["max_clearance_m"] + reference["tolerance_m"]
     if Difference.FARTHER in held_to and result.min_clearance_m > ceiling:
         return f"kept farther away than the reference build: min clearance above its {reference['max_clearance_m']:.3f} m + {reference['tolerance_m']:.3f} m: {what}"
-    shortest, longest = reference["sim_time_s"]
-    if (Difference.SHORTER in held_to and result.sim_time_s < shortest - reference["time_tolerance_s"]
-            or Difference.LONGER in held_to and result.sim_time_s > longest + reference["time_tolerance_s"]):
-        return f"flew {result.sim_time_s:.1f} s where the reference build flew {shortest:.1f}-{longest:.1f} s: {what}"
+    if not held_to & {Difference.SHORTER, Difference.LONGER}:
+        return None
+    # Timed as the pair was (harness/flight/differential.py): by the first touchdown, or in cases
+    # written before it was kept, by the whole flight.
+    if "first_touchdown_s" in reference:
+        shortest, longest = reference["first_touchdown_s"]
+        flown, did = result.first_touchdown_s, "touched down at"
+        if flown is None:
+            return f"never touched down where the reference build did at {shortest:.1f}-{longest:.1f} s: {what}"
+    else:
+        shortest, longest = reference["sim_time_s"]
+        flown, did = result.sim_time_s, "flew"
+    if (Difference.SHORTER in held_to and flown < shortest - reference["time_tolerance_s"]
+            or Difference.LONGER in held_to and flown > longest + reference["time_tolerance_s"]):
+        return f"{did} {flown:.1f} s where the reference build {did} {shortest:.1f}-{longest:.1f} s: {what}"
     return None
 
 
 def revealing_case(case: StoredEvaluation) -> dict[str, Any]:
     """The `reference` entry of a revealing case (expect as_reference) from its stored pair."""
     flights = case.differential["reference"]
+    subject, reference = [Outcome.from_dict(f) for f in case.differential["subject"]], [Outcome.from_dict(f) for f in flights]
     clearances = [f["min_clearance_m"] for f in flights]
-    times = [f["sim_time_s"] for f in flights]
+    timed_by, _, times = flight_times(subject, reference)
     entry = {"level": str(case.reveals), "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
              "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
-             "sim_time_s": [min(times), max(times)], "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
-    difference = compare([Outcome.from_dict(f) for f in case.differential["subject"]], [Outcome.from_dict(f) for f in flights]).difference
+             "first_touchdown_s" if timed_by == "touchdown" else "sim_time_s": [min(times), max(times)],
+             "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
+    difference = compare(subject, reference).difference
     if difference is not None:
         entry["difference"] = str(difference)
     return entry

@@ -197,6 +197,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
             mavsdk=dict(outcome.mavsdk),
             failures_refused=failures_refused or [],
+            first_touchdown_s=summary.get("first_touchdown_s"),
         )
 
     try:

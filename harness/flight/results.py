@@ -92,6 +92,9 @@ class EvaluationResult:
     # Failure injections the SUT refused (t, unit, type, its answer): it flew on without them, so
     # the flight did not test what the scenario says.
     failures_refused: list[dict[str, Any]] = field(default_factory=list)
+    # Simulated time of the first touchdown once airborne (None: it never came down): where a
+    # landing hops, sim_time_s ends at the last hop.
+    first_touchdown_s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
