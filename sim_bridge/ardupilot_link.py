@@ -72,6 +72,18 @@ class UdpLink:
         self.sock.sendto(data, self.peer)
 
     def receive(self, spin_s: float) -> bytes:
+        """The next datagram, first polling for up to spin_s of wall time as the MAVLink link does
+        (simlink/codec.py's receive: with a core of its own the bridge sees the answer without
+        being woken), then waiting up to the stall timeout."""
+        if spin_s > 0.0:
+            deadline = time.perf_counter() + spin_s
+            while True:
+                try:
+                    datagram, self.peer = self.sock.recvfrom(65536, socket.MSG_DONTWAIT)
+                    return datagram
+                except BlockingIOError:
+                    if time.perf_counter() > deadline:
+                        break
         if not self.readable(self._stall_timeout_s):
             raise BlockingIOError(f"nothing from ArduPilot for {self._stall_timeout_s:.0f} s")
         datagram, self.peer = self.sock.recvfrom(65536)

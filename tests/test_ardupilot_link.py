@@ -172,7 +172,7 @@ def test_arducopter_is_started_on_the_port_blocks_ports_at_the_worlds_origin_wit
 
 # -- the bridge against an ArduPilot that obeys the protocol ---------------------------------
 
-def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0, failures=()):
+def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0, failures=(), bridge_args=()):
     """The bridge (protocol ardupilot-json) against tests/fake_ardupilot.py: (exit code, bridge summary, what the fake saw)."""
     world_path = tmp_path / "world.json"
     world_path.write_text(json.dumps({**world(time_limit_s=time_limit_s), "failures": list(failures)}))
@@ -180,7 +180,7 @@ def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout
         bridge = subprocess.Popen(
             [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(tmp_path / "run.mcap"),
              "--sim-protocol", "ardupilot-json", "--hold-after-s", "0", "--stall-timeout-s", str(stall_timeout_s), "--connect-timeout-s", "20",
-             "--rate-hz", "400"],
+             "--rate-hz", "400", *bridge_args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
         )
         fake = subprocess.Popen([sys.executable, str(FAKE_ARDUPILOT), "--port", str(ports.sim), "--frames", "100000", *fake_args],
@@ -195,9 +195,14 @@ def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout
     return bridge.returncode, json.loads(out.decode().strip().splitlines()[-1]), json.loads(seen.decode().strip().splitlines()[-1])
 
 
+# With two cores the bridge polls for the answer before it sleeps (--spin-us, as for MAVLink).
+SPIN = pytest.mark.parametrize("bridge_args", [(), ("--spin-us", "2000")], ids=["sleeping", "polling"])
+
+
 @pytest.mark.slow
-def test_each_servo_frame_is_answered_by_one_step_and_the_lines_are_what_ardupilot_parses(tmp_path):
-    code, summary, seen = fly_fake(tmp_path)
+@SPIN
+def test_each_servo_frame_is_answered_by_one_step_and_the_lines_are_what_ardupilot_parses(tmp_path, bridge_args):
+    code, summary, seen = fly_fake(tmp_path, bridge_args=bridge_args)
     assert code == 0 and summary["end_reason"] == "time_limit" and summary["steps"] == 4 * 400
     # One line per frame, one step apart in simulated time, each whole to ArduPilot's parser.
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
@@ -216,8 +221,9 @@ def test_a_lost_line_is_sent_again_without_a_second_step_and_skipped_or_restarte
 
 
 @pytest.mark.slow
-def test_the_bridge_flies_on_through_ten_thousand_junk_datagrams_between_the_frames(tmp_path):
-    code, summary, seen = fly_fake(tmp_path, "--junk", "7", "--seed", "3", time_limit_s=4.0)
+@SPIN
+def test_the_bridge_flies_on_through_ten_thousand_junk_datagrams_between_the_frames(tmp_path, bridge_args):
+    code, summary, seen = fly_fake(tmp_path, "--junk", "7", "--seed", "3", time_limit_s=4.0, bridge_args=bridge_args)
     assert seen["junk"] >= 10_000
     assert code == 0 and summary["end_reason"] == "time_limit" and seen["parsed"] == summary["steps"] == 4 * 400
     # Each frame after the first came after seven junk datagrams, each counted and skipped (the
