@@ -44,13 +44,6 @@ SPEED_FACTOR = 20
 # the rest is plenty to look at in a log viewer.
 API_STREAM_RATES_HZ = {"ATTITUDE": 10, "ATTITUDE_QUATERNION": 10, "HIGHRES_IMU": 10, "GLOBAL_POSITION_INT": 10, "LOCAL_POSITION_NED": 10,
                        "ODOMETRY": 10}
-# PX4's rcS starts three more MAVLink links beside the API link (ROMFS px4-rc.mavlink, their
-# own UDP ports by instance): to a ground station (the 7 streams at 50 Hz on top of its normal
-# set, at up to 4 MB/s), a camera and a gimbal. On POSIX each sends to 127.0.0.1 whether or not
-# anyone listens; nothing in an evaluation does, and they cost PX4 about an eighth of its CPU
-# (docs/benchmarks.md). Stopped by port once PX4's script has started them, so a build whose
-# script starts fewer is left as it is.
-UNLISTENED_LINK_PORT_BASES = {"ground station": 18570, "camera": 14280, "gimbal": 13030}
 # The script PX4's rcS sources to start its MAVLink instances, found first on PATH.
 MAVLINK_SCRIPT = "px4-rc.mavlink"
 # What PX4 prints once its rcS has returned, whatever it returned (INFO or ERROR). PX4's MAVLink drops parameter
@@ -81,15 +74,13 @@ def resolve_binary(given: str | None) -> tuple[Path, Path]:
 
 
 def api_stream_script(etc: Path, instance: int) -> str:
-    """PX4's own MAVLink start-up, then its API link's high-rate streams at API_STREAM_RATES_HZ
-    and the links nobody listens to stopped: PX4's rcS sources this instead of its own
-    px4-rc.mavlink (PX4 puts its bin/ first on PATH, its init.d-posix/ last, so a folder between
-    them comes first), and this sources PX4's."""
+    """PX4's own MAVLink start-up, then its API link's high-rate streams at API_STREAM_RATES_HZ:
+    PX4's rcS sources this instead of its own px4-rc.mavlink (PX4 puts its bin/ first on PATH,
+    its init.d-posix/ last, so a folder between them comes first), and this sources PX4's."""
     own = etc / "init.d-posix" / MAVLINK_SCRIPT
     api_port_local = 14580 + instance  # its API link's own UDP port (px4-rc.mavlink: udp_offboard_port_local)
     return "\n".join(["# Written by stella (sut_adapter/px4.py) for PX4's rcS.", f". {shlex.quote(str(own))}",
-                      *(f"mavlink stream -u {api_port_local} -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()),
-                      *(f"mavlink stop -u {base + instance}" for base in UNLISTENED_LINK_PORT_BASES.values()), ""])
+                      *(f"mavlink stream -u {api_port_local} -s {name} -r {rate}" for name, rate in API_STREAM_RATES_HZ.items()), ""])
 
 
 def takes_params_from_environment(etc: Path) -> bool:
