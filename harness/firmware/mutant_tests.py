@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import os
 import signal
 import time
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from typing import Callable, Iterator, Sequence
 
 from harness.errors import InputError, Problem
 from harness.firmware import builds
-from harness.firmware.mutants import BUILT, load_index, write_json_atomically
+from harness.firmware.mutants import BUILT, load_index, write_atomically, write_json_atomically
 from sut_adapter.processes import ManagedProcess
 
 OUT = "other_tests.json"
@@ -104,13 +103,6 @@ def _load(out: Path, identity: dict) -> dict:
     return document
 
 
-def _write_atomically(path: Path, data: bytes) -> None:
-    temporary = path.with_name(path.name + ".stella-tmp")
-    temporary.write_bytes(data)
-    os.chmod(temporary, path.stat().st_mode if path.exists() else 0o644)
-    temporary.replace(path)
-
-
 def run(folder: Path, *, tree: Path, command: str, timeout_s: float, only: Sequence[str] = (), out: Path | None = None,
         progress: Callable[[str], None] = lambda _line: None) -> dict:
     folder, tree = Path(folder), Path(tree).expanduser().resolve()
@@ -152,7 +144,7 @@ def run(folder: Path, *, tree: Path, command: str, timeout_s: float, only: Seque
                 builds.apply_patches(tree, [folder / "mutants" / f"{mutant['id']}.patch"])
                 verdict = run_command(command, tree, timeout_s, log_dir, mutant["id"])
             finally:
-                _write_atomically(target, unmutated)
+                write_atomically(target, unmutated)
             document["mutants"][mutant["id"]] = verdict.as_json()
             write_json_atomically(out, document)
             progress(f"{mutant['id']}: {'killed' if verdict.killed else 'survived'} ({verdict.seconds:.1f} s)"

@@ -19,6 +19,7 @@ import difflib
 import hashlib
 import io
 import json
+import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -260,10 +261,17 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
     return record
 
 
-def write_json_atomically(path: Path, document: dict) -> None:
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text(json.dumps(document, indent=1) + "\n")
+def write_atomically(path: Path, data: bytes) -> None:
+    """path holds data, or what it held before: never a part (a stopped run, a full disk). Its
+    permissions stay (a source file put back in a user's tree)."""
+    temporary = path.with_name(path.name + ".stella-tmp")
+    temporary.write_bytes(data)
+    os.chmod(temporary, path.stat().st_mode if path.exists() else 0o644)
     temporary.replace(path)
+
+
+def write_json_atomically(path: Path, document: dict) -> None:
+    write_atomically(path, (json.dumps(document, indent=1) + "\n").encode())
 
 
 def counts(record: dict) -> dict[str, int]:
