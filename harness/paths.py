@@ -1,4 +1,5 @@
-"""Where the project's data lives: `scenarios/` beside the packages, or STELLA_SCENARIOS."""
+"""Where the project's data lives (`scenarios/` beside the packages, or STELLA_SCENARIOS), and
+how a file the project writes is replaced whole."""
 
 from __future__ import annotations
 
@@ -28,3 +29,12 @@ def profile_path(name_or_path: str) -> Path:
     if candidate.suffix == ".json" or candidate.exists():
         return candidate
     return scenarios_dir() / "profiles" / f"{name_or_path}.json"
+
+
+def write_atomically(path: Path, data: bytes) -> None:
+    """path holds data, or what it held before: never a part (a killed run, a full disk). Its
+    permissions stay (a source file put back in a user's tree)."""
+    temporary = path.with_name(f".{path.name}.stella-tmp")
+    temporary.write_bytes(data)
+    os.chmod(temporary, path.stat().st_mode if path.exists() else 0o644)
+    temporary.replace(path)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from harness.execution.executor import Job, run_job
 from harness.flight import stack
+from harness.paths import write_atomically
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,9 +29,7 @@ def main(argv: list[str] | None = None) -> int:
         stack.close_kept()  # one job per process: nothing to keep it for
     text = json.dumps(result.as_dict())
     if args.result:
-        temporary = Path(args.result).with_suffix(".tmp")
-        temporary.write_text(text)
-        temporary.replace(args.result)
+        write_atomically(Path(args.result), text.encode())
     else:
         print(text)
     return 0

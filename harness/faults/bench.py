@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import statistics as stats
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -29,6 +28,7 @@ from harness.execution.executor import Executor, Job
 from harness.faults.checks import checked_names, options_for
 from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
+from harness.paths import write_atomically
 from harness.scenario.world import space_from_concrete
 from sut_adapter import SutConfig
 
@@ -60,9 +60,7 @@ def _load_cache(folder: Path) -> dict[str, dict[str, Any]]:
 
 def _save_cache(folder: Path, cache: dict[str, dict[str, Any]]) -> None:
     """Written whole to a temporary file and renamed, so a kill never leaves half a cache."""
-    temporary = folder / f".{FAULT_FREE_CACHE}.tmp"
-    temporary.write_text(json.dumps(cache, indent=1))
-    os.replace(temporary, folder / FAULT_FREE_CACHE)
+    write_atomically(folder / FAULT_FREE_CACHE, json.dumps(cache, indent=1).encode())
 
 
 def run_bench(faults: Iterable[str], algorithms: tuple[str, ...], scenarios: tuple[str, ...], runs: int, evaluations: int, folder: Path,

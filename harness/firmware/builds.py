@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from harness.errors import InputError, Problem, StellaError
+from harness.paths import write_atomically
 
 log = logging.getLogger(__name__)
 
@@ -140,10 +141,7 @@ def _cached(folder: Path) -> Variant | None:
 
 
 def _save(variant: Variant) -> Variant:
-    folder = Path(variant.folder)
-    temporary = folder / f".{VARIANT_FILE}.tmp"
-    temporary.write_text(json.dumps({k: v for k, v in asdict(variant).items() if k != "cached"}, indent=1))
-    os.replace(temporary, folder / VARIANT_FILE)
+    write_atomically(Path(variant.folder) / VARIANT_FILE, json.dumps({k: v for k, v in asdict(variant).items() if k != "cached"}, indent=1).encode())
     return variant
 
 

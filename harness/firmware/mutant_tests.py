@@ -24,7 +24,8 @@ from typing import Callable, Iterator, Sequence
 
 from harness.errors import InputError, Problem
 from harness.firmware import builds
-from harness.firmware.mutants import BUILT, load_index, write_atomically, write_json_atomically
+from harness.firmware.mutants import BUILT, load_index, write_json_atomically
+from harness.paths import write_atomically
 from sut_adapter.processes import ManagedProcess
 
 OUT = "other_tests.json"

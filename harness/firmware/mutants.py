@@ -19,7 +19,6 @@ import difflib
 import hashlib
 import io
 import json
-import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.firmware import builds
+from harness.paths import write_atomically
 
 FORMAT = "stella.mutants/1"
 INDEX = "mutants.json"
@@ -259,15 +259,6 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
         progress(f"{mutant['id']} {entry['state']}" + (f" ({entry['build_s']:.1f} s)" if "build_s" in entry and not entry.get("cached") else ""))
     write_json_atomically(built_path, record)
     return record
-
-
-def write_atomically(path: Path, data: bytes) -> None:
-    """path holds data, or what it held before: never a part (a stopped run, a full disk). Its
-    permissions stay (a source file put back in a user's tree)."""
-    temporary = path.with_name(path.name + ".stella-tmp")
-    temporary.write_bytes(data)
-    os.chmod(temporary, path.stat().st_mode if path.exists() else 0o644)
-    temporary.replace(path)
 
 
 def write_json_atomically(path: Path, document: dict) -> None:
