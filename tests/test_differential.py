@@ -1,11 +1,20 @@
-"""Differential evaluation's judgement (harness/flight/differential.py) and the refusals of the
---reference-* options: pure, no flight."""
+"""Differential evaluation's judgement (harness/flight/differential.py), stored pairs judged again
+(harness/campaigns/rejudge.py) and the refusals of the --reference-* options: no flight."""
 
 from __future__ import annotations
 
-import pytest
+import fcntl
+import json
+from dataclasses import replace
 
+import numpy as np
+import pytest
+from mcap.writer import Writer
+
+from conftest import stored_result
 from harness.campaigns.regression import verdict
+from harness.campaigns.store import Store
+from harness.firmware import mutation
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, Difference, Outcome, Reveal, compare, objective_value, record
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import PENALTY, Status
@@ -136,6 +145,70 @@ def test_a_record_keeps_both_sides_flights_and_the_verdict():
     document = record("subject", [flight(Status.VIOLATION, 0.4)], [flight(Status.OK, 1.3), flight(Status.OK, 1.4)])
     assert document["reveals"] == "unsafe" and len(document["subject"]) == 1 and len(document["reference"]) == 2
     assert Outcome.from_dict(document["reference"][1]).min_clearance_m == 1.4
+
+
+def flight_log(path, touchdowns: list[float]) -> str:
+    """A flight's log as far as re-judging reads it: its touchdown events."""
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start()
+        channel = writer.register_channel("/events", "json", writer.register_schema("event", "jsonschema", b"{}"))
+        for t in touchdowns:
+            writer.add_message(channel, log_time=int(t * 1e9), publish_time=int(t * 1e9), data=json.dumps({"t": t, "event": "touchdown"}).encode())
+        writer.finish()
+    return str(path)
+
+
+def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_first_touchdown(tmp_path, capsys):
+    # GIVEN a mutant's search stored by a version that timed pairs by the whole flight, confirmed
+    # with two more flights a side: candidate 2 "revealed" only by the hops of the landings (both
+    # sides came down at 59.6-59.8 s), candidate 3 by its clearance; candidate 1 revealed nothing
+    # and was flown once a side, although it came down 2.3 s after the reference
+    folder = tmp_path / "mutation"
+    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
+    store_path.parent.mkdir(parents=True)
+
+    def side(name, clearance, flights):
+        return [Outcome(Status.OK, clearance - 1.0, clearance, time_s, log_path=flight_log(tmp_path / f"{name}{i}.mcap", touchdowns))
+                for i, (time_s, touchdowns) in enumerate(flights)]
+
+    reference = side("reference", 1.30, [(63.8, [59.67, 61.5]), (61.1, [59.70]), (63.8, [59.68, 61.6])])
+    pairs = [record("difference", side("late", 1.30, [(63.6, [62.0])]), reference[:1]),
+             record("difference", side("hopping", 1.30, [(72.9, [59.64, 61.9, 64.0, 66.8]), (69.3, [59.81, 62.2]), (71.1, [59.75, 63.0])]), reference),
+             record("difference", side("closer", 0.90, [(63.7, [59.69]), (63.9, [59.70]), (63.5, [59.66])]), reference)]
+    assert [p["reveals"] for p in pairs] == [None, "behaviour", "behaviour"] and pairs[1]["why"].startswith("flight time")
+    with Store(store_path) as store:
+        run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "reference": {"sut": "px4"}, "confirm": 2}), "wall.json", "wall", "RANDOM", 0, 0)
+        for ordinal, pair in enumerate(pairs):
+            result = replace(stored_result(pair["fitness"], "ok", min_clearance_m=pair["subject"][0]["min_clearance_m"]), differential=pair)
+            store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="RANDOM", vector=np.array([float(ordinal)]), result=result, concrete=None)
+        stored_search = store.first_reveals()
+    assert stored_search["evaluation"] == 2
+    (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {
+        "m0001": {"state": "survived_suite", "suite_flights": 1, "search": {"RANDOM": {"wall": stored_search}}}}}))
+
+    # (not while another process works on the folder: it would write back its own verdicts)
+    with open(folder / mutation.LOCK, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        assert main(["mutants", "rejudge", str(folder)]) == 2
+        assert "another `stella mutants run` or `rejudge` is working on this folder" in capsys.readouterr().err
+
+    # WHEN the folder is judged again
+    assert main(["mutants", "rejudge", str(folder)]) == 0
+
+    # THEN the hop reveal is withdrawn and said so; the clearance reveal is now the search's first kill
+    said = capsys.readouterr().out
+    assert "m0001 wall RANDOM candidate 2: behaviour (flight time 72.9 s" in said and "-> no reveal" in said and "1 stored verdict changed" in said
+    search = json.loads((folder / mutation.RUN).read_text())["mutants"]["m0001"]["search"]["RANDOM"]["wall"]
+    assert search == {**stored_search, "evaluation": 3}
+    with Store.existing(store_path) as store:
+        late, hopping, _closer = (e.differential for e in store.pairs())
+        # a reveal needs confirmation flights that candidate 1 never had: re-judging adds none
+        assert late == pairs[0]
+        assert hopping["reveals"] is None and [o["first_touchdown_s"] for o in hopping["subject"]] == [59.64, 59.81, 59.75]
+    # and judged again, nothing changes
+    assert main(["mutants", "rejudge", str(folder)]) == 0
+    assert "0 stored verdicts changed" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -16,21 +16,25 @@ mutant). Every mutant's outcome is written to `run.json` as it is known, so a st
 resumes where it was. `report` gives the mutation score per algorithm at both levels with
 Wilson intervals, evaluations to kill, and Fisher's exact test, Mann-Whitney U and A12 of each
 algorithm's search against the baseline's (RANDOM), as the seeded-fault benchmark does.
+`rejudge` judges the searches' stored pairs again after an upgrade changed how pairs are judged.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import statistics
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from scipy.stats import fisher_exact
 
 from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
+from harness.campaigns.rejudge import Rejudged, rejudge as rejudge_store
 from harness.campaigns.regression import SUFFIX, load_regression
 from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
@@ -45,6 +49,7 @@ from harness.scenario.world import load_concrete
 from sut_adapter import SutConfig
 
 RUN = "run.json"
+LOCK = ".run.lock"
 CACHE = "reference_flights.db"
 LEVELS = ("unsafe", "any")
 
@@ -116,9 +121,28 @@ def _started_badly(result) -> bool:
     return result.status == Status.SUT_CRASHED or (result.status in (Status.MISSION_FAILED, Status.TIMEOUT) and (result.why or "").startswith("setup"))
 
 
+@contextmanager
+def _alone_in(mutants_dir: Path) -> Iterator[None]:
+    """The folder for this process alone: `run` and `rejudge` each hold run.json's whole document
+    while they work and write it back, so a second one at the same time would undo the first's."""
+    with open(mutants_dir / LOCK, "w") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError([Problem(str(mutants_dir), "", "another `stella mutants run` or `rejudge` is working on this folder: "
+                                                            "wait for it to end, or stop it (a stopped run resumes)")]) from None
+        yield
+
+
 def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequence[str] = (), progress: Callable[[str], None] = lambda _l: None) -> dict:
     mutants_dir = Path(mutants_dir)
     index = load_index(mutants_dir)
+    with _alone_in(mutants_dir):
+        return _run(mutants_dir, index, plan, executor, only, progress)
+
+
+def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, executor: Executor, only: Sequence[str],
+         progress: Callable[[str], None]) -> dict:
     built_path = mutants_dir / BUILT
     if not built_path.is_file():
         raise InputError([Problem(str(built_path), "", "the mutants are not built: run `stella mutants build` first")])
@@ -190,11 +214,47 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     first revealed a difference, and at which level."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
                             confirm=plan.confirm, reference=reference, objective=plan.objective)
-    store_path = folder / "search" / mutant / f"{slug(Path(scenario).stem)}-{algorithm}.db"
+    store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs), reference_cache=cache,
                      on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
+
+
+def _search_store(folder: Path, mutant: str, scenario: str, algorithm: str) -> Path:
+    return folder / "search" / mutant / f"{slug(scenario)}-{algorithm}.db"
+
+
+def rejudge(mutants_dir: Path) -> dict[str, list[Rejudged]]:
+    """Every search's stored pairs judged again with this version's rule (harness/campaigns/
+    rejudge.py), and each search's first kill in run.json with them: the pairs whose verdict
+    changed, by mutant. The suite's verdicts stay: its pairs are not stored."""
+    mutants_dir = Path(mutants_dir)
+    run_path = mutants_dir / RUN
+    if not run_path.is_file():
+        raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
+    with _alone_in(mutants_dir):
+        document = json.loads(run_path.read_text())
+        changed = _rejudge(mutants_dir, document)
+        write_json_atomically(run_path, document)
+    return changed
+
+
+def _rejudge(mutants_dir: Path, document: dict[str, Any]) -> dict[str, list[Rejudged]]:
+    changed: dict[str, list[Rejudged]] = {}
+    for mutant, outcome in sorted(document["mutants"].items()):
+        for algorithm, by_scenario in (outcome.get("search") or {}).items():
+            for scenario in by_scenario:
+                store_path = _search_store(mutants_dir, mutant, scenario, algorithm)
+                if not store_path.is_file():
+                    raise InputError([Problem(str(store_path), "", f"{mutant}'s {algorithm} search on {scenario} is in {RUN} but its store is "
+                                                                   "gone: put it back, or delete its entry from run.json to search again")])
+                with Store.existing(store_path) as store:
+                    changes = rejudge_store(store)
+                    by_scenario[scenario] = store.first_reveals()
+                if changes:
+                    changed.setdefault(mutant, []).extend(changes)
+    return changed
 
 
 def describe(outcome: Mapping[str, Any]) -> str:

@@ -130,6 +130,11 @@ def messages(path: Path, topics: Sequence[str] | None = None) -> Iterator[tuple[
             yield channel.topic, message.log_time, json.loads(message.data)
 
 
+def first_event_s(path: Path, event: str) -> float | None:
+    """Simulated time of the log's first /events record of this kind (None: there is none)."""
+    return next((m["t"] for _t, _ns, m in messages(path, ["/events"]) if m.get("event") == event), None)
+
+
 def channels(path: Path) -> list[tuple[int, str, str | None, str]]:
     """(channel id, topic, schema name, message encoding) of every channel the log declares (or, if
     truncated, declared before the damage)."""

@@ -66,7 +66,7 @@ def recorded_link(log_path: Path) -> dict[str, Any]:
     steps, times = link_steps(stream)
     summary = logs.json_metadata(log_path, "bridge_summary")
     dt_s = summary["sim_time_s"] / summary["steps"]
-    run_at_s = next((m["t"] for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "run"), 0.0)
+    run_at_s = logs.first_event_s(log_path, "run") or 0.0
     return {"steps": steps, "times_us": times, "dt_s": dt_s, "run_step": min(len(steps) - 1, round(run_at_s / dt_s))}
 
 

@@ -242,6 +242,12 @@ class Store:
                 ),
             )
 
+    def rejudge(self, evaluation_id: int, differential: Mapping[str, Any]) -> None:
+        """Replace a pair's verdict and flights (harness/campaigns/rejudge.py)."""
+        with self.db:
+            self.db.execute("UPDATE evaluations SET reveals = ?, differential = ? WHERE id = ?",
+                            (differential["reveals"], json.dumps(differential), evaluation_id))
+
     def checkpoint(self, run_id: int, step: int, state: Mapping[str, Any]) -> None:
         with self.db:
             self.db.execute("INSERT OR REPLACE INTO checkpoints (run_id, step, state, created) VALUES (?, ?, ?, ?)", (run_id, step, json.dumps(state), time.time()))
@@ -316,6 +322,10 @@ class Store:
         spent = self.db.execute("SELECT COUNT(*) FROM evaluations").fetchone()[0]
         return {"evaluation": first[0] + 1 if first else None, "level": first[1] if first else None,
                 "first_unsafe": unsafe + 1 if unsafe is not None else None, "budget": spent}
+
+    def pairs(self) -> list[StoredEvaluation]:
+        """Every evaluation flown against a reference, by run and ordinal."""
+        return self._evaluations("WHERE e.differential IS NOT NULL ORDER BY r.id, e.ordinal")
 
     def revealing_cases(self) -> list[StoredEvaluation]:
         """Every revealing evaluation, unsafe ones first, then by fitness."""

@@ -15,7 +15,7 @@ from harness.tools.commands.common import command, command_with_actions, emit, n
 from harness.tools.commands.sut import worktree_option
 from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
 
-command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, report",
+command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, rejudge, report",
                      description="Mutants of one C/C++ or Python file, built as cached variants, each attacked by differential "
                                  "flights against the unmutated build (docs/real_faults.md).")
 
@@ -136,6 +136,21 @@ def mutants_test(args: argparse.Namespace) -> int:
     emit(args, document, f"the command killed {killed} of {len(document['mutants'])} mutants; results in {document['out']}, "
                          f"each run's output in {document['logs']}\n"
                          f"`stella mutants report {args.folder} --other-tests {document['out']}` for the table beside the flights' kills")
+    return 0
+
+
+def _rejudge_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folder", help="the folder of a mutation run")
+
+
+@command("mutants rejudge", "judge the searches' stored flights again with this version's rule, without flying", _rejudge_options)
+def mutants_rejudge(args: argparse.Namespace) -> int:
+    from harness.firmware import mutation
+
+    changed = mutation.rejudge(Path(args.folder))
+    lines = [f"{mutant} {change.text()}" for mutant, changes in changed.items() for change in changes]
+    emit(args, {mutant: [vars(change) for change in changes] for mutant, changes in changed.items()},
+         "\n".join(lines + [f"{len(lines)} stored verdict{'s' if len(lines) != 1 else ''} changed; `stella mutants report {args.folder}` for the scores"]))
     return 0
 
 
