@@ -1,10 +1,12 @@
-"""The fitness and status policy, as a pure function of the recorded trace."""
+"""The fitness and status policy, as a pure function of the recorded trace, and which statuses
+keep the SUT's own flight log."""
 
 from __future__ import annotations
 
 import pytest
 
-from harness.flight.fitness import CLEARANCE_CAP_M, PENALTY, infeasible_fitness, judge, min_clearance, mission_check
+from harness.flight.fitness import CLEARANCE_CAP_M, PENALTY, Status, infeasible_fitness, judge, min_clearance, mission_check
+from harness.flight.results import RunOptions
 from sim_bridge.spec import MissionSpec, Waypoint
 
 MISSION = MissionSpec(takeoff_altitude_m=8.0, waypoints=(Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0),), cruise_speed_m_s=5.0, land=True)
@@ -49,3 +51,15 @@ def test_the_mission_check_names_what_was_not_performed():
     assert "landed 5.0 m from the goal" in mission_check(flown, MISSION, 2.0, {"end_reason": "landed", "touchdown": {"north_m": 55.0, "east_m": 0.0}})
     assert mission_check(flown, MISSION, 2.0, {"end_reason": "time_limit"}) == "not landed within the time limit"
     assert "crashed" in mission_check(flown, MISSION, 2.0, {"end_reason": "crashed", "touchdown": {"speed_m_s": 6.0}})
+
+
+@pytest.mark.parametrize(("sut_logs", "kept"), [
+    ("all", set(Status)),
+    ("failures", set(Status) - {Status.OK}),
+    # a foggy scenario's pilot flights all end mission_failed (blocked, time limit): CP at work,
+    # 19 MB of ULog each, which filled a disk once
+    ("violations", {Status.VIOLATION, Status.SUT_CRASHED, Status.SIM_CRASHED, Status.TIMEOUT}),
+])
+def test_sut_logs_chooses_which_flights_keep_the_suts_own_log(sut_logs, kept):
+    options = RunOptions(sut_logs=sut_logs)
+    assert {status for status in Status if status != Status.INFEASIBLE and options.keeps_sut_log(status)} == kept - {Status.INFEASIBLE}

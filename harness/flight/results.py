@@ -8,12 +8,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping, NamedTuple
 
-from harness.flight.fitness import Clearance, Status
+from harness.flight.fitness import COULD_NOT_FINISH, Clearance, Status
 from sim_bridge.control import EndReason
 from sim_bridge.sut_link import TRANSPORTS
 from sut_adapter import SutConfig
 
-SUT_LOGS = ("all", "failures")
+SUT_LOGS = ("all", "failures", "violations")
 
 
 @dataclass(frozen=True)
@@ -48,9 +48,8 @@ class RunOptions:
     # is kept (stack.close_kept); executors do when they close.
     warm: bool = False
     # The SUT's own flight logs beside each MCAP (PX4's ULog, about 19 MB for a 50 s flight;
-    # ArduPilot's dataflash .BIN): "all" flights keep them, or only the "failures" (every status
-    # but ok), so that a campaign of thousands of real-firmware flights fits on a disk. Consoles
-    # are kept either way.
+    # ArduPilot's dataflash .BIN): which flights keep them (keeps_sut_log), so that a campaign of
+    # thousands of real-firmware flights fits on a disk. Consoles are kept either way.
     sut_logs: str = "all"
 
     def __post_init__(self) -> None:
@@ -58,6 +57,17 @@ class RunOptions:
             raise ValueError(f"transport {self.transport!r} is not one of {', '.join(TRANSPORTS)}")
         if self.sut_logs not in SUT_LOGS:
             raise ValueError(f"sut_logs {self.sut_logs!r} is not one of {', '.join(SUT_LOGS)}")
+
+    def keeps_sut_log(self, status: Status) -> bool:
+        """Whether a flight that ended so keeps the SUT's own flight log: with "failures" every
+        flight that did not end ok; with "violations" those that violated or could not finish,
+        not those the pilot drive's blocked rule or the time limit ended (mission_failed), which
+        are collision prevention doing its work: every flight of a foggy scenario is one."""
+        if self.sut_logs == "failures":
+            return status != Status.OK
+        if self.sut_logs == "violations":
+            return status == Status.VIOLATION or status in COULD_NOT_FINISH
+        return True
 
 
 @dataclass(frozen=True, kw_only=True)
