@@ -148,6 +148,29 @@ def test_the_progress_line_says_what_a_survivor_has_been_through_so_far(search, 
     assert mutation.describe(outcome) == said
 
 
+def test_the_report_compares_algorithms_over_searches_through_every_scenario_or_that_killed(tmp_path):
+    # GIVEN three survivors of the suite searched on two scenarios, RANDOM's searches of the third
+    # still under way: m0002 not killed after one scenario, m0003 killed on its first
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder, limit=3)
+    ids = [m["id"] for m in index["mutants"]]
+    nothing = {"evaluation": None, "level": None, "first_unsafe": None, "budget": 40}
+    found = {**nothing, "evaluation": 3, "level": "behaviour"}
+    searches = [{"NSGAII": {"s1": nothing, "s2": {**found, "evaluation": 5}}, "RANDOM": {"s1": nothing, "s2": nothing}},
+                {"NSGAII": {"s1": nothing, "s2": nothing}, "RANDOM": {"s1": nothing}},
+                {"NSGAII": {"s1": nothing, "s2": nothing}, "RANDOM": {"s1": found}}]
+    (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {"evaluations": 40}, "mutants": {
+        key: {"state": "survived_suite", "suite_flights": 1, "search": search} for key, search in zip(ids, searches)}}))
+
+    report = mutation.report(folder)
+
+    # THEN RANDOM's unfinished survivor is neither a kill nor a survivor of its search yet
+    nsga, random = report["scores"]["NSGAII"]["any"], report["scores"]["RANDOM"]["any"]
+    assert (nsga["search_kills"], nsga["survivors_searched"], nsga["searches_unfinished"], nsga["median_evaluations_to_kill"]) == (1, 3, 0, 45)
+    assert (random["search_kills"], random["survivors_searched"], random["searches_unfinished"], random["median_evaluations_to_kill"]) == (1, 2, 1, 3)
+    assert "not counted in search kills, their searches not yet through every scenario: RANDOM 1 survivor" in mutation.report_text(report)
+
+
 @pytest.mark.slow
 def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_path):
     folder = tmp_path / "mutation"

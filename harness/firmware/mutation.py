@@ -316,27 +316,37 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
     document = json.loads(run_path.read_text())
     states = [e["state"] for e in built["mutants"].values()]
     outcomes = document["mutants"]
-    searched = {algorithm: set(by_scenario) for o in outcomes.values() for algorithm, by_scenario in (o.get("search") or {}).items()}
+    searched: dict[str, set[str]] = {}
+    for outcome in outcomes.values():
+        for algorithm, by_scenario in (outcome.get("search") or {}).items():
+            searched.setdefault(algorithm, set()).update(by_scenario)
     algorithms = sorted(searched) or ["suite"]  # screened only: the suite's score
     scores: dict[str, dict[str, Any]] = {}
     budget = document["searching"]["evaluations"] * max([len(s) for s in searched.values()] or [1])
     for algorithm in algorithms:
         entry: dict[str, Any] = {}
         for level in LEVELS:
-            killed = 0
+            killed = unfinished = 0
             to_kill, kills = [], []
             for outcome in outcomes.values():
                 by_suite = outcome["state"] in ("killed_at_start", "killed_by_suite") and (level == "any" or outcome.get("level") == "unsafe"
                                                                                             or outcome["state"] == "killed_at_start")
                 by_search = _first_kill(outcome, algorithm, level) if outcome["state"] == "survived_suite" else None
                 killed += by_suite or by_search is not None
-                if outcome["state"] == "survived_suite" and algorithm in (outcome.get("search") or {}):
-                    to_kill.append(by_search if by_search is not None else budget + 1)
-                    if by_search is not None:
-                        kills.append(by_search)
+                mine = (outcome.get("search") or {}).get(algorithm) if outcome["state"] == "survived_suite" else None
+                if mine is None:
+                    continue
+                # A search that has not been through every scenario yet and killed nothing so far
+                # says nothing yet: counted, it would be a survivor the others had more tries at.
+                if by_search is None and not set(mine) >= searched[algorithm]:
+                    unfinished += 1
+                    continue
+                to_kill.append(by_search if by_search is not None else budget + 1)
+                if by_search is not None:
+                    kills.append(by_search)
             total = len(outcomes)
             entry[level] = {"killed": killed, "mutants": total, "score": killed / total if total else None, "ci95": wilson(killed, total),
-                            "search_kills": len(kills), "survivors_searched": len(to_kill),
+                            "search_kills": len(kills), "survivors_searched": len(to_kill), "searches_unfinished": unfinished,
                             "median_evaluations_to_kill": statistics.median(kills) if kills else None, "_ranks": to_kill}
         scores[algorithm] = entry
     base = scores.get(baseline.upper())
@@ -395,6 +405,10 @@ def report_text(result: Mapping[str, Any]) -> str:
             lines.append(f"{algorithm:<9} {level:<7} {e['killed']:>4}/{e['mutants']:<4} {fmt(e['score'], '.2f'):>6} {ci:>13} "
                          f"{e['search_kills']:>6}/{e['survivors_searched']:<6} {fmt(e['median_evaluations_to_kill'], '.1f'):>13} "
                          f"{fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
+    unfinished = {algorithm: entry["any"]["searches_unfinished"] for algorithm, entry in result["scores"].items() if entry["any"]["searches_unfinished"]}
+    if unfinished:
+        lines.append("not counted in search kills, their searches not yet through every scenario: "
+                     + ", ".join(f"{algorithm} {n} survivor{'s' if n > 1 else ''}" for algorithm, n in unfinished.items()))
     if "other_tests" in result:
         other = result["other_tests"]
         lines += ["", f"against {other['name']} ({other['file']}), over the mutants both judged:"]
