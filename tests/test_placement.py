@@ -103,6 +103,7 @@ def test_one_core_puts_both_on_it_and_neither_polls(tmp_path, profile):
 def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
     import json
 
+    from harness.tools.bench import bench_text
     from harness.tools.cli import main
 
     assert main(["bench", "--runs", "1", "--json"]) == 0
@@ -110,6 +111,8 @@ def test_the_benchmark_flies_both_placements_and_finds_the_same_fitness(capsys):
     placements = {p["cores_per_evaluation"]: p for p in report["placements"]}
     assert set(placements) == ({1, 2} if MACHINE_CORES >= 2 else {1})
     assert report["deterministic"] and report["autopilot_step"]["flew_mission"]
+    low, high = report["fitness_range"]
+    assert low == high and f"fitness over the runs         {low:.6g} every run" in bench_text(report)
     for placement in placements.values():
         median = placement["median"]
         assert median["real_time_factor"] > 1.0 and median["step_us"] > 0

@@ -126,6 +126,7 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
         "cores": machine_cores,
         "placements": report_placements,
         "deterministic": len(fitnesses) == 1,
+        "fitness_range": [min(fitnesses), max(fitnesses)],
         "autopilot_step": autopilot,
         "jsbsim_alone": physics_alone,
         "sut_alone": sut_alone,
@@ -227,7 +228,9 @@ def bench_text(report: dict[str, Any]) -> str:
         ]
     if report["autopilot_step"]:
         lines.append(f"  the autopilot's computation   {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)")
-    lines.append(f"  same fitness every run        {report['deterministic']}")
+    low, high = report["fitness_range"]
+    lines.append(f"  fitness over the runs         {low:.6g} every run" if report["deterministic"] else
+                 f"  fitness over the runs         {low:.3f} to {high:.3f} (the SUT does not repeat bit for bit: its outcomes spread by {high - low:.3f})")
     return "\n".join(lines)
 
 
