@@ -159,17 +159,13 @@ def flight_log(path, touchdowns: list[float]) -> str:
     return str(path)
 
 
-def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_first_touchdown(tmp_path, capsys):
-    # GIVEN a mutant's search stored by a version that timed pairs by the whole flight, confirmed
-    # with two more flights a side: candidate 2 "revealed" only by the hops of the landings (both
-    # sides came down at 59.6-59.8 s), candidate 3 by its clearance; candidate 1 revealed nothing
-    # and was flown once a side, although it came down 2.3 s after the reference
-    folder = tmp_path / "mutation"
-    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
-    store_path.parent.mkdir(parents=True)
-
+def hop_store(path, logs_dir) -> list[dict]:
+    """A differential search stored by a version that timed pairs by the whole flight, confirmed
+    with two more flights a side: candidate 2 "revealed" only by the hops of the landings (both
+    sides came down at 59.6-59.8 s), candidate 3 by its clearance; candidate 1 revealed nothing
+    and was flown once a side, although it came down 2.3 s after the reference. Its pairs."""
     def side(name, clearance, flights):
-        return [Outcome(Status.OK, clearance - 1.0, clearance, time_s, log_path=flight_log(tmp_path / f"{name}{i}.mcap", touchdowns))
+        return [Outcome(Status.OK, clearance - 1.0, clearance, time_s, log_path=flight_log(logs_dir / f"{name}{i}.mcap", touchdowns))
                 for i, (time_s, touchdowns) in enumerate(flights)]
 
     reference = side("reference", 1.30, [(63.8, [59.67, 61.5]), (61.1, [59.70]), (63.8, [59.68, 61.6])])
@@ -177,11 +173,21 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
              record("difference", side("hopping", 1.30, [(72.9, [59.64, 61.9, 64.0, 66.8]), (69.3, [59.81, 62.2]), (71.1, [59.75, 63.0])]), reference),
              record("difference", side("closer", 0.90, [(63.7, [59.69]), (63.9, [59.70]), (63.5, [59.66])]), reference)]
     assert [p["reveals"] for p in pairs] == [None, "behaviour", "behaviour"] and pairs[1]["why"].startswith("flight time")
-    with Store(store_path) as store:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with Store(path) as store:
         run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "reference": {"sut": "px4"}, "confirm": 2}), "wall.json", "wall", "RANDOM", 0, 0)
         for ordinal, pair in enumerate(pairs):
             result = replace(stored_result(pair["fitness"], "ok", min_clearance_m=pair["subject"][0]["min_clearance_m"]), differential=pair)
             store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="RANDOM", vector=np.array([float(ordinal)]), result=result, concrete=None)
+    return pairs
+
+
+def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_first_touchdown(tmp_path, capsys):
+    # GIVEN a mutant's search stored by an older version (hop_store)
+    folder = tmp_path / "mutation"
+    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
+    pairs = hop_store(store_path, tmp_path)
+    with Store.existing(store_path) as store:
         stored_search = store.first_reveals()
     assert stored_search["evaluation"] == 2
     (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {
@@ -209,6 +215,20 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     # and judged again, nothing changes
     assert main(["mutants", "rejudge", str(folder)]) == 0
     assert "0 stored verdicts changed" in capsys.readouterr().out
+
+
+def test_a_differential_campaigns_store_is_judged_again_too(tmp_path, capsys):
+    hop_store(tmp_path / "diff.db", tmp_path)
+    assert main(["rejudge", str(tmp_path / "diff.db")]) == 0
+    said = capsys.readouterr().out
+    assert "wall RANDOM candidate 2: behaviour (flight time 72.9 s" in said and "1 stored verdict changed" in said
+    with Store.existing(tmp_path / "diff.db") as store:
+        assert [e.ordinal for e in store.revealing_cases()] == [2]
+    # a campaign flown without a reference has nothing to judge
+    with Store(tmp_path / "plain.db") as store:
+        store.campaign({"scenarios": ["wall.json"]})
+    assert main(["rejudge", str(tmp_path / "plain.db")]) == 2
+    assert "not a differential campaign" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Mapping, Sequence
 
 from harness.campaigns.store import Store
 from harness.flight import logs
@@ -63,3 +64,9 @@ def rejudge(store: Store) -> list[Rejudged]:
                                       "reference": [o.as_dict() for o in reference]})
         changed.append(Rejudged(evaluation.scenario, evaluation.algorithm, evaluation.ordinal, pair["reveals"], pair["why"], after, verdict.why))
     return changed
+
+
+def changes_text(changed: Mapping[str, Sequence[Rejudged]]) -> str:
+    """Each changed verdict under its store's or mutant's name, and how many changed."""
+    lines = [f"{where} {change.text()}" for where, changes in changed.items() for change in changes]
+    return "\n".join(lines + [f"{len(lines)} stored verdict{'s' if len(lines) != 1 else ''} changed"])

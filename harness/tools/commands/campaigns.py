@@ -177,6 +177,25 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rejudge_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("store", nargs="+", help="a differential campaign's store (flown with --reference-...)")
+
+
+@command("rejudge", "judge a differential campaign's stored pairs again with this version's rule, without flying", _rejudge_options)
+def cmd_rejudge(args: argparse.Namespace) -> int:
+    from harness.campaigns.rejudge import changes_text, rejudge
+    from harness.campaigns.store import Store
+
+    changed: dict[str, list] = {}
+    for path in args.store:
+        with Store.existing(Path(path)) as store:
+            if not store.is_differential():
+                raise InputError([Problem(path, "", "not a differential campaign (flown without --reference-...): it has no pairs to judge")])
+            changed[path] = rejudge(store)
+    emit(args, {path: [vars(change) for change in changes] for path, changes in changed.items()}, changes_text(changed))
+    return 0
+
+
 def _triage_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("store", help="SQLite campaign store")
 

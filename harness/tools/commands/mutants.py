@@ -145,12 +145,12 @@ def _rejudge_options(p: argparse.ArgumentParser) -> None:
 
 @command("mutants rejudge", "judge the searches' stored flights again with this version's rule, without flying", _rejudge_options)
 def mutants_rejudge(args: argparse.Namespace) -> int:
+    from harness.campaigns.rejudge import changes_text
     from harness.firmware import mutation
 
     changed = mutation.rejudge(Path(args.folder))
-    lines = [f"{mutant} {change.text()}" for mutant, changes in changed.items() for change in changes]
     emit(args, {mutant: [vars(change) for change in changes] for mutant, changes in changed.items()},
-         "\n".join(lines + [f"{len(lines)} stored verdict{'s' if len(lines) != 1 else ''} changed; `stella mutants report {args.folder}` for the scores"]))
+         changes_text(changed) + f"; `stella mutants report {args.folder}` for the scores")
     return 0
 
 
