@@ -219,6 +219,22 @@ def test_compare_counts_the_violations_that_did_not_come_back_in_every_re_flight
     assert "NSGAII 1 of its 3 violations did not come back" in table(report)
 
 
+def test_compare_counts_the_violations_that_touched_an_obstacle_as_contacts(tmp_path):
+    # GIVEN violations that passed 0.5 m from an obstacle, touched it, and went into it
+    with Store(tmp_path / "c.db") as store:
+        run_id, _ = store.run(store.campaign({"c": 1}), "s.json", "s", "NSGAII", 0, 0)
+        for ordinal, clearance in enumerate((0.5, 0.0, -0.3, 2.0)):
+            status = "violation" if clearance < 1.0 else "ok"
+            store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="NSGAII", vector=np.array([float(ordinal)]),
+                                 result=stored_result(clearance - 1.0, status, min_clearance_m=clearance), concrete=None)
+        report = compare(store, "NSGAII")
+    # THEN three violations, two of them contacts, per scenario and overall
+    assert (report["scenarios"][0]["violations"], report["scenarios"][0]["contacts"]) == (3, 2)
+    assert (report["overall"][0]["violations"], report["overall"][0]["contacts"]) == (3, 2)
+    header, row = table(report).splitlines()[1:3]
+    assert "violations contacts" in header and row.split()[3:6] == ["-1.300", "3", "2"]  # median best f, violations, contacts
+
+
 @pytest.mark.slow
 def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_nothing(tmp_path, capsys, monkeypatch):
     import errno

@@ -95,11 +95,11 @@ def _comparison_table(report: dict[str, Any]) -> str:
     def cell(value, fmt):
         return "-" if value is None else format(value, fmt)
 
-    rows = ["<tr><th>scenario</th><th>algorithm</th><th>runs</th><th>median best fitness</th><th>violations</th><th>relative %</th><th>p</th><th>A12</th></tr>"]
+    rows = ["<tr><th>scenario</th><th>algorithm</th><th>runs</th><th>median best fitness</th><th>violations</th><th>contacts</th><th>relative %</th><th>p</th><th>A12</th></tr>"]
     for row in report["scenarios"] + [dict(r, scenario="overall") for r in report["overall"]]:
         rows.append(
             f"<tr><td class='text'>{html.escape(row['scenario'])}</td><td class='text'>{row['algorithm']}</td><td>{row['runs']}</td>"
-            f"<td>{row['median_best_fitness']:.3f}</td><td>{row['violations']}</td><td>{cell(row['relative_performance_pct'], '+.0f')}</td>"
+            f"<td>{row['median_best_fitness']:.3f}</td><td>{row['violations']}</td><td>{row['contacts']}</td><td>{cell(row['relative_performance_pct'], '+.0f')}</td>"
             f"<td>{cell(row['p_value'], '.3f')}</td><td>{cell(row['a12'], '.2f')}</td></tr>"
         )
     refused = any(row["failures_refused"] for row in report["overall"])

@@ -1,7 +1,7 @@
 """The algorithm comparison of the paper's Table V, from a campaign store.
 
 Per logical scenario and algorithm: the best (lowest) fitness of each run; their median; the
-violations found (summed over runs); performance relative to the baseline,
+violations found (summed over runs) and the contacts among them (clearance 0 or less); performance relative to the baseline,
 100 * (median_baseline - median) / |median_baseline| (positive = better, fitness is minimized);
 the two-sided Mann-Whitney U p-value of the runs' best fitness against the baseline's (scipy);
 and the Vargha-Delaney A12, the probability that a run of the algorithm finds a lower best
@@ -43,6 +43,7 @@ def p_value(candidate: Sequence[float], baseline: Sequence[float]) -> float | No
 def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     best: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     violations: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    contacts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     revealing: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     refused: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
@@ -51,6 +52,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
             continue
         best[run.scenario][run.algorithm].append(run.best_fitness)
         violations[run.scenario][run.algorithm] += run.violations
+        contacts[run.scenario][run.algorithm] += run.contacts
         flaky[run.scenario][run.algorithm] += run.flaky
         revealing[run.scenario][run.algorithm] += run.revealing
         refused[run.scenario][run.algorithm] += run.failures_refused
@@ -63,7 +65,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         for algorithm, values in sorted(by_algorithm.items()):
             median = statistics.median(values)
             row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
-                   "violations": violations[scenario][algorithm], "flaky": flaky[scenario][algorithm], "revealing": revealing[scenario][algorithm],
+                   "violations": violations[scenario][algorithm], "contacts": contacts[scenario][algorithm], "flaky": flaky[scenario][algorithm], "revealing": revealing[scenario][algorithm],
                    "failures_refused": refused[scenario][algorithm],
                    "relative_performance_pct": None, "p_value": None, "a12": None}
             pooled[algorithm].extend(values)
@@ -78,7 +80,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     for algorithm, values in sorted(pooled.items()):
         base = pooled.get(baseline)
         entry = {"algorithm": algorithm, "runs": len(values), "median_best_fitness": statistics.median(values),
-                 "violations": sum(violations[s][algorithm] for s in violations), "flaky": sum(flaky[s][algorithm] for s in flaky),
+                 "violations": sum(violations[s][algorithm] for s in violations), "contacts": sum(contacts[s][algorithm] for s in contacts),
+                 "flaky": sum(flaky[s][algorithm] for s in flaky),
                  "revealing": sum(revealing[s][algorithm] for s in revealing), "failures_refused": sum(refused[s][algorithm] for s in refused),
                  "relative_performance_pct": None, "p_value": None, "a12": None}
         if base and algorithm != baseline:
@@ -96,11 +99,11 @@ def table(report: dict[str, Any]) -> str:
     # A differential campaign's candidates that reveal a difference from the reference come first.
     revealing = report.get("differential", False)
     lines = [f"baseline: {report['baseline']}", f"{'scenario':<28} {'algorithm':<10} {'runs':>4} " + (f"{'revealing':>9} " if revealing else "")
-             + f"{'median best f':>14} {'violations':>10} {'rel. %':>8} {'p':>6} {'A12':>5}"]
+             + f"{'median best f':>14} {'violations':>10} {'contacts':>8} {'rel. %':>8} {'p':>6} {'A12':>5}"]
     for row in report["scenarios"] + [dict(r, scenario="overall") for r in report["overall"]]:
         lines.append(
             f"{row['scenario'][:28]:<28} {row['algorithm']:<10} {row['runs']:>4} " + (f"{row['revealing']:>9} " if revealing else "")
-            + f"{row['median_best_fitness']:>14.3f} {row['violations']:>10} "
+            + f"{row['median_best_fitness']:>14.3f} {row['violations']:>10} {row['contacts']:>8} "
             f"{number(row['relative_performance_pct'], '+.0f'):>8} {number(row['p_value'], '.2f'):>6} {number(row['a12'], '.2f'):>5}"
         )
     if any(row["flaky"] for row in report["overall"]):

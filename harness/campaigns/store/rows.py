@@ -64,6 +64,7 @@ class StoredRun:
     best_fitness: float | None  # None before its first evaluation
     evaluations: int
     violations: int
+    contacts: int  # violations that touched an obstacle (clearance 0 or less)
     flaky: int  # violations that did not come back in every re-flight (--confirm)
     failures_refused: int  # flights in which the SUT refused a failure injection
     revealing: int  # a differential campaign's candidates that reveal a difference ...

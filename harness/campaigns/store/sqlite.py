@@ -275,7 +275,7 @@ class Store:
     def runs(self) -> list[StoredRun]:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
-            " MIN(e.fitness), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0),"
+            " MIN(e.fitness), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0), COALESCE(SUM(e.status = :violation AND e.min_clearance_m <= 0), 0),"
             " COALESCE(SUM(e.status = :violation AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')), 0),"
             " COALESCE(SUM(e.failures_refused IS NOT NULL), 0), COALESCE(SUM(e.reveals IS NOT NULL), 0), COALESCE(SUM(e.reveals = :unsafe), 0),"
             " MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END), MIN(e.created), MAX(e.created)"
