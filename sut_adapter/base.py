@@ -88,17 +88,22 @@ class SutHandle:
     # (PX4 drops parameter messages until the end of its start-up script).
     booted: Callable[[], bool] = lambda: True
 
-    def how_it_ended(self) -> str:
-        """Its exit (a signal by name: PX4 dying of SIGFPE in flight is a finding), then the end
-        of its console, which for a crash is often start-up noise printed long before. Asked
-        before the harness stops it, whose SIGTERM would be all its exit status then says."""
-        # A dying process closes its links before it can be reaped: the bridge may see the link
-        # go a moment before the exit status is there.
+    def settled_exit_status(self) -> int | None:
+        """Its exit status, waited for a moment: a dying process closes its links before it can
+        be reaped, so the bridge may see the link go, and the simulation end, before the exit
+        status is there. None: it still runs."""
         deadline = time.monotonic() + EXIT_STATUS_WAIT_S
         status = self.exit_status()
         while status is None and time.monotonic() < deadline:
             time.sleep(0.02)
             status = self.exit_status()
+        return status
+
+    def how_it_ended(self) -> str:
+        """Its exit (a signal by name: PX4 dying of SIGFPE in flight is a finding), then the end
+        of its console, which for a crash is often start-up noise printed long before. Asked
+        before the harness stops it, whose SIGTERM would be all its exit status then says."""
+        status = self.settled_exit_status()
         if status is None:
             ended = f"{self.name} still ran but stopped answering" if self.alive() else f"{self.name} is gone"
         elif status < 0:

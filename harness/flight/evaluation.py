@@ -382,6 +382,6 @@ def _unanswered(error: Exception) -> bool:
 def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> Failure:
     if bridge.poll() is not None:
         return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}")
-    if not sut.alive():
+    if not sut.alive() or sut.settled_exit_status() is not None:
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
     return Failure(Status.TIMEOUT, what)
