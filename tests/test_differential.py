@@ -12,6 +12,7 @@ import pytest
 from mcap.writer import Writer
 
 from conftest import stored_result
+from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.regression import verdict
 from harness.campaigns.store import Store
 from harness.firmware import mutation
@@ -159,11 +160,12 @@ def flight_log(path, touchdowns: list[float]) -> str:
     return str(path)
 
 
-def hop_store(path, logs_dir) -> list[dict]:
+def hop_store(path, logs_dir, confirm: int = 2) -> list[dict]:
     """A differential search stored by a version that timed pairs by the whole flight, confirmed
-    with two more flights a side: candidate 2 "revealed" only by the hops of the landings (both
-    sides came down at 59.6-59.8 s), candidate 3 by its clearance; candidate 1 revealed nothing
-    and was flown once a side, although it came down 2.3 s after the reference. Its pairs."""
+    with two more flights a side (by default): candidate 2 "revealed" only by the hops of the
+    landings (both sides came down at 59.6-59.8 s), candidate 3 by its clearance; candidate 1
+    revealed nothing and was flown once a side, although it came down 2.3 s after the reference.
+    Its pairs."""
     def side(name, clearance, flights):
         return [Outcome(Status.OK, clearance - 1.0, clearance, time_s, log_path=flight_log(logs_dir / f"{name}{i}.mcap", touchdowns))
                 for i, (time_s, touchdowns) in enumerate(flights)]
@@ -175,7 +177,8 @@ def hop_store(path, logs_dir) -> list[dict]:
     assert [p["reveals"] for p in pairs] == [None, "behaviour", "behaviour"] and pairs[1]["why"].startswith("flight time")
     path.parent.mkdir(parents=True, exist_ok=True)
     with Store(path) as store:
-        run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "reference": {"sut": "px4"}, "confirm": 2}), "wall.json", "wall", "RANDOM", 0, 0)
+        config = {"scenarios": ["wall.json"], "reference": {"sut": "px4"}, **({"confirm": confirm} if confirm else {})}
+        run_id, _ = store.run(store.campaign(config), "wall.json", "wall", "RANDOM", 0, 0)
         for ordinal, pair in enumerate(pairs):
             result = replace(stored_result(pair["fitness"], "ok", min_clearance_m=pair["subject"][0]["min_clearance_m"]), differential=pair)
             store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="RANDOM", vector=np.array([float(ordinal)]), result=result, concrete=None)
@@ -183,15 +186,20 @@ def hop_store(path, logs_dir) -> list[dict]:
 
 
 def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_first_touchdown(tmp_path, capsys):
-    # GIVEN a mutant's search stored by an older version (hop_store)
+    # GIVEN a mutant's finished search stored by an older version (hop_store), another search of
+    # it under way, and the reference flight they share cached without its touchdown
     folder = tmp_path / "mutation"
-    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
-    pairs = hop_store(store_path, tmp_path)
-    with Store.existing(store_path) as store:
+    finished, under_way = folder / "search" / "m0001" / "wall-RANDOM.db", folder / "search" / "m0001" / "scenario_13-NSGAII.db"
+    pairs = hop_store(finished, tmp_path)
+    hop_store(under_way, tmp_path)
+    with Store.existing(finished) as store:
         stored_search = store.first_reveals()
     assert stored_search["evaluation"] == 2
     (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {
         "m0001": {"state": "survived_suite", "suite_flights": 1, "search": {"RANDOM": {"wall": stored_search}}}}}))
+    cache = ReferenceCache(folder / mutation.CACHE)
+    cache.put("wall", [Outcome.from_dict(pairs[0]["reference"][0])])
+    cache.close()
 
     # (not while another process works on the folder: it would write back its own verdicts)
     with open(folder / mutation.LOCK, "w") as held:
@@ -202,33 +210,49 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     # WHEN the folder is judged again
     assert main(["mutants", "rejudge", str(folder)]) == 0
 
-    # THEN the hop reveal is withdrawn and said so; the clearance reveal is now the search's first kill
+    # THEN the hop reveals are withdrawn and said so, in both searches; the clearance reveal is now
+    # the finished search's first kill
     said = capsys.readouterr().out
-    assert "m0001 wall RANDOM candidate 2: behaviour (flight time 72.9 s" in said and "-> no reveal" in said and "1 stored verdict changed" in said
+    assert "m0001 wall RANDOM run 0 candidate 2: behaviour (flight time 72.9 s" in said and "-> no reveal" in said and "2 stored verdicts changed" in said
     search = json.loads((folder / mutation.RUN).read_text())["mutants"]["m0001"]["search"]["RANDOM"]["wall"]
     assert search == {**stored_search, "evaluation": 3}
-    with Store.existing(store_path) as store:
-        late, hopping, _closer = (e.differential for e in store.pairs())
-        # a reveal needs confirmation flights that candidate 1 never had: re-judging adds none
-        assert late == pairs[0]
-        assert hopping["reveals"] is None and [o["first_touchdown_s"] for o in hopping["subject"]] == [59.64, 59.81, 59.75]
-    # and judged again, nothing changes
+    for path in (finished, under_way):
+        with Store.existing(path) as store:
+            late, hopping, _closer = (e.differential for e in store.pairs())
+            # a reveal needs confirmation flights that candidate 1 never had: re-judging adds none
+            assert late == pairs[0]
+            assert hopping["reveals"] is None and [o["first_touchdown_s"] for o in hopping["subject"]] == [59.64, 59.81, 59.75]
+    # and the cached reference flight, which pairs flown from now on are judged with, has its touchdown
+    cache = ReferenceCache(folder / mutation.CACHE)
+    assert [o.first_touchdown_s for _key, outcomes in cache.items() for o in outcomes] == [59.67]
+    cache.close()
+    # judged again, nothing changes
     assert main(["mutants", "rejudge", str(folder)]) == 0
     assert "0 stored verdicts changed" in capsys.readouterr().out
 
 
 def test_a_differential_campaigns_store_is_judged_again_too(tmp_path, capsys):
-    hop_store(tmp_path / "diff.db", tmp_path)
-    assert main(["rejudge", str(tmp_path / "diff.db")]) == 0
-    said = capsys.readouterr().out
-    assert "wall RANDOM candidate 2: behaviour (flight time 72.9 s" in said and "1 stored verdict changed" in said
-    with Store.existing(tmp_path / "diff.db") as store:
-        assert [e.ordinal for e in store.revealing_cases()] == [2]
-    # a campaign flown without a reference has nothing to judge
+    # GIVEN a campaign that confirmed nothing (--confirm 0), one of whose flights lost its log
+    hop_store(tmp_path / "diff.db", tmp_path, confirm=0)
+    (tmp_path / "closer1.mcap").unlink()
+    # a store that is no differential campaign among those given changes nothing
     with Store(tmp_path / "plain.db") as store:
         store.campaign({"scenarios": ["wall.json"]})
-    assert main(["rejudge", str(tmp_path / "plain.db")]) == 2
+    assert main(["rejudge", str(tmp_path / "diff.db"), str(tmp_path / "plain.db")]) == 2
     assert "not a differential campaign" in capsys.readouterr().err
+    with Store.existing(tmp_path / "diff.db") as store:
+        assert [e.ordinal for e in store.revealing_cases()] == [2, 1]
+
+    assert main(["rejudge", str(tmp_path / "diff.db")]) == 0
+
+    said = capsys.readouterr().out
+    # THEN the hop reveal is withdrawn, and the late touchdown is a reveal now: one flight a side
+    # was all this campaign flew of any pair
+    assert "wall RANDOM run 0 candidate 2: behaviour (flight time 72.9 s" in said and "2 stored verdicts changed" in said
+    assert "candidate 1: no reveal (no difference beyond the reference's spread) -> behaviour (touchdown 62.0 s" in said
+    assert f"the logs of 1 flight are gone (e.g. {tmp_path / 'closer1.mcap'})" in said
+    with Store.existing(tmp_path / "diff.db") as store:
+        assert sorted(e.ordinal for e in store.revealing_cases()) == [0, 2]
 
 
 @pytest.mark.parametrize("argv, message", [

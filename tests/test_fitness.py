@@ -7,6 +7,7 @@ import pytest
 
 from harness.flight.fitness import CLEARANCE_CAP_M, PENALTY, Status, infeasible_fitness, judge, min_clearance, mission_check
 from harness.flight.results import RunOptions
+from sim_bridge.control import EndReason
 from sim_bridge.spec import MissionSpec, Waypoint
 
 MISSION = MissionSpec(takeoff_altitude_m=8.0, waypoints=(Waypoint(north_m=60.0, east_m=0.0, altitude_m=8.0),), cruise_speed_m_s=5.0, land=True)
@@ -54,12 +55,15 @@ def test_the_mission_check_names_what_was_not_performed():
 
 
 @pytest.mark.parametrize(("sut_logs", "kept"), [
-    ("all", set(Status)),
-    ("failures", set(Status) - {Status.OK}),
+    ("all", {"ok", "violation", "blocked", "time limit", "ground crash", "sut crashed"}),
+    ("failures", {"violation", "blocked", "time limit", "ground crash", "sut crashed"}),
     # a foggy scenario's pilot flights all end mission_failed (blocked, time limit): CP at work,
     # 19 MB of ULog each, which filled a disk once
-    ("violations", {Status.VIOLATION, Status.SUT_CRASHED, Status.SIM_CRASHED, Status.TIMEOUT}),
+    ("violations", {"violation", "ground crash", "sut crashed"}),
 ])
 def test_sut_logs_chooses_which_flights_keep_the_suts_own_log(sut_logs, kept):
+    flights = {"ok": (Status.OK, EndReason.LANDED), "violation": (Status.VIOLATION, EndReason.LANDED),
+               "blocked": (Status.MISSION_FAILED, EndReason.BLOCKED), "time limit": (Status.MISSION_FAILED, EndReason.TIME_LIMIT),
+               "ground crash": (Status.MISSION_FAILED, EndReason.CRASHED), "sut crashed": (Status.SUT_CRASHED, EndReason.SUT_DISCONNECTED)}
     options = RunOptions(sut_logs=sut_logs)
-    assert {status for status in Status if status != Status.INFEASIBLE and options.keeps_sut_log(status)} == kept - {Status.INFEASIBLE}
+    assert {name for name, (status, end) in flights.items() if options.keeps_sut_log(status, end)} == kept

@@ -112,6 +112,9 @@ class ReferenceCache:
     def get(self, key: str) -> list[Outcome]:
         return [Outcome.from_dict(o) for o in self._table.get(key)]
 
+    def items(self) -> list[tuple[str, list[Outcome]]]:
+        return [(key, [Outcome.from_dict(o) for o in outcomes]) for key, outcomes in self._table.items()]
+
     def put(self, key: str, outcomes: list[Outcome]) -> None:
         self._table.put(key, [o.as_dict() for o in outcomes])
 

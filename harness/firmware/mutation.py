@@ -34,7 +34,7 @@ from scipy.stats import fisher_exact
 
 from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
-from harness.campaigns.rejudge import Rejudged, rejudge as rejudge_store
+from harness.campaigns.rejudge import Rejudgement, complete_references, rejudge as rejudge_store
 from harness.campaigns.regression import SUFFIX, load_regression
 from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
@@ -225,36 +225,44 @@ def _search_store(folder: Path, mutant: str, scenario: str, algorithm: str) -> P
     return folder / "search" / mutant / f"{slug(scenario)}-{algorithm}.db"
 
 
-def rejudge(mutants_dir: Path) -> dict[str, list[Rejudged]]:
-    """Every search's stored pairs judged again with this version's rule (harness/campaigns/
-    rejudge.py), and each search's first kill in run.json with them: the pairs whose verdict
-    changed, by mutant. The suite's verdicts stay: its pairs are not stored."""
-    mutants_dir = Path(mutants_dir)
+def _load_run(mutants_dir: Path) -> dict[str, Any]:
     run_path = mutants_dir / RUN
     if not run_path.is_file():
         raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
+    return json.loads(run_path.read_text())
+
+
+def rejudge(mutants_dir: Path) -> Rejudgement:
+    """Every search's stored pairs and the cached reference flights judged again with this
+    version's rule (harness/campaigns/rejudge.py), and each finished search's first kill in
+    run.json with them; searches under way too, so that they resume judged alike. The suite's
+    verdicts stay: its pairs are not stored."""
+    mutants_dir = Path(mutants_dir)
     with _alone_in(mutants_dir):
-        document = json.loads(run_path.read_text())
-        changed = _rejudge(mutants_dir, document)
-        write_json_atomically(run_path, document)
-    return changed
-
-
-def _rejudge(mutants_dir: Path, document: dict[str, Any]) -> dict[str, list[Rejudged]]:
-    changed: dict[str, list[Rejudged]] = {}
-    for mutant, outcome in sorted(document["mutants"].items()):
-        for algorithm, by_scenario in (outcome.get("search") or {}).items():
-            for scenario in by_scenario:
-                store_path = _search_store(mutants_dir, mutant, scenario, algorithm)
-                if not store_path.is_file():
-                    raise InputError([Problem(str(store_path), "", f"{mutant}'s {algorithm} search on {scenario} is in {RUN} but its store is "
-                                                                   "gone: put it back, or delete its entry from run.json to search again")])
-                with Store.existing(store_path) as store:
-                    changes = rejudge_store(store)
+        document = _load_run(mutants_dir)
+        finished = {_search_store(mutants_dir, mutant, scenario, algorithm): (by_scenario, scenario)
+                    for mutant, outcome in sorted(document["mutants"].items())
+                    for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario in by_scenario}
+        gone = [path for path in finished if not path.is_file()]
+        if gone:
+            raise InputError([Problem(str(path), "", f"this search is in {RUN} but its store is gone: put it back, or delete its entry from "
+                                                     f"{RUN} to search again") for path in gone])
+        result = Rejudgement()
+        cache = ReferenceCache(mutants_dir / CACHE)
+        try:
+            complete_references(cache, result.logs_gone)
+        finally:
+            cache.close()
+        for store_path in sorted({*finished, *(mutants_dir / "search").glob("*/*.db")}):
+            with Store.existing(store_path) as store:
+                changes = rejudge_store(store, result.logs_gone)
+                if store_path in finished:
+                    by_scenario, scenario = finished[store_path]
                     by_scenario[scenario] = store.first_reveals()
-                if changes:
-                    changed.setdefault(mutant, []).extend(changes)
-    return changed
+            if changes:
+                result.changed.setdefault(store_path.parent.name, []).extend(changes)  # search/MUTANT/SCENARIO-ALGORITHM.db
+        write_json_atomically(mutants_dir / RUN, document)
+    return result
 
 
 def describe(outcome: Mapping[str, Any]) -> str:
@@ -310,10 +318,7 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
     mutants_dir = Path(mutants_dir)
     index = load_index(mutants_dir)
     built = json.loads((mutants_dir / BUILT).read_text()) if (mutants_dir / BUILT).is_file() else {"mutants": {}}
-    run_path = mutants_dir / RUN
-    if not run_path.is_file():
-        raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
-    document = json.loads(run_path.read_text())
+    document = _load_run(mutants_dir)
     states = [e["state"] for e in built["mutants"].values()]
     outcomes = document["mutants"]
     searched: dict[str, set[str]] = {}
@@ -336,9 +341,10 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
                 mine = (outcome.get("search") or {}).get(algorithm) if outcome["state"] == "survived_suite" else None
                 if mine is None:
                     continue
-                # A search that has not been through every scenario yet and killed nothing so far
-                # says nothing yet: counted, it would be a survivor the others had more tries at.
-                if by_search is None and not set(mine) >= searched[algorithm]:
+                # A search not yet through every scenario is no survivor of it yet, and counted only
+                # when it killed it would make the algorithm look better than its finished searches:
+                # its kill counts in the score, not in the comparison.
+                if not set(mine) >= searched[algorithm]:
                     unfinished += 1
                     continue
                 to_kill.append(by_search if by_search is not None else budget + 1)
@@ -407,7 +413,7 @@ def report_text(result: Mapping[str, Any]) -> str:
                          f"{fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
     unfinished = {algorithm: entry["any"]["searches_unfinished"] for algorithm, entry in result["scores"].items() if entry["any"]["searches_unfinished"]}
     if unfinished:
-        lines.append("not counted in search kills, their searches not yet through every scenario: "
+        lines.append("not in the search kills' comparison, their searches not yet through every scenario (a kill counts in the score): "
                      + ", ".join(f"{algorithm} {n} survivor{'s' if n > 1 else ''}" for algorithm, n in unfinished.items()))
     if "other_tests" in result:
         other = result["other_tests"]

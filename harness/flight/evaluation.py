@@ -216,11 +216,11 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
             failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {sut_end}")
         # The SUT's consoles (*.log) are always kept; its own flight log (a PX4 ULog, about 19 MB)
-        # unless --sut-logs chooses, once the flight's status is known.
+        # as --sut-logs chooses, once the flight's status is known.
         sut_files = stack.sut.artifacts()
         consoles = [path for path in sut_files if path.suffix == ".log"]
         flight_logs = [path for path in sut_files if path.suffix != ".log"]
-        artifacts = _keep_artifacts(sut_files if options.sut_logs == "all" else consoles, kept_dir)
+        artifacts = _keep_artifacts(consoles, kept_dir)
         api_records = list(stack.tap.records)
         if not stack.bridge_log.exists() or stack.bridge_log.stat().st_size == 0:
             raise InfrastructureError(f"the simulator wrote no log: {stack.bridge.stderr_tail()}")
@@ -230,7 +230,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
         score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
         timings["score_s"] = time.monotonic() - t0
-        if options.sut_logs != "all" and options.keeps_sut_log(score.status):
+        if options.keeps_sut_log(score.status, outcome.end_reason):
             artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
         result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
@@ -243,7 +243,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         return finish(Score(Status.SUT_CRASHED, scoring.PENALTY, str(error), None), None)
     except InfrastructureError as error:
         log.warning("evaluation %s failed: %s", stem, error)
-        if options.sut_logs != "all" and options.keeps_sut_log(Status.SIM_CRASHED):
+        if options.keeps_sut_log(Status.SIM_CRASHED, outcome.end_reason):
             artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
         return finish(Score(Status.SIM_CRASHED, scoring.PENALTY, str(error), None), None)
     finally:

@@ -58,15 +58,16 @@ class RunOptions:
         if self.sut_logs not in SUT_LOGS:
             raise ValueError(f"sut_logs {self.sut_logs!r} is not one of {', '.join(SUT_LOGS)}")
 
-    def keeps_sut_log(self, status: Status) -> bool:
+    def keeps_sut_log(self, status: Status, end_reason: EndReason | None) -> bool:
         """Whether a flight that ended so keeps the SUT's own flight log: with "failures" every
-        flight that did not end ok; with "violations" those that violated or could not finish,
-        not those the pilot drive's blocked rule or the time limit ended (mission_failed), which
-        are collision prevention doing its work: every flight of a foggy scenario is one."""
+        flight that did not end ok; with "violations" those that violated, crashed into the
+        ground or could not finish, not the other mission failures (blocked by the pilot drive's
+        rule, the time limit, a landing off the goal): collision prevention holding a vehicle
+        back is one, and every pilot flight of a foggy scenario."""
         if self.sut_logs == "failures":
             return status != Status.OK
         if self.sut_logs == "violations":
-            return status == Status.VIOLATION or status in COULD_NOT_FINISH
+            return status == Status.VIOLATION or status in COULD_NOT_FINISH or end_reason == EndReason.CRASHED
         return True
 
 

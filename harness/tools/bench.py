@@ -230,7 +230,7 @@ def bench_text(report: dict[str, Any]) -> str:
         lines.append(f"  the autopilot's computation   {report['autopilot_step']['median_step_us']:.0f} us per step (median, replayed without sockets)")
     low, high = report["fitness_range"]
     lines.append(f"  fitness over the runs         {low:.6g} every run" if report["deterministic"] else
-                 f"  fitness over the runs         {low:.3f} to {high:.3f} (the SUT does not repeat bit for bit: its outcomes spread by {high - low:.3f})")
+                 f"  fitness over the runs         {low:.6g} to {high:.6g} (the SUT does not repeat bit for bit: its outcomes spread by {high - low:.3g})")
     return "\n".join(lines)
 
 

@@ -23,6 +23,10 @@ class ReferenceFlightTable:
         row = self.db.execute("SELECT outcomes FROM reference_flights WHERE key = ?", (key,)).fetchone()
         return json.loads(row[0]) if row else []
 
+    def items(self) -> list[tuple[str, list[dict[str, Any]]]]:
+        """Every key with its flights' documents."""
+        return [(key, json.loads(outcomes)) for key, outcomes in self.db.execute("SELECT key, outcomes FROM reference_flights ORDER BY key")]
+
     def put(self, key: str, outcomes: Sequence[Mapping[str, Any]]) -> None:
         with self.db:
             self.db.execute("INSERT OR REPLACE INTO reference_flights (key, outcomes, created) VALUES (?, ?, ?)",

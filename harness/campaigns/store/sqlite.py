@@ -102,8 +102,8 @@ def _evaluation(id, run_id, ordinal, vector, key, fitness, status, log_path, see
 class Store:
     @classmethod
     def existing(cls, path: Path) -> "Store":
-        """A store to read (compare, report, export): the file must be a campaign store, and is
-        never turned into one."""
+        """A campaign's store as it is (to compare, report, export, judge again): the file must
+        be a campaign store, and is never turned into one."""
         path = Path(path)
         if not path.is_file():
             raise InputError([Problem(str(path), "", "no such campaign store: give the --store file of a `stella campaign`")])

@@ -183,16 +183,10 @@ def _rejudge_options(p: argparse.ArgumentParser) -> None:
 
 @command("rejudge", "judge a differential campaign's stored pairs again with this version's rule, without flying", _rejudge_options)
 def cmd_rejudge(args: argparse.Namespace) -> int:
-    from harness.campaigns.rejudge import changes_text, rejudge
-    from harness.campaigns.store import Store
+    from harness.campaigns.rejudge import rejudge_campaigns
 
-    changed: dict[str, list] = {}
-    for path in args.store:
-        with Store.existing(Path(path)) as store:
-            if not store.is_differential():
-                raise InputError([Problem(path, "", "not a differential campaign (flown without --reference-...): it has no pairs to judge")])
-            changed[path] = rejudge(store)
-    emit(args, {path: [vars(change) for change in changes] for path, changes in changed.items()}, changes_text(changed))
+    result = rejudge_campaigns([Path(path) for path in args.store])
+    emit(args, result.as_dict(), result.text())
     return 0
 
 

@@ -145,12 +145,10 @@ def _rejudge_options(p: argparse.ArgumentParser) -> None:
 
 @command("mutants rejudge", "judge the searches' stored flights again with this version's rule, without flying", _rejudge_options)
 def mutants_rejudge(args: argparse.Namespace) -> int:
-    from harness.campaigns.rejudge import changes_text
     from harness.firmware import mutation
 
-    changed = mutation.rejudge(Path(args.folder))
-    emit(args, {mutant: [vars(change) for change in changes] for mutant, changes in changed.items()},
-         changes_text(changed) + f"; `stella mutants report {args.folder}` for the scores")
+    result = mutation.rejudge(Path(args.folder))
+    emit(args, result.as_dict(), result.text() + f"\n`stella mutants report {args.folder}` for the scores")
     return 0
 
 

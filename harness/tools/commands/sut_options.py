@@ -39,8 +39,8 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
 def add_sut_logs_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sut-logs", choices=SUT_LOGS, default="all",
                    help="which flights keep the SUT's own log beside their MCAP (PX4's ULog, about 19 MB a flight; ArduPilot's .BIN): all "
-                        "(default); failures: those that did not end ok; violations: those that violated or could not finish, not the "
-                        "mission_failed ones (blocked, time limit); consoles are kept either way")
+                        "(default); failures: those that did not end ok; violations: those that violated, crashed into the ground or could not "
+                        "finish, not the other mission failures (blocked, time limit); consoles are kept either way")
 
 
 def add_reference_options(p: argparse.ArgumentParser, *, campaign: bool = False) -> None:
