@@ -22,7 +22,9 @@ from harness.flight import logs
 from harness.flight.fitness import PENALTY
 from harness.flight.inspect_log import summarize
 from harness.tools.cli import main
+from harness.tools.sut_alone import recorded_link, sut_alone
 from simlink.failures import UNIT_BY_NAME
+from sut_adapter import SutConfig
 from sut_adapter.ardupilot_failures import failure_params
 
 pytestmark = [
@@ -91,6 +93,17 @@ def run_wall(capsys, tmp_path, name: str, *arguments: str) -> dict:
 def test_ardupilot_flies_into_the_wall_on_a_mission_without_its_path_planner(capsys, tmp_path):
     mission = run_wall(capsys, tmp_path, "mission", "--drive", "mission")
     assert mission["min_clearance_m"] <= 0.0 and mission["status"] == "violation", mission["why"]
+
+
+def test_arducopter_alone_replays_a_recorded_flight_in_lockstep(capsys, tmp_path):
+    # GIVEN a wall mission flown through the bridge
+    flown = run_wall(capsys, tmp_path, "flown", "--drive", "mission")
+    # WHEN its JSON link is replayed to a fresh ArduCopter, as `stella bench --sut ardupilot --limit` does
+    alone = sut_alone(Path(flown["log_path"]), SutConfig("ardupilot"), cores=2, repeats=1)
+    # THEN ArduCopter answered every timed line with its next frame, and ran faster than in the flight
+    recorded = recorded_link(Path(flown["log_path"]), "ardupilot-json")
+    assert alone["in_step"] and alone["timed_steps"] == len(recorded["steps"]) - recorded["run_step"] > 0
+    assert alone["real_time_factor"] > 1.0
 
 
 def test_ardupilots_path_planner_and_its_simple_avoidance_keep_it_off_the_wall(capsys, tmp_path):

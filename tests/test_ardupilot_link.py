@@ -1,7 +1,8 @@
 """ArduPilot's JSON physics link without ArduPilot: the protocol's encoding and decoding against the
 frame layout of ArduPilot's SIM_JSON.h, the adapter's command line and parameters, and the bridge
 as a real process against a small ArduPilot that obeys the protocol (tests/fake_ardupilot.py):
-lockstep, a line lost, counts skipped or started again, and junk between the frames."""
+lockstep, a line lost, counts skipped or started again, and junk between the frames; and a
+recorded flight replayed to it as `stella bench --limit` does."""
 
 from __future__ import annotations
 
@@ -18,8 +19,10 @@ from conftest import ROOT
 from fake_ardupilot import parse_like_ardupilot
 from harness.flight import logs
 from harness.flight.ports import PortLease
+from harness.tools.sut_alone import json_link_steps, recorded_link, replay_json
 from sim_bridge import ardupilot_json, geo
 from sim_bridge.ardupilot_json import FrameCounter, FrameError, decode_servo_frame, encode_servo_frame, motor_commands, rangefinder_distances_m, state_line
+from sim_bridge.ardupilot_link import accept, listen_udp
 from sim_bridge.spec import WorldSpec
 from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
 from sut_adapter import SutError, get
@@ -230,6 +233,36 @@ def test_the_bridge_flies_on_through_ten_thousand_junk_datagrams_between_the_fra
     # fake sends none before the first answer, when the simulator may not be listening yet; the
     # seven after the last answer count if they come before the simulator closes its socket).
     assert 7 * (summary["steps"] - 1) <= summary["bad_frames"] <= 7 * summary["steps"]
+
+
+@pytest.mark.slow
+def test_a_recorded_flight_replays_to_ardupilot_alone_one_line_per_servo_frame(tmp_path):
+    # GIVEN the bridge's recording of a flight against the fake, two of whose lines were lost on
+    # the way, so that their frames came again and the bridge sent those lines again
+    code, summary, _seen = fly_fake(tmp_path, "--ignore-every", "500", time_limit_s=2.0)
+    assert code == 0
+    recorded = recorded_link(tmp_path / "run.mcap", "ardupilot-json")
+    # THEN the replay has each step once, as the line that was sent, a step apart
+    steps, times = recorded["steps"], recorded["times_us"]
+    assert len(steps) == summary["steps"] and recorded["dt_s"] == 1 / 400
+    assert {b - a for a, b in zip(times, times[1:])} == {2500} and all(line.startswith(b"\n{") and line.endswith(b"}\n") for line in steps)
+    with pytest.raises(ValueError, match="not a bridge's recording of ArduPilot's JSON link"):
+        json_link_steps(b"\xfe\x21junk\n" + b"".join(steps[:3]))
+
+    # WHEN it is replayed to a fresh ArduPilot (here the fake) by the stand-in of `stella bench --limit`
+    with PortLease(first_slot=120) as ports:
+        listener = listen_udp(ports.sim)
+        fake = subprocess.Popen([sys.executable, str(FAKE_ARDUPILOT), "--port", str(ports.sim), "--frames", str(len(steps))], cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            result = replay_json(accept(listener, 20.0, 5.0), steps, recorded["dt_s"], 100, spin_s=0.0)
+            seen = json.loads(fake.communicate(timeout=30)[0].decode().strip().splitlines()[-1])
+        finally:
+            fake.kill()
+            listener.close()
+    # THEN each of its frames was answered by the next line, in lockstep, and timed from step 100
+    assert result["in_step"] and result["timed_steps"] == len(steps) - 100 and result["real_time_factor"] > 0
+    assert seen["parsed"] == len(steps) and seen["step_us"] == [2500] and seen["resent"] == 0 and seen["bad_lines"] == []
 
 
 @pytest.mark.slow

@@ -5,7 +5,6 @@ in tests/test_px4.py."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -44,9 +43,3 @@ def test_the_replay_keeps_a_fresh_autopilot_in_lockstep_and_times_the_run(flight
     assert alone["in_step"], "an answer carried another step's time: the replay lost lockstep"
     assert alone["timed_steps"] == len(recorded["steps"]) - recorded["run_step"] > 0
     assert alone["real_time_factor"] > 1.0
-
-
-@pytest.mark.skipif(not os.environ.get("STELLA_ARDUPILOT_BIN"), reason="STELLA_ARDUPILOT_BIN is not set: no ArduPilot SITL build to refuse")
-def test_limit_refuses_a_sut_whose_simulator_link_is_not_px4s_protocol_before_flying(capsys):
-    assert main(["bench", "--sut", "ardupilot", "--limit"]) != 0
-    assert "not PX4's MAVLink protocol" in capsys.readouterr().err

@@ -1,12 +1,13 @@
 """`stella bench --limit`: a SUT alone, the yardstick for flights through the bridge.
 
-A minimal stand-in for the simulator replays the simulator-link bytes of a recorded flight
-(the HIL_SENSOR, HIL_GPS, ... frames the bridge sent, cut into its steps and held in memory
-before timing) to a fresh SUT process over TCP, and only reads its answers: one step's frames
-per HIL_ACTUATOR_CONTROLS once the SUT answers in lockstep, as the bridge paces them. No
-physics, sensors, scoring or recording, so its real-time factor is what the SUT's own
-computation per step allows on this machine ("PX4 alone"); a flight through the bridge is
-reported as a share of it.
+A minimal stand-in for the simulator replays the simulator-link bytes of a recorded flight,
+cut into its steps and held in memory before timing, to a fresh SUT process, and only reads its
+answers. PX4's protocol (over TCP): one step's HIL_SENSOR, HIL_GPS, ... frames per
+HIL_ACTUATOR_CONTROLS once the SUT answers in lockstep, as the bridge paces them. ArduPilot's
+JSON protocol (over UDP): one recorded state line per servo frame, from the frame that opened
+the link, as the bridge answers them. No physics, sensors, scoring or recording, so its
+real-time factor is what the SUT's own computation per step allows on this machine ("PX4
+alone", "ArduPilot alone"); a flight through the bridge is reported as a share of it.
 
 What the replay does not give the SUT: its API link. Nobody uploads a mission or arms it, so it
 computes every step on the recorded flight's sensors but stays disarmed (for PX4: the same
@@ -16,6 +17,7 @@ force-armed it ran no slower: docs/benchmarks.md).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import statistics
@@ -28,6 +30,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from harness.flight import logs, scratch
 from harness.flight.ports import PortLease
 from sim_bridge.__main__ import listen
+from sim_bridge.ardupilot_json import FrameError, decode_servo_frame
+from sim_bridge.ardupilot_link import UdpLink, accept, listen_udp
 from sim_bridge.sut_link import SocketLink
 from simlink import codec
 import sut_adapter
@@ -59,11 +63,31 @@ def link_steps(stream: bytes) -> tuple[list[bytes], list[int]]:
     return steps, times
 
 
-def recorded_link(log_path: Path) -> dict[str, Any]:
-    """What a replay needs of a flight's log: its steps, their period, and the step its run
-    began at (the flight's real-time factor counts from there)."""
+def json_link_steps(stream: bytes) -> tuple[list[bytes], list[int]]:
+    """A recorded ArduPilot JSON stream cut into the bridge's steps: each state line as sent
+    (newline before and after), a line sent again for a frame that came again (its answer was
+    lost) counted once, and each step's time (its timestamp, in us)."""
+    steps: list[bytes] = []
+    times: list[int] = []
+    for line in stream.split(b"\n"):
+        if not line:
+            continue
+        try:
+            time_us = round(json.loads(line)["timestamp"] * 1e6)
+        except (ValueError, KeyError, TypeError):
+            raise ValueError(f"the recorded simulator link holds {line[:60]!r}: not a bridge's recording of ArduPilot's JSON link") from None
+        if times and time_us == times[-1]:
+            continue
+        steps.append(b"\n" + line + b"\n")
+        times.append(time_us)
+    return steps, times
+
+
+def recorded_link(log_path: Path, protocol: str = "mavlink") -> dict[str, Any]:
+    """What a replay needs of a flight's log: its steps in the SUT's simulator protocol, their
+    period, and the step its run began at (the flight's real-time factor counts from there)."""
     stream = b"".join(bytes.fromhex(m["hex"]) for _t, _ns, m in logs.messages(log_path, ["/mavlink/sim"]) if m["direction"] == "to_sut")
-    steps, times = link_steps(stream)
+    steps, times = link_steps(stream) if protocol == "mavlink" else json_link_steps(stream)
     summary = logs.json_metadata(log_path, "bridge_summary")
     dt_s = summary["sim_time_s"] / summary["steps"]
     run_at_s = logs.first_event_s(log_path, "run") or 0.0
@@ -101,6 +125,38 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
             "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:]}
 
 
+def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
+    """Answer each of ArduPilot's servo frames with the next recorded line, from the frame that
+    opened the link (ArduPilot waits for each answer: lockstep from the start), and time the
+    steps from `timed_from` on. `in_step`: every timed frame counted one up from the one before
+    (none sent again, none skipped)."""
+    counts = [decode_servo_frame(link.first).frame_count]
+    started = None
+    perf = time.perf_counter
+    for index, line in enumerate(steps):
+        if index == timed_from:
+            started = perf()
+        link.send(line)
+        if index + 1 < len(steps):
+            counts.append(_next_servo_frame(link, spin_s))
+    if started is None:
+        raise RuntimeError(f"the recording has {len(steps)} steps, fewer than the {timed_from} before its run")
+    wall_s = perf() - started
+    timed = len(steps) - timed_from
+    in_step = all(later == earlier + 1 for earlier, later in zip(counts[timed_from:], counts[timed_from + 1:]))
+    return {"steps": len(steps), "timed_steps": timed, "lockstep_from": 0, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
+            "real_time_factor": timed * dt_s / wall_s, "in_step": in_step}
+
+
+def _next_servo_frame(link: UdpLink, spin_s: float) -> int:
+    """The next servo frame's count; what is no servo frame is skipped."""
+    while True:
+        try:
+            return decode_servo_frame(link.receive(spin_s)).frame_count
+        except FrameError:
+            continue
+
+
 def _answers(splitter: codec.FrameSplitter, data: bytes, answer_times: list[int]) -> bool:
     """Whether `data` completes an actuator answer (recording each one's time)."""
     if not data:
@@ -119,10 +175,14 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     `log_path` `repeats` times, each into a fresh SUT process: the median and each run."""
     from harness.flight.stack import pin_to_cores
 
-    recorded = recorded_link(log_path)
     system = sut_adapter.system_for(sut)
-    if system.capabilities.sim_protocol != "mavlink":
-        raise ValueError(f"{system.name}'s simulator link is not PX4's MAVLink protocol; the replay speaks only that")
+    protocol = system.capabilities.sim_protocol
+    if protocol not in ("mavlink", "ardupilot-json"):
+        raise ValueError(f"{system.name}'s simulator link speaks {protocol}; the replay speaks PX4's MAVLink protocol and ArduPilot's JSON one")
+    recorded = recorded_link(log_path, protocol)
+    # ArduPilot starts at the world's origin with rangefinders of its sensor's reach, as in the flight.
+    extra = {"world": logs.world_of(log_path)} if system.capabilities.needs_world else {}
+    spin_s = SPIN_S if cores >= 2 else 0.0
     runs = []
     own_cores = os.sched_getaffinity(0)
     for _ in range(max(1, repeats)):
@@ -131,21 +191,25 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
             # A SUT that numbers its instances within a range (PX4: 0-9) needs a slot in it, as a flight does.
             limited = system.capabilities.instance_count
             with (PortLease(slots=limited, wait_s=CONNECT_TIMEOUT_S) if limited else PortLease()) as ports:
-                listener = listen(ports.sim)
+                listener = listen(ports.sim) if protocol == "mavlink" else listen_udp(ports.sim)
                 handle = None
                 try:
-                    handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={},
-                                          spin_s=SPIN_S if cores >= 2 else 0.0)
+                    handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={}, spin_s=spin_s, **extra)
                     if pin_cpu:
                         pin_to_cores(os.getpid(), handle.pids, ports.slot, cores)
-                    listener.settimeout(CONNECT_TIMEOUT_S)
                     try:
-                        sock, _ = listener.accept()
+                        if protocol == "mavlink":
+                            listener.settimeout(CONNECT_TIMEOUT_S)
+                            link = SocketLink(listener.accept()[0], STALL_TIMEOUT_S)
+                        else:
+                            link = accept(listener, CONNECT_TIMEOUT_S, STALL_TIMEOUT_S)
                     except TimeoutError:
                         raise RuntimeError(f"{system.name} did not connect to the stand-in within {CONNECT_TIMEOUT_S:.0f} s: {handle.stderr_tail()}") from None
-                    link = SocketLink(sock, STALL_TIMEOUT_S)
                     try:
-                        runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], SPIN_S if cores >= 2 else 0.0))
+                        if protocol == "mavlink":
+                            runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], spin_s))
+                        else:
+                            runs.append(replay_json(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], spin_s))
                     except (BlockingIOError, OSError) as error:
                         raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
                     finally:

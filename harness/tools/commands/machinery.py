@@ -34,16 +34,6 @@ def _bench_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cold-start", action="store_true", help="with --campaign: every evaluation starts its processes afresh (as `stella campaign --cold-start`)")
 
 
-def check_limit(sut) -> None:
-    """The replay speaks PX4's simulator protocol to a SUT process: refuse the others here, before any flight."""
-    import sut_adapter
-
-    system = sut_adapter.system_for(sut)
-    if system.capabilities.sim_protocol != "mavlink":
-        raise InputError([Problem("--limit", "", f"{sut.name}'s simulator link is {system.capabilities.sim_protocol}, not PX4's MAVLink protocol, "
-                                                 f"which the replay speaks: measure it without --limit")])
-
-
 @command("bench", "the speed benchmark: real-time factor, evaluations per hour and where a step's time goes", _bench_options)
 def cmd_bench(args: argparse.Namespace) -> int:
     from harness.tools.bench import PLACEMENTS, bench_text, run_bench
@@ -72,8 +62,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
     sut = sut_spec(args)
     if args.transport:
         check_transport(args.transport, sut)
-    if args.limit:
-        check_limit(sut)
     placements = tuple(p for p in PLACEMENTS if args.cores in (None, p[0]) and args.transport in (None, p[1]))
     if not placements:
         measured = sorted({cores for cores, transport, _warm in PLACEMENTS if transport == args.transport})
