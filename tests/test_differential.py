@@ -146,6 +146,8 @@ def test_a_record_keeps_both_sides_flights_and_the_verdict():
     document = record("subject", [flight(Status.VIOLATION, 0.4)], [flight(Status.OK, 1.3), flight(Status.OK, 1.4)])
     assert document["reveals"] == "unsafe" and len(document["subject"]) == 1 and len(document["reference"]) == 2
     assert Outcome.from_dict(document["reference"][1]).min_clearance_m == 1.4
+    # a flight stored by a later version, with a field this one does not know, still reads
+    assert Outcome.from_dict({**document["reference"][1], "landing_hops": 3}) == Outcome.from_dict(document["reference"][1])
 
 
 def flight_log(path, touchdowns: list[float]) -> str:

@@ -80,7 +80,11 @@ class Outcome:
 
     @classmethod
     def from_dict(cls, document: Mapping[str, Any]) -> "Outcome":
-        return cls(**{**document, "status": Status(document["status"])})
+        """A stored outcome; fields a later version added are left out, so that a reference cache
+        or store written by a newer version still reads (an older one stopped issue 35's searches
+        when `first_touchdown_s` appeared in their cache)."""
+        known = {name: value for name, value in document.items() if name in cls.__dataclass_fields__}
+        return cls(**{**known, "status": Status(document["status"])})
 
     def as_dict(self) -> dict[str, Any]:
         return {**asdict(self), "status": str(self.status)}
