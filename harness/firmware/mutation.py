@@ -229,7 +229,10 @@ def _load_run(mutants_dir: Path) -> dict[str, Any]:
     run_path = mutants_dir / RUN
     if not run_path.is_file():
         raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
-    return json.loads(run_path.read_text())
+    try:
+        return json.loads(run_path.read_text())
+    except json.JSONDecodeError as error:
+        raise InputError([Problem(str(run_path), "", f"not JSON ({error}): put back the run.json `stella mutants run` wrote")]) from None
 
 
 def rejudge(mutants_dir: Path) -> Rejudgement:
@@ -238,6 +241,7 @@ def rejudge(mutants_dir: Path) -> Rejudgement:
     run.json with them; searches under way too, so that they resume judged alike. The suite's
     verdicts stay: its pairs are not stored."""
     mutants_dir = Path(mutants_dir)
+    _load_run(mutants_dir)  # a folder without a run says so before anything is locked
     with _alone_in(mutants_dir):
         document = _load_run(mutants_dir)
         finished = {_search_store(mutants_dir, mutant, scenario, algorithm): (by_scenario, scenario)
