@@ -199,6 +199,20 @@ def test_ardupilots_stop_is_modelled_with_its_own_avoidance_parameters(params, d
     assert Limits.of({"name": "ardupilot", "params": {**params, "AVOID_ENABLE": 0}}).cp_dist_m < 0
 
 
+@pytest.mark.parametrize("name, mode", [("px4", "Position mode"), ("ardupilot", "not in Auto")])
+def test_real_firmware_on_a_mission_is_not_modelled_as_braking_for_what_it_senses(name, mode):
+    on_mission = Limits.of({"name": name, "params": {}}, "mission")
+    assert on_mission.cp_dist_m < 0 and on_mission.inactive is not None
+    assert on_mission.describe().startswith("no stop: ") and mode in on_mission.describe()
+    # the stop a braking vehicle would have needed is to the obstacle itself
+    assert on_mission.stopping_distance_m(6.0) < Limits.of({"name": name, "params": {}}, "pilot").stopping_distance_m(6.0)
+    assert Limits.of({"name": name, "params": {}}, "pilot").inactive is None
+
+
+def test_the_bundled_autopilot_brakes_on_missions_too():
+    assert Limits.of({"name": "bundled", "params": {}}, "mission") == Limits.of({"name": "bundled", "params": {}}, "pilot")
+
+
 def test_a_sut_without_its_own_stopping_model_is_described_with_px4s_parameters():
     assert Limits.of({"name": "mavlink", "params": {"CP_DIST": 2.0}}).describe() == (
         "CP_DIST 2.0 m, CP_DELAY 0.4 s, MPC_ACC_HOR 3.0 m/s^2, MPC_JERK_AUTO 4.0 m/s^3 (assumed defaults: CP_DELAY, MPC_ACC_HOR, MPC_JERK_AUTO)")

@@ -71,6 +71,12 @@ LIMIT_PARAMS: dict[str, dict[str, tuple[str, float] | None]] = {
 # The parameter and value that switch a SUT's collision prevention off where its kept distance
 # does not (PX4's CP_DIST below 0 does).
 OFF_PARAMS: dict[str, tuple[str, float]] = {"ardupilot": ("AVOID_ENABLE", 0.0)}
+# Real firmware whose collision prevention does not act in missions: there the vehicle does not
+# brake for what it senses at all, whatever the parameters (the bundled autopilot's does act).
+NOT_IN_MISSIONS = {
+    "px4": "PX4's collision prevention acts only in Position mode, not in missions",
+    "ardupilot": "ArduPilot's simple avoidance acts in Loiter, AltHold and Guided, not in Auto; its path planner (OA_TYPE) steers, it does not brake",
+}
 UNITS = {"distance": "m", "delay": "s", "acc": "m/s^2", "jerk": "m/s^3"}
 
 
@@ -82,9 +88,10 @@ class Limits:
     jerk_m_s3: float  # inf: no jerk limit
     assumed: tuple[str, ...]  # the parameters taken from the defaults, not from the log
     named: tuple[tuple[str, str], ...] = ()  # (the SUT's parameter, which limit) for the limits it has
+    inactive: str | None = None  # why collision prevention does not act in this flight's drive
 
     @classmethod
-    def of(cls, sut: Mapping[str, Any] | None) -> "Limits":
+    def of(cls, sut: Mapping[str, Any] | None, drive: str = "pilot") -> "Limits":
         params = dict((sut or {}).get("params") or {})
         name = str((sut or {}).get("name"))
         kind = LIMIT_PARAMS.get(name, LIMIT_PARAMS["px4"])
@@ -95,8 +102,12 @@ class Limits:
         off = OFF_PARAMS.get(name)
         if off is not None and off[0] in params and float(params[off[0]]) == off[1]:
             value["distance"] = -1.0
+        inactive = NOT_IN_MISSIONS.get(name) if drive == "mission" else None
+        if inactive is not None:
+            value["distance"] = -1.0
         named = tuple((named[0], limit) for limit, named in kind.items() if named is not None)
-        return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params), named)
+        return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params), named,
+                   inactive)
 
     @property
     def distance_name(self) -> str:
@@ -113,8 +124,17 @@ class Limits:
 
     def describe(self) -> str:
         value = {"distance": self.cp_dist_m, "delay": self.cp_delay_s, "acc": self.acc_m_s2, "jerk": self.jerk_m_s3}
+        if self.inactive is not None:
+            return f"no stop: {self.inactive}"
         assumed = f" (assumed defaults: {', '.join(self.assumed)})" if self.assumed else ""
         return ", ".join(f"{name} {value[limit]} {UNITS[limit]}" for name, limit in self.named) + assumed
+
+    @property
+    def kept(self) -> str:
+        """What the SUT keeps from an obstacle, for the evidence."""
+        if self.inactive is not None:
+            return self.inactive
+        return "collision prevention off" if self.cp_dist_m < 0 else f"{self.distance_name} {self.cp_dist_m:.2f} m"
 
 
 @dataclass(frozen=True)
@@ -317,7 +337,7 @@ def explain(path: Path) -> dict[str, Any]:
     if spec is None:
         return {**base, "mechanism": "other", "evidence": [f"{clearance.obstacle} is not in the world spec: an injection added it"], "timeline": []}
     sut = logs.json_metadata(path, "sut") or {}
-    limits = Limits.of(sut)
+    limits = Limits.of(sut, world.drive)
     geometry = Geometry(world, spec, run_start_s)
     times = [s["t"] for s in states]
     t_closest = clearance.at_s
@@ -430,7 +450,8 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
         return "unseen", [f"never reported to the SUT before the closest approach: {why}", seen]
     distance, needed, first = numbers["distance_at_report_m"], numbers["stopping_distance_needed_m"], numbers["own_closing_at_report_m_s"]
     if distance < needed:
-        return "seen_late", [f"first reported {distance:.2f} m away at {first:.2f} m/s towards it; stopping needed {needed:.2f} m"]
+        return "seen_late", [f"first reported {distance:.2f} m away at {first:.2f} m/s towards it; stopping needed {needed:.2f} m"] + (
+            [limits.inactive] if limits.inactive else [])
     in_time = f"first reported {distance:.2f} m away at {first:.2f} m/s towards it; stopping needed only {needed:.2f} m"
     entry, wind_in = numbers["own_closing_at_entry_m_s"], numbers["wind_towards_obstacle_at_entry_m_s"]
     if entry < first and wind_in > 0.0 and wind_in >= entry:
@@ -439,9 +460,8 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
         return "pushed", [in_time, f"the vehicle slowed from {first:.2f} to {entry:.2f} m/s towards it, but the air moved towards it at "
                           f"{wind_in:.2f} m/s when the safety distance was entered ({carried})"]
     if own > 0.0:
-        cp = "collision prevention off" if limits.cp_dist_m < 0 else f"{limits.distance_name} {limits.cp_dist_m:.2f} m"
         return "braked_too_little", [in_time, f"the vehicle itself still closed at {entry:.2f} m/s when it entered the safety distance "
-                                     f"({own:.2f} m/s over the final approach); {cp}"]
+                                     f"({own:.2f} m/s over the final approach); {limits.kept}"]
     return "other", [in_time, f"neither the vehicle ({own:.2f} m/s), the obstacle ({theirs:.2f} m/s) nor the wind ({wind_in:.2f} m/s) "
                      "closed the gap over the final approach"]
 
