@@ -7,13 +7,14 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from conftest import ROOT
 from autopilot.collision import max_speed_from_distance
-from harness.campaigns.explain import MECHANISMS, Limits, explain
+from harness.campaigns.explain import MECHANISMS, Limits, Moment, _classify, explain
 from harness.campaigns.store import Store
 from harness.campaigns.triage import triage
 from harness.flight.evaluation import RunOptions, evaluate
@@ -216,3 +217,21 @@ def test_the_bundled_autopilot_brakes_on_missions_too():
 def test_a_sut_without_its_own_stopping_model_is_described_with_px4s_parameters():
     assert Limits.of({"name": "mavlink", "params": {"CP_DIST": 2.0}}).describe() == (
         "CP_DIST 2.0 m, CP_DELAY 0.4 s, MPC_ACC_HOR 3.0 m/s^2, MPC_JERK_AUTO 4.0 m/s^3 (assumed defaults: CP_DELAY, MPC_ACC_HOR, MPC_JERK_AUTO)")
+
+
+def _moment(t_s: float, distance_m: float | None) -> Moment:
+    return Moment(t_s, distance_m, (0.0, 0.0, -1.0) if distance_m is None else (1.0, 0.0, 0.0), 0.0, 0.0, False, False)
+
+
+@pytest.mark.parametrize(("distances", "why"), [
+    # flown over a low obstacle: at the sensor's height it was far off, the closest approach was from above
+    ([44.0, 30.0, 20.0, None, None], "it passed above or below it; at the height the sensor scans it never came within the sensor's reach of 16.5 m"),
+    ([None, None], "it was never at the height the sensor scans: it passed above or below it"),
+    ([40.0, 20.0, 17.0], "it never came within the sensor's reach of 16.5 m"),
+])
+def test_an_obstacle_never_reported_is_said_to_be_passed_over_when_the_closest_approach_was_above_or_below(distances, why):
+    world = SimpleNamespace(safety_distance_m=1.0, sensor=SimpleNamespace(range_m=16.5, fov_deg=100.0))
+    moments = [_moment(float(t), d) for t, d in enumerate(distances)]
+    mechanism, evidence = _classify(0.5, world, moments, None, None, {"own_closing_final_m_s": 0.0, "obstacle_closing_final_m_s": 0.0},
+                                    {"failures": []}, Limits.of({"name": "bundled"}))
+    assert mechanism == "unseen" and evidence[0] == f"never reported to the SUT before the closest approach: {why}"

@@ -444,6 +444,9 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
             why = "it was never at the height the sensor scans: it passed above or below it"
         elif any(m.distance_m is not None and m.distance_m <= world.sensor.range_m for m in moments):
             why = f"it was within reach but never inside the {world.sensor.fov_deg:.0f} degree field of view"
+        elif moments[-1].distance_m is None:
+            why = (f"it passed above or below it; at the height the sensor scans it never came within the sensor's reach of "
+                   f"{world.sensor.range_m:.1f} m")
         else:
             why = f"it never came within the sensor's reach of {world.sensor.range_m:.1f} m"
         seen = f"while in view from run time {in_view_at - moments[0].t_s:.1f} s" if in_view_at is not None and moments else "it was never in view"
