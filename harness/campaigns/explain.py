@@ -100,10 +100,8 @@ class Limits:
             if named is not None:
                 value[limit] = float(params.get(named[0], named[1]))
         off = OFF_PARAMS.get(name)
-        if off is not None and off[0] in params and float(params[off[0]]) == off[1]:
-            value["distance"] = -1.0
         inactive = NOT_IN_MISSIONS.get(name) if drive == "mission" else None
-        if inactive is not None:
+        if inactive is not None or (off is not None and off[0] in params and float(params[off[0]]) == off[1]):
             value["distance"] = -1.0
         named = tuple((named[0], limit) for limit, named in kind.items() if named is not None)
         return cls(value["distance"], value["delay"], value["acc"], value["jerk"], tuple(name for name, _ in named if name not in params), named,
@@ -123,9 +121,9 @@ class Limits:
         return max(0.0, self.cp_dist_m) + self.cp_delay_s * v + braking
 
     def describe(self) -> str:
-        value = {"distance": self.cp_dist_m, "delay": self.cp_delay_s, "acc": self.acc_m_s2, "jerk": self.jerk_m_s3}
         if self.inactive is not None:
             return f"no stop: {self.inactive}"
+        value = {"distance": self.cp_dist_m, "delay": self.cp_delay_s, "acc": self.acc_m_s2, "jerk": self.jerk_m_s3}
         assumed = f" (assumed defaults: {', '.join(self.assumed)})" if self.assumed else ""
         return ", ".join(f"{name} {value[limit]} {UNITS[limit]}" for name, limit in self.named) + assumed
 
