@@ -170,6 +170,10 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                              "(the harness stops the SUT first: PX4 spins on a closed simulator link)")
     parser.add_argument("--spin-us", type=float, default=0.0,
                         help="poll this long for the SUT's answer before sleeping; only worth it when the SUT runs on another core")
+    parser.add_argument("--lockstep-from-start", action="store_true",
+                        help="the SUT answers every HIL_SENSOR from the first: wait for each answer from step 0, not at real-time pace until its first")
+    parser.add_argument("--answer-times-echoed", action="store_true",
+                        help="the SUT's HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer: a late answer is not taken for a later step's")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     if args.serve and (inline_sut is None or not args.control_port):
@@ -193,7 +197,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, hold_pace=args.hold_pace,
                           stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
-                          rc_port=args.rc_port)
+                          rc_port=args.rc_port, lockstep_from_start=args.lockstep_from_start, answer_times_echoed=args.answer_times_echoed)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if args.serve:
         return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid(), args.mcap_compression)

@@ -20,8 +20,8 @@ cdef class Bridge:
     @cython.locals(time_s=cython.double, time_ns=cython.longlong, batch=tuple)
     cpdef _observe(self, long long step)
 
-    @cython.locals(world=World, answered=cython.bint)
-    cpdef bint _receive_answer(self, sut, splitter, bint lockstep, double waiting_since)
+    @cython.locals(world=World, answered=cython.bint, echoed=cython.bint, answer_time_us=cython.ulonglong)
+    cpdef bint _receive_answer(self, sut, splitter, bint lockstep, long long time_us, double waiting_since)
 
     @cython.locals(world=World, step=cython.longlong, time_us=cython.longlong, time_s=cython.double, lockstep=cython.bint,
                    ts=cython.double, t_send=cython.double, t_sent=cython.double, t0=cython.double, t1=cython.double, t2=cython.double)

@@ -4,7 +4,11 @@ Protocol (as PX4's simulator_mavlink expects it): the bridge listens on TCP, the
 Every physics step the bridge sends HIL_SENSOR (time_usec drives the SUT's clock), about 10 Hz
 HIL_GPS, 50 Hz HIL_STATE_QUATERNION (ground truth) and OBSTACLE_DISTANCE at the sensor's rate.
 Until the SUT's first HIL_ACTUATOR_CONTROLS the bridge runs at real-time pace with the vehicle
-resting on the ground; from then on it waits for one actuator answer per step (lockstep).
+resting on the ground; from then on it waits for one actuator answer per step (lockstep). A SUT
+that answers every step from the first (the bundled autopilot) is in lockstep from step 0, so its
+flight does not depend on how fast it came up; one whose answers carry the time_usec of the
+HIL_SENSOR they answer (PX4, the bundled autopilot) has an answer that came a step late told
+from the step's own, so a late first answer does not put the whole flight one step behind.
 
 The control channel to the harness (sim_bridge/channel.py) carries the messages of
 sim_bridge/control.py, whose docstring tells the protocol.
@@ -78,6 +82,10 @@ class BridgeConfig:
     protocol: str = "mavlink"
     # ardupilot-json: the UDP port the SUT takes the pilot's sticks on (ArduPilot SITL's RC input).
     rc_port: int | None = None
+    # The SUT answers every HIL_SENSOR from the first: wait for each answer from step 0 on.
+    lockstep_from_start: bool = False
+    # Its HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer.
+    answer_times_echoed: bool = False
 
 
 @dataclass
@@ -283,11 +291,17 @@ class Bridge:
 
     # -- the loop ----------------------------------------------------------------------------
 
-    def _receive_answer(self, sut: SutLink, splitter: codec.FrameSplitter, lockstep: bool, waiting_since: float) -> bool:
-        """Read the SUT until this step's HIL_ACTUATOR_CONTROLS (lockstep), or for one step at
-        most (before it); whether the answer came. Ends the world's run if the SUT went away,
-        stalled or floods without answering."""
+    def _receive_answer(self, sut: SutLink, splitter: codec.FrameSplitter, lockstep: bool, time_us: int, waiting_since: float) -> bool:
+        """Read the SUT until the HIL_ACTUATOR_CONTROLS of the step at time_us (lockstep), or for
+        one step at most (before it); whether the answer came. Ends the world's run if the SUT
+        went away, stalled or floods without answering.
+
+        With answer_times_echoed, an answer to an earlier step is late and not this step's: one
+        step's answer that misses the real-time pace before lockstep would otherwise be taken for
+        the next step's, and every later one too. It also says that the SUT answers, so the
+        bridge waits for this step's answer from then on."""
         world = self.world
+        echoed = self.config.answer_times_echoed
         while True:
             try:
                 if not lockstep and not sut.readable(world.dt):
@@ -306,7 +320,10 @@ class Bridge:
             answered = False
             for msgid, payload, _frame in splitter.feed(data):
                 if msgid == codec.HIL_ACTUATOR_CONTROLS_ID:
-                    _, _flags, controls, _mode = codec.decode_hil_actuator_controls(payload)
+                    answer_time_us, _flags, controls, _mode = codec.decode_hil_actuator_controls(payload)
+                    if echoed and answer_time_us < time_us:
+                        lockstep = True
+                        continue
                     world.motors = controls[:4]
                     answered = True
             if answered:
@@ -383,7 +400,7 @@ class Bridge:
             t0 = perf()
             summary.world_s += t0 - t_sent
             if json_steps is None:
-                answered = self._receive_answer(sut, splitter, lockstep, t0)
+                answered = self._receive_answer(sut, splitter, lockstep or config.lockstep_from_start, time_us, t0)
             else:
                 # ArduPilot waits for the answer to each of its servo frames, the first included:
                 # its link is in lockstep from the frame that opened it, one step per frame.

@@ -186,6 +186,14 @@ class Capabilities:
     # set over MAVLink at the onset (type "ok" gives their values without a failure).
     injects_failures: bool = True
     failure_params: Callable[[str, str], Mapping[str, float] | None] | None = None
+    # It answers every HIL_SENSOR, the first included: the simulation is in lockstep from its first
+    # step, so a flight does not depend on how fast the SUT came up (a SUT that needs simulated
+    # time to pass before it answers, as PX4 does to boot, gets real-time pace until its first).
+    answers_every_step: bool = False
+    # Its HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer (PX4 sends its
+    # lockstep clock, which that time_usec sets): an answer that came a step late is told from the
+    # step's own instead of being taken for it, which would leave the whole flight a step behind.
+    echoes_step_time: bool = False
     # Units whose failures it makes itself although the simulator would fail their readings on
     # the way for others (ArduPilot's GPS, which it makes from the true position): they are told to it.
     sut_failure_units: tuple[str, ...] = ()

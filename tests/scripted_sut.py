@@ -13,6 +13,11 @@ python tests/scripted_sut.py --port P --mode MODE [--steps N]
               still arrives; --odd-actuators adds well-formed actuator frames with non-finite
               or absurd values; prints the count of bad frames by kind as JSON at the end
   flood       answer N steps, then send generated bad frames (none an answer) without pause
+  clock       answer every step with motor commands that tell which step they answer (0.001 plus
+              a thousandth per step, modulo 97: the vehicle stays on the ground)
+
+--late-first-s S: answer the first HIL_SENSOR S seconds late, as a SUT still coming up would;
+the ones that came meanwhile are read and answered after it.
 """
 
 from __future__ import annotations
@@ -40,14 +45,20 @@ CLIMB_UNTIL_S = 5.0
 TARGET_UP_M = 3.0
 
 
+def clock_command(time_usec: int, step_us: int = 4000) -> float:
+    """The "clock" mode's motor command for the HIL_SENSOR at time_usec (250 Hz steps)."""
+    return 0.001 + (time_usec // step_us % 97) / 1000.0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--port", type=int, required=True)
-    parser.add_argument("--mode", required=True, choices=["hover", "disconnect", "stall", "garbage", "fuzz", "flood"])
+    parser.add_argument("--mode", required=True, choices=["hover", "disconnect", "stall", "garbage", "fuzz", "flood", "clock"])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--junk", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--odd-actuators", action="store_true")
+    parser.add_argument("--late-first-s", type=float, default=0.0)
     args = parser.parse_args()
     rng = random.Random(args.seed)
     sent: dict[str, int] = {}
@@ -87,6 +98,8 @@ def main() -> int:
             sensor = codec.decode_hil_sensor(payload)
             time_usec = sensor[0]
             motors = (0.0,) * 4
+            if args.mode == "clock":
+                motors = (clock_command(time_usec),) * 4
             if args.mode == "hover":
                 if time_usec / 1e6 < CLIMB_UNTIL_S:
                     collective = min(0.7, max(0.2, HOVER_THROTTLE + 0.3 * (TARGET_UP_M - up_m) - 0.25 * climb_m_s))
@@ -116,6 +129,8 @@ def main() -> int:
                 for kind, _data in bad:
                     sent[kind] = sent.get(kind, 0) + 1
                 answer = b"".join(data for _kind, data in bad) + answer
+            if answered == 0 and args.late_first_s:
+                time.sleep(args.late_first_s)
             try:
                 sock.sendall(answer)
             except OSError:

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT, port_bound
+from scripted_sut import clock_command
 from harness.flight import logs
 from harness.flight.ports import PortLease
 from sim_bridge.control import AddObstacle, FailureInjected, Finished, Holding, InjectFailure, MoveObstacle, RemoveObstacle, Run, Stop
@@ -38,7 +39,8 @@ def world(*, time_limit_s=9.0, wind_north=0.0, seed=1, obstacles=()):
     }
 
 
-def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s: float = 10.0, name: str = "run"):
+def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s: float = 10.0, name: str = "run", bridge_args: tuple[str, ...] = (),
+        late_first_s: float = 0.0):
     """Run the bridge and the scripted SUT to the end; returns (exit code, summary, log path)."""
     world_path = tmp_path / f"{name}.world.json"
     world_path.write_text(json.dumps(spec))
@@ -46,10 +48,11 @@ def fly(tmp_path: Path, spec: dict, mode: str, steps: int = 100, stall_timeout_s
     with PortLease(first_slot=100) as ports:
         bridge = subprocess.Popen(
             [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(log_path),
-             "--hold-after-s", "0", "--stall-timeout-s", str(stall_timeout_s), "--connect-timeout-s", "20"],
+             "--hold-after-s", "0", "--stall-timeout-s", str(stall_timeout_s), "--connect-timeout-s", "20", *bridge_args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
         )
-        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", mode, "--steps", str(steps)], cwd=ROOT)
+        sut = subprocess.Popen([sys.executable, str(SCRIPTED_SUT), "--port", str(ports.sim), "--mode", mode, "--steps", str(steps),
+                                "--late-first-s", str(late_first_s)], cwd=ROOT)
         try:
             out, err = bridge.communicate(timeout=60)
         finally:
@@ -87,16 +90,43 @@ def test_wind_drifts_the_vehicle_downwind(tmp_path):
     assert end["v_ned_m_s"][0] > 1.0
 
 
+# What the harness tells the bridge of a SUT that, like the bundled autopilot and the scripted
+# SUT, answers every HIL_SENSOR from the first with its time_usec.
+ANSWERS_EVERY_STEP = ("--lockstep-from-start", "--answer-times-echoed")
+
+
 @pytest.mark.slow
-def test_same_world_and_seed_give_an_identical_trace(tmp_path):
+@pytest.mark.parametrize("late_first_s", [0.0, 0.05], ids=["prompt", "first-answer-late"])
+def test_same_world_and_seed_give_an_identical_trace(tmp_path, late_first_s):
+    """GIVEN a SUT that answers every step WHEN the same world is flown twice, its first answer
+    coming at once or (the second case) 50 ms late, as from a process still coming up on a busy
+    machine THEN both flights are identical to the last bit: the simulation waited for it."""
     obstacle = {"id": "ball", "form": "sphere", "size": {"diameter_m": 2.0}, "yaw_rad": 0.0,
                 "a": {"north_m": 6.0, "east_m": -5.0, "up_m": 3.0}, "b": {"north_m": 6.0, "east_m": 5.0, "up_m": 3.0}, "speed_m_s": 2.0}
     traces = []
-    for run in range(2):
-        _code, _summary, log_path = fly(tmp_path, world(time_limit_s=5.0, obstacles=[obstacle]), "hover", name=f"run{run}")
+    for run, late in enumerate((0.0, late_first_s)):
+        _code, _summary, log_path = fly(tmp_path, world(time_limit_s=5.0, obstacles=[obstacle]), "hover", name=f"run{run}", bridge_args=ANSWERS_EVERY_STEP,
+                                       late_first_s=late)
         traces.append([(topic, ns, message) for topic, ns, message in logs.messages(log_path, ["/clearance", "/uav/state", "/sensor/obstacle_distance"])])
     assert traces[0] == traces[1]
     assert len(traces[0]) > 100
+
+
+@pytest.mark.slow
+def test_a_late_first_answer_does_not_leave_the_flight_a_step_behind(tmp_path):
+    """GIVEN a SUT that, like PX4, gets real-time pace until it answers and echoes each step's time
+    WHEN its first answer comes 50 ms (a dozen steps) late, on its own THEN lockstep starts after
+    it, and from then on every step flies the motor commands that answer that step's sensors,
+    not the previous step's."""
+    _code, summary, log_path = fly(tmp_path, world(time_limit_s=3.0), "clock", bridge_args=("--answer-times-echoed",), late_first_s=0.05)
+    assert summary["end_reason"] == "time_limit"
+    started = next(m for _t, _ns, m in logs.messages(log_path, ["/events"]) if m["event"] == "lockstep_started")
+    assert started["detail"]["step"] >= 5
+    dt = 0.004
+    # A state at t was recorded after the step from t - dt, flown with that step's answer.
+    flown = [(round(s["t"] / dt), s["motors"][0]) for s in states(log_path) if s["motors"][0] != 0.0]
+    assert len(flown) > 0.8 * 3.0 / 0.04
+    assert [command for _step, command in flown] == pytest.approx([clock_command((step - 1) * 4000) for step, _command in flown], abs=1e-6)
 
 
 @pytest.mark.slow

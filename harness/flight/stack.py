@@ -136,6 +136,8 @@ def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, wo
                    "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
                    "--sim-protocol", capabilities.sim_protocol,
                    *(["--rc-port", str(rc_port)] if rc_port is not None else []),
+                   *(["--lockstep-from-start"] if capabilities.answers_every_step else []),
+                   *(["--answer-times-echoed"] if capabilities.echoes_step_time else []),
                    # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
                    "--mcap-compression", "none",
                    # stop() stops the SUT before the simulator, with the simulator link still open.
