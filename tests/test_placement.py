@@ -5,6 +5,8 @@ from __future__ import annotations
 import concurrent.futures
 import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -15,7 +17,7 @@ from conftest import FIG4, fig4_job, stored_result
 from harness.execution.executor import Executor
 from harness.execution.local import LocalExecutor
 from harness.flight.results import RunOptions
-from harness.flight.stack import simulation_stack
+from harness.flight.stack import pin_to_cores, simulation_stack
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
@@ -90,6 +92,29 @@ def test_two_cores_put_the_simulator_and_the_sut_apart_and_both_poll(tmp_path, p
     # The harness rewrites the simulator's recording compressed, and stops the SUT before it.
     assert bridge_argv[bridge_argv.index("--mcap-compression") + 1] == "none"
     assert float(bridge_argv[bridge_argv.index("--linger-s") + 1]) > 0
+
+
+@pytest.mark.skipif(MACHINE_CORES < 2, reason="needs two cores to place the simulator and the SUT apart")
+def test_pinning_a_sut_pins_the_threads_it_started_before():
+    """GIVEN a SUT process that started threads before the harness pinned it (PX4 starts 28)
+    WHEN it is placed on its core THEN every one of its threads is held to that core, not only
+    its first: a thread left free runs on the simulator's core now and then and halves the flight's speed."""
+    threads = 6
+    bridge = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    sut = subprocess.Popen([sys.executable, "-c", f"import threading, time\n"
+                            f"for _ in range({threads}): threading.Thread(target=time.sleep, args=(60,), daemon=True).start()\n"
+                            "print('started', flush=True)\ntime.sleep(60)"], stdout=subprocess.PIPE)
+    try:
+        assert sut.stdout.readline() == b"started\n"
+        pin_to_cores(bridge.pid, [sut.pid], slot=0, cores=2)
+        bridge_core, sut_core = sorted(os.sched_getaffinity(0))[:2]
+        affinities = [os.sched_getaffinity(int(tid)) for tid in os.listdir(f"/proc/{sut.pid}/task")]
+        assert len(affinities) == threads + 1 and all(cores == {sut_core} for cores in affinities)
+        assert os.sched_getaffinity(bridge.pid) == {bridge_core}
+    finally:
+        for process in (bridge, sut):
+            process.kill()
+            process.wait()
 
 
 @pytest.mark.slow

@@ -269,13 +269,37 @@ def _close(stack: "_ServingStack") -> None:
 
 def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
     """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
-    the SUT on the next one."""
+    the SUT on the next one. Every thread of each process: a SUT's threads started before it was
+    pinned keep the affinity they were born with (16 of PX4's 28 were, now and then, free to run
+    on the bridge's core, and such flights ran at half speed)."""
     available = sorted(os.sched_getaffinity(0))
     first = slot * cores
     placement = {bridge_pid: available[first % len(available)]}
     placement.update({pid: available[(first + cores - 1) % len(available)] for pid in sut_pids})
     for pid, core in placement.items():
         try:
-            os.sched_setaffinity(pid, {core})
+            _pin_threads(pid, core)
         except OSError as error:  # a process that already exited, or a restricted container
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
+
+
+def _pin_threads(pid: int, core: int) -> None:
+    """Pin every thread of pid to core; again while a pass finds one that was not yet, as an
+    unpinned thread may start another meanwhile (one started by a pinned thread inherits)."""
+    for _ in range(5):
+        tasks = [int(task) for task in os.listdir(f"/proc/{pid}/task")]
+        unpinned = [tid for tid in tasks if _affinity(tid) != {core}]
+        if not unpinned:
+            return
+        for tid in unpinned:
+            try:
+                os.sched_setaffinity(tid, {core})
+            except ProcessLookupError:  # a thread that ended meanwhile
+                pass
+
+
+def _affinity(tid: int) -> set[int] | None:
+    try:
+        return os.sched_getaffinity(tid)
+    except ProcessLookupError:
+        return None
