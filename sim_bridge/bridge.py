@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 RECORD_EVERY_S = 0.04
 SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
-STEP_TIMERS = ("sensors_s", "send_s", "wait_s", "physics_s", "world_s")
+STEP_TIMERS = ("sensors_s", "send_s", "observe_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = {"sut_connected": SutConnected, "lockstep_started": LockstepStarted}
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
@@ -104,6 +104,7 @@ class Summary:
     wait_s: float = 0.0
     physics_s: float = 0.0
     world_s: float = 0.0
+    observe_s: float = 0.0
     sensors_s: float = 0.0
     send_s: float = 0.0
     injections: list[dict[str, Any]] = field(default_factory=list)
@@ -398,7 +399,7 @@ class Bridge:
                 unobserved_step = None
             world.move_obstacles_for_next_step()
             t0 = perf()
-            summary.world_s += t0 - t_sent
+            summary.observe_s += t0 - t_sent
             if json_steps is None:
                 answered = self._receive_answer(sut, splitter, lockstep or config.lockstep_from_start, time_us, t0)
             else:

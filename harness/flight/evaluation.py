@@ -194,7 +194,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             sut=options.sut.name,
             sut_fault=options.sut.fault,
             artifacts=artifacts,
-            timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "world_s", "wall_in_run_s") if k in summary}},
+            timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "observe_s", "world_s", "wall_in_run_s") if k in summary}},
             mavsdk=dict(outcome.mavsdk),
             failures_refused=failures_refused or [],
             first_touchdown_s=summary.get("first_touchdown_s"),

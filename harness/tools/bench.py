@@ -145,15 +145,17 @@ def _run_figures(result, rate_hz: float, wall_time_s: float) -> dict[str, Any]:
         "stop_s": timings.get("stop_s", 0.0),
         "score_s": timings.get("score_s", 0.0),
         "sut_wait_us": 1e6 * (timings["wait_s"] + timings["send_s"]) / run_steps,
+        "send_us": 1e6 * timings["send_s"] / run_steps,
         "sensors_us": 1e6 * timings["sensors_s"] / run_steps,
         "physics_us": 1e6 * timings["physics_s"] / run_steps,
+        "observe_us": 1e6 * timings["observe_s"] / run_steps,
         "world_us": 1e6 * timings["world_s"] / run_steps,
         "step_us": 1e6 * in_run / run_steps,
         "sim_time_s": result.sim_time_s,
         "run_steps": round(run_steps),
         "fitness": result.fitness,
     }
-    figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "world_us"))
+    figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "observe_us", "world_us"))
     return figures
 
 
@@ -220,10 +222,11 @@ def bench_text(report: dict[str, Any]) -> str:
                f"{m['flight_speed_of_sut_alone']:.3f} of it (median of the paired ratios)"] if "flight_speed_of_sut_alone" in m else []),
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
-            f"      waiting for the SUT       {m['sut_wait_us']:.0f} us",
             f"      sensor messages           {m['sensors_us']:.0f} us",
+            f"      sending them, waiting for the SUT's answer {m['sut_wait_us']:.0f} us (sending {m['send_us']:.0f} us)",
+            f"      scoring, recording, moving obstacles while the SUT computes {m['observe_us']:.0f} us",
             f"      JSBSim                    {m['physics_us']:.0f} us",
-            f"      world and recording       {m['world_us']:.0f} us",
+            f"      after the step (control ops, end checks) {m['world_us']:.0f} us",
             f"      loop and timers           {m['other_us']:.0f} us",
         ]
     if report["autopilot_step"]:
