@@ -5,6 +5,7 @@ in tests/test_px4.py."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -12,7 +13,8 @@ import pytest
 from conftest import ROOT
 from harness.flight import logs
 from harness.tools.cli import main
-from harness.tools.sut_alone import link_steps, recorded_link, sut_alone
+from harness.tools.sut_alone import link_steps, recorded_link, replay, sut_alone
+from simlink import codec
 from sut_adapter import SutConfig
 
 SCENARIO = str(ROOT / "scenarios" / "table3" / "scenario_31.json")
@@ -43,3 +45,40 @@ def test_the_replay_keeps_a_fresh_autopilot_in_lockstep_and_times_the_run(flight
     assert alone["in_step"], "an answer carried another step's time: the replay lost lockstep"
     assert alone["timed_steps"] == len(recorded["steps"]) - recorded["run_step"] > 0
     assert alone["real_time_factor"] > 1.0
+
+
+class _AnsweringLink:
+    """A SUT that answers every HIL_SENSOR at once with its time, and notes when each came."""
+
+    def __init__(self):
+        self.pending = b""
+        self.sent_at: list[float] = []
+
+    def send(self, data: bytes) -> None:
+        self.sent_at.append(time.perf_counter())
+        for _msgid, payload, _frame in codec.FrameSplitter({codec.HIL_SENSOR_ID: codec.HIL_SENSOR_CRC_EXTRA}).feed(data):
+            self.pending += codec.encode_hil_actuator_controls(seq=0, sysid=1, compid=1, time_usec=codec.decode_hil_sensor(payload)[0],
+                                                               controls=(0.0,) * 16, mode=0, flags=1)
+
+    def readable(self, timeout_s: float) -> bool:
+        return bool(self.pending)
+
+    def receive(self, spin_s: float) -> bytes:
+        data, self.pending = self.pending, b""
+        return data
+
+
+def test_the_replay_holds_at_the_flights_pace_and_times_the_run_once_the_sut_has_started_up():
+    """GIVEN a flight's 100 steps at 250 Hz, held from step 20 at 10x real time and run from step
+    60 WHEN a SUT that answers at once but finishes starting up 0.2 s into the replay is replayed
+    to THEN the hold's 40 steps take at least their 16 ms and the run's first step waits for the
+    start-up: the timed steps are those of a started SUT, as in a flight."""
+    dt_s, times = 0.004, [4000 * i for i in range(100)]
+    steps = [codec.encode_hil_sensor(seq=0, sysid=1, compid=1, time_usec=t, values=(0.0,) * 13, fields_updated=0) for t in times]
+    link = _AnsweringLink()
+    started = time.perf_counter()
+    result = replay(link, steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 10.0), ready=lambda: time.perf_counter() - started > 0.2)
+    assert result["in_step"] and result["timed_steps"] == 40
+    assert link.sent_at[60] - link.sent_at[20] >= 40 * dt_s / 10.0
+    assert link.sent_at[60] - started > 0.2
+    assert link.sent_at[99] - link.sent_at[60] < 0.1  # the run itself is not paced

@@ -9,6 +9,12 @@ the link, as the bridge answers them. No physics, sensors, scoring or recording,
 real-time factor is what the SUT's own computation per step allows on this machine ("PX4
 alone", "ArduPilot alone"); a flight through the bridge is reported as a share of it.
 
+The flight's hold is replayed at the pace the bridge held it, and the run begins once the SUT
+has finished starting up (SutHandle.booted), as a flight's does. PX4's start-up script, one
+client process per command, runs on the wall clock: replayed at full speed, PX4 was still
+starting modules (its MAVLink instances among them) through the timed steps, and took 77 us a
+step where a started one takes 88 (scenario 31, 2026-11-27).
+
 What the replay does not give the SUT: its API link. Nobody uploads a mission or arms it, so it
 computes every step on the recorded flight's sensors but stays disarmed (for PX4: the same
 estimator and controllers run, its logger does not write, as it logs from arming; a replay that
@@ -23,7 +29,7 @@ import shutil
 import statistics
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -91,12 +97,17 @@ def recorded_link(log_path: Path, protocol: str = "mavlink") -> dict[str, Any]:
     summary = logs.json_metadata(log_path, "bridge_summary")
     dt_s = summary["sim_time_s"] / summary["steps"]
     run_at_s = logs.first_event_s(log_path, "run") or 0.0
-    return {"steps": steps, "times_us": times, "dt_s": dt_s, "run_step": min(len(steps) - 1, round(run_at_s / dt_s))}
+    hold_at_s = logs.first_event_s(log_path, "holding")
+    run_step = min(len(steps) - 1, round(run_at_s / dt_s))
+    return {"steps": steps, "times_us": times, "dt_s": dt_s, "run_step": run_step, "hold_step": run_step if hold_at_s is None else round(hold_at_s / dt_s)}
 
 
-def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
+def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: float, timed_from: int, spin_s: float, hold: tuple[int, float] = (0, 0.0),
+           ready: Callable[[], bool] = lambda: True) -> dict[str, Any]:
     """Send the steps as the bridge does: at real-time pace until the SUT's first answer, then
-    each step once the last one is answered. Times the steps from `timed_from` on, and says
+    each step once the last one is answered, the hold's (from step hold[0] to the run) no faster
+    than hold[1] times real time (0: as fast), and the run's once ready() (the SUT has started
+    up). Times the steps from `timed_from` on, and says
     whether each timed step's answer carried that step's time (`in_step`: the replay and the SUT
     kept in lockstep)."""
     splitter = codec.FrameSplitter(_CRC_EXTRAS)
@@ -106,6 +117,7 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
     perf = time.perf_counter
     for index, frames in enumerate(steps):
         if index == timed_from:
+            _wait_until_ready(ready)
             started = perf()
         sent = perf()
         link.send(frames)
@@ -117,6 +129,7 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
             continue
         while not _answers(splitter, link.receive(spin_s), answer_times):
             pass
+        _hold_pace(index, hold, timed_from, dt_s, sent)
     if started is None or lockstep_from is None or lockstep_from > timed_from:
         raise RuntimeError(f"the SUT answered in lockstep from step {lockstep_from}, not by step {timed_from} where timing starts")
     wall_s = perf() - started
@@ -125,9 +138,11 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
             "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:]}
 
 
-def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float) -> dict[str, Any]:
+def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float, hold: tuple[int, float] = (0, 0.0),
+                ready: Callable[[], bool] = lambda: True) -> dict[str, Any]:
     """Answer each of ArduPilot's servo frames with the next recorded line, from the frame that
-    opened the link (ArduPilot waits for each answer: lockstep from the start), and time the
+    opened the link (ArduPilot waits for each answer: lockstep from the start), the hold's as
+    replay() paces them, and time the
     steps from `timed_from` on. `in_step`: every timed frame counted one up from the one before
     (none sent again, none skipped)."""
     counts = [decode_servo_frame(link.first).frame_count]
@@ -135,10 +150,13 @@ def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int,
     perf = time.perf_counter
     for index, line in enumerate(steps):
         if index == timed_from:
+            _wait_until_ready(ready)
             started = perf()
+        sent = perf()
         link.send(line)
         if index + 1 < len(steps):
             counts.append(_next_servo_frame(link, spin_s))
+        _hold_pace(index, hold, timed_from, dt_s, sent)
     if started is None:
         raise RuntimeError(f"the recording has {len(steps)} steps, fewer than the {timed_from} before its run")
     wall_s = perf() - started
@@ -146,6 +164,22 @@ def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int,
     in_step = all(later == earlier + 1 for earlier, later in zip(counts[timed_from:], counts[timed_from + 1:]))
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": 0, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
             "real_time_factor": timed * dt_s / wall_s, "in_step": in_step}
+
+
+def _wait_until_ready(ready: Callable[[], bool]) -> None:
+    """Until the SUT has started up, as a flight's set-up waits for it before the run."""
+    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+    while not ready():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the SUT did not finish starting up within {CONNECT_TIMEOUT_S:.0f} s of the replay's hold")
+        time.sleep(0.005)
+
+
+def _hold_pace(index: int, hold: tuple[int, float], timed_from: int, dt_s: float, sent: float) -> None:
+    """In the hold (step hold[0] up to the run), a step takes at least dt_s / hold[1] of wall time, as in the bridge's paced hold."""
+    hold_from, pace = hold
+    if pace and hold_from <= index < timed_from:
+        time.sleep(max(0.0, dt_s / pace - (time.perf_counter() - sent)))
 
 
 def _next_servo_frame(link: UdpLink, spin_s: float) -> int:
@@ -183,6 +217,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     # ArduPilot starts at the world's origin with rangefinders of its sensor's reach, as in the flight.
     extra = {"world": logs.world_of(log_path)} if system.capabilities.needs_world else {}
     spin_s = SPIN_S if cores >= 2 else 0.0
+    hold = (recorded["hold_step"], system.capabilities.hold_pace if system.capabilities.hold_mode == "paced" else 0.0)
     runs = []
     own_cores = os.sched_getaffinity(0)
     for _ in range(max(1, repeats)):
@@ -207,9 +242,9 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                         raise RuntimeError(f"{system.name} did not connect to the stand-in within {CONNECT_TIMEOUT_S:.0f} s: {handle.stderr_tail()}") from None
                     try:
                         if protocol == "mavlink":
-                            runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], spin_s))
+                            runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted))
                         else:
-                            runs.append(replay_json(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], spin_s))
+                            runs.append(replay_json(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted))
                     except (BlockingIOError, OSError) as error:
                         raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
                     finally:
