@@ -13,7 +13,7 @@ import pytest
 from conftest import ROOT
 from harness.flight import logs
 from harness.tools.cli import main
-from harness.tools.sut_alone import link_steps, recorded_link, replay, sut_alone
+from harness.tools.sut_alone import STARTING_UP_STEP_S, link_steps, recorded_link, replay, sut_alone
 from simlink import codec
 from sut_adapter import SutConfig
 
@@ -71,14 +71,17 @@ class _AnsweringLink:
 def test_the_replay_holds_at_the_flights_pace_and_times_the_run_once_the_sut_has_started_up():
     """GIVEN a flight's 100 steps at 250 Hz, held from step 20 at 10x real time and run from step
     60 WHEN a SUT that answers at once but finishes starting up 0.2 s into the replay is replayed
-    to THEN the hold's 40 steps take at least their 16 ms and the run's first step waits for the
-    start-up: the timed steps are those of a started SUT, as in a flight."""
+    to THEN the hold's 40 steps take at least their 16 ms, longer while the SUT starts up, and
+    the run's first step waits for the start-up: the timed steps are those of a started SUT, as
+    in a flight. One that never finishes starting up is timed after a second, and said to be."""
     dt_s, times = 0.004, [4000 * i for i in range(100)]
     steps = [codec.encode_hil_sensor(seq=0, sysid=1, compid=1, time_usec=t, values=(0.0,) * 13, fields_updated=0) for t in times]
     link = _AnsweringLink()
     started = time.perf_counter()
     result = replay(link, steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 10.0), ready=lambda: time.perf_counter() - started > 0.2)
-    assert result["in_step"] and result["timed_steps"] == 40
-    assert link.sent_at[60] - link.sent_at[20] >= 40 * dt_s / 10.0
+    assert result["in_step"] and result["timed_steps"] == 40 and result["started_up"]
+    assert link.sent_at[60] - link.sent_at[20] >= 40 * STARTING_UP_STEP_S
     assert link.sent_at[60] - started > 0.2
     assert link.sent_at[99] - link.sent_at[60] < 0.1  # the run itself is not paced
+    never = replay(_AnsweringLink(), steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 10.0), ready=lambda: False)
+    assert never["in_step"] and not never["started_up"]

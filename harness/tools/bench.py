@@ -99,7 +99,8 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     first_log = first_log or Path(result.log_path)
                     if limit:
                         alone = replay_alone(first_log, sut.sut, cores, 1, pin_cpu)
-                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"], "in_step": alone["in_step"] and (sut_alone or alone)["in_step"]}
+                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"], "in_step": alone["in_step"] and (sut_alone or alone)["in_step"],
+                                     "started_up": alone["started_up"] and (sut_alone or alone)["started_up"]}
                         rows[-1].update(sut_alone_real_time_factor=alone["real_time_factor"], flight_speed_of_sut_alone=rows[-1]["real_time_factor"] / alone["real_time_factor"])
                     if autopilot is None and sut.sut.name == "bundled":
                         autopilot = autopilot_step_bench(Path(result.log_path))
@@ -208,7 +209,8 @@ def bench_text(report: dict[str, Any]) -> str:
     alone = report.get("sut_alone")
     if alone:
         lines.append(f"  {report['sut'] + ' alone':<30}the first flight's simulator link replayed to it after each flight ({alone['timed_steps']} steps timed, "
-                     f"{'every answer in step' if alone['in_step'] else 'ANSWERS OUT OF STEP: not a lockstep figure'})")
+                     f"{'every answer in step' if alone['in_step'] else 'ANSWERS OUT OF STEP: not a lockstep figure'}"
+                     f"{'' if alone['started_up'] else '; TIMED BEFORE THE SUT HAD STARTED UP: it computed less than in a flight'})")
     for placement in report["placements"]:
         m = placement["median"]
         workers = placement["workers"]

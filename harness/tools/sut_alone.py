@@ -9,11 +9,13 @@ the link, as the bridge answers them. No physics, sensors, scoring or recording,
 real-time factor is what the SUT's own computation per step allows on this machine ("PX4
 alone", "ArduPilot alone"); a flight through the bridge is reported as a share of it.
 
-The flight's hold is replayed at the pace the bridge held it, and the run begins once the SUT
-has finished starting up (SutHandle.booted), as a flight's does. PX4's start-up script, one
-client process per command, runs on the wall clock: replayed at full speed, PX4 was still
+The flight's hold is replayed at the pace the bridge held it, and more slowly while the SUT
+has not finished starting up (SutHandle.booted), since a flight's set-up waits for that before
+its run. PX4's start-up script, one client process per command, runs on the wall clock while
+some of its commands wait on PX4's lockstep clock: replayed at full speed, PX4 was still
 starting modules (its MAVLink instances among them) through the timed steps, and took 77 us a
-step where a started one takes 88 (scenario 31, 2026-11-27).
+step where a started one takes 88 (scenario 31, 2026-11-27); with its clock held still at the
+run, its start-up never finished. `started_up` says whether it had before the timed steps.
 
 What the replay does not give the SUT: its API link. Nobody uploads a mission or arms it, so it
 computes every step on the recorded flight's sensors but stays disarmed (for PX4: the same
@@ -48,6 +50,11 @@ _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items(
 SPIN_S = 0.002
 CONNECT_TIMEOUT_S = 60.0
 STALL_TIMEOUT_S = 10.0
+# While the SUT is starting up, a hold step takes at least this long (PX4's start-up script has
+# about 0.2-0.5 s of wall time left at the hold: a few hundred steps of the hold give it that,
+# its clock moving on), and at the run it gets this much more with its clock held.
+STARTING_UP_STEP_S = 0.002
+STARTING_UP_AT_RUN_S = 1.0
 
 
 def link_steps(stream: bytes) -> tuple[list[bytes], list[int]]:
@@ -117,7 +124,7 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
     perf = time.perf_counter
     for index, frames in enumerate(steps):
         if index == timed_from:
-            _wait_until_ready(ready)
+            started_up = _wait_until_ready(ready)
             started = perf()
         sent = perf()
         link.send(frames)
@@ -129,13 +136,13 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
             continue
         while not _answers(splitter, link.receive(spin_s), answer_times):
             pass
-        _hold_pace(index, hold, timed_from, dt_s, sent)
+        _hold_pace(index, hold, timed_from, dt_s, sent, ready)
     if started is None or lockstep_from is None or lockstep_from > timed_from:
         raise RuntimeError(f"the SUT answered in lockstep from step {lockstep_from}, not by step {timed_from} where timing starts")
     wall_s = perf() - started
     timed = len(steps) - timed_from
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": lockstep_from, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
-            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:]}
+            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:], "started_up": started_up}
 
 
 def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float, hold: tuple[int, float] = (0, 0.0),
@@ -150,36 +157,41 @@ def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int,
     perf = time.perf_counter
     for index, line in enumerate(steps):
         if index == timed_from:
-            _wait_until_ready(ready)
+            started_up = _wait_until_ready(ready)
             started = perf()
         sent = perf()
         link.send(line)
         if index + 1 < len(steps):
             counts.append(_next_servo_frame(link, spin_s))
-        _hold_pace(index, hold, timed_from, dt_s, sent)
+        _hold_pace(index, hold, timed_from, dt_s, sent, ready)
     if started is None:
         raise RuntimeError(f"the recording has {len(steps)} steps, fewer than the {timed_from} before its run")
     wall_s = perf() - started
     timed = len(steps) - timed_from
     in_step = all(later == earlier + 1 for earlier, later in zip(counts[timed_from:], counts[timed_from + 1:]))
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": 0, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
-            "real_time_factor": timed * dt_s / wall_s, "in_step": in_step}
+            "real_time_factor": timed * dt_s / wall_s, "in_step": in_step, "started_up": started_up}
 
 
-def _wait_until_ready(ready: Callable[[], bool]) -> None:
-    """Until the SUT has started up, as a flight's set-up waits for it before the run."""
-    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+def _wait_until_ready(ready: Callable[[], bool]) -> bool:
+    """Whether the SUT has started up, waiting for it a moment at the run with its clock held."""
+    deadline = time.monotonic() + STARTING_UP_AT_RUN_S
     while not ready():
         if time.monotonic() > deadline:
-            raise RuntimeError(f"the SUT did not finish starting up within {CONNECT_TIMEOUT_S:.0f} s of the replay's hold")
-        time.sleep(0.005)
+            return False
+        time.sleep(0.002)
+    return True
 
 
-def _hold_pace(index: int, hold: tuple[int, float], timed_from: int, dt_s: float, sent: float) -> None:
-    """In the hold (step hold[0] up to the run), a step takes at least dt_s / hold[1] of wall time, as in the bridge's paced hold."""
+def _hold_pace(index: int, hold: tuple[int, float], timed_from: int, dt_s: float, sent: float, ready: Callable[[], bool]) -> None:
+    """In the hold (step hold[0] up to the run), a step takes at least dt_s / hold[1] of wall
+    time, as in the bridge's paced hold, and STARTING_UP_STEP_S while the SUT is starting up."""
     hold_from, pace = hold
-    if pace and hold_from <= index < timed_from:
-        time.sleep(max(0.0, dt_s / pace - (time.perf_counter() - sent)))
+    if hold_from <= index < timed_from:
+        period = dt_s / pace if pace else 0.0
+        if not ready():
+            period = max(period, STARTING_UP_STEP_S)
+        time.sleep(max(0.0, period - (time.perf_counter() - sent)))
 
 
 def _next_servo_frame(link: UdpLink, spin_s: float) -> int:
@@ -260,4 +272,4 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     rtf = statistics.median(r["real_time_factor"] for r in runs)
     return {"log": str(log_path), "cores": cores, "timed_steps": runs[0]["timed_steps"], "real_time_factor": rtf,
             "step_us": statistics.median(r["step_us"] for r in runs), "per_run": [r["real_time_factor"] for r in runs],
-            "in_step": all(r["in_step"] for r in runs)}
+            "in_step": all(r["in_step"] for r in runs), "started_up": all(r["started_up"] for r in runs)}
