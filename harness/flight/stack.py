@@ -271,23 +271,35 @@ def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) ->
     """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
     the SUT on the next one. Every thread of each process: a SUT's threads started before it was
     pinned keep the affinity they were born with (16 of PX4's 28 were, now and then, free to run
-    on the bridge's core, and such flights ran at half speed)."""
+    on the bridge's core, and such flights ran at half speed). A bridge that is this process (the
+    SUT-alone replay's stand-in) is its calling thread alone: the others (MAVSDK's, an
+    executor's) outlive the replay."""
     available = sorted(os.sched_getaffinity(0))
     first = slot * cores
     placement = {bridge_pid: available[first % len(available)]}
     placement.update({pid: available[(first + cores - 1) % len(available)] for pid in sut_pids})
     for pid, core in placement.items():
         try:
-            _pin_threads(pid, core)
+            if pid == os.getpid():
+                os.sched_setaffinity(0, {core})
+            else:
+                _pin_threads(pid, core)
         except OSError as error:  # a process that already exited, or a restricted container
             log.debug("cannot pin %d to core %d: %s", pid, core, error)
+
+
+PINNING_PASSES = 5
 
 
 def _pin_threads(pid: int, core: int) -> None:
     """Pin every thread of pid to core; again while a pass finds one that was not yet, as an
     unpinned thread may start another meanwhile (one started by a pinned thread inherits)."""
-    for _ in range(5):
+    try:
         tasks = [int(task) for task in os.listdir(f"/proc/{pid}/task")]
+    except FileNotFoundError:  # no /proc: its first thread, as the system call alone can
+        os.sched_setaffinity(pid, {core})
+        return
+    for _ in range(PINNING_PASSES):
         unpinned = [tid for tid in tasks if _affinity(tid) != {core}]
         if not unpinned:
             return
@@ -296,6 +308,11 @@ def _pin_threads(pid: int, core: int) -> None:
                 os.sched_setaffinity(tid, {core})
             except ProcessLookupError:  # a thread that ended meanwhile
                 pass
+            except OSError as error:  # one thread we may not move: the others still go
+                log.debug("cannot pin thread %d of %d to core %d: %s", tid, pid, core, error)
+        tasks = [int(task) for task in os.listdir(f"/proc/{pid}/task")]
+    log.debug("threads of %d still not on core %d after %d passes: %s", pid, core, PINNING_PASSES,
+              [tid for tid in tasks if _affinity(tid) != {core}])
 
 
 def _affinity(tid: int) -> set[int] | None:
