@@ -187,6 +187,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             parser.error(f"--sim-socket: {error}")
     if args.sim_shared_memory and (args.sim_socket is None or inline_sut is not None):
         parser.error("--sim-shared-memory needs a --sim-socket to hand the shared memory over on (and a SUT in a process of its own)")
+    if args.sim_protocol != "mavlink" and (args.lockstep_from_start or args.answer_times_echoed):
+        parser.error("--lockstep-from-start and --answer-times-echoed are about HIL_ACTUATOR_CONTROLS: ArduPilot's JSON link is in lockstep from its first frame")
     if args.sim_protocol != "mavlink" and (args.sim_socket is not None or inline_sut is not None):
         parser.error("--sim-protocol ardupilot-json takes its SUT over UDP on --sim-port: no --sim-socket, no SUT inside this process")
     if args.sim_shared_memory and not shared_memory.AVAILABLE:

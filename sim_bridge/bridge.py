@@ -34,8 +34,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sim_bridge.ardupilot_link import JsonSteps
 from sim_bridge.channel import ControlChannel
-from sim_bridge.control import (EndReason, Event, FailureInjected, Holding, InjectFailure, LockstepStarted, ObstacleOp, Op, RcModeSlot, Rejected, Run,
-                                Stop, SutConnected)
+from sim_bridge.control import (STEP_TIMERS, EndReason, Event, FailureInjected, Holding, InjectFailure, LockstepStarted, ObstacleOp, Op, RcModeSlot,
+                                Rejected, Run, Stop, SutConnected)
 from sim_bridge.failures import FailureSchedule
 from sim_bridge.frames import RANGE_MESSAGES, SensorFrames
 from sim_bridge.pilot import RC_PERIOD_S
@@ -50,7 +50,6 @@ log = logging.getLogger(__name__)
 RECORD_EVERY_S = 0.04
 SCENE_EVERY_S = 0.1
 LINK_FLUSH_EVERY_S = 0.1
-STEP_TIMERS = ("sensors_s", "send_s", "observe_s", "wait_s", "physics_s", "world_s")
 # Simulation milestones the harness hears of on the control channel as well (`stella sut check`).
 FORWARDED_EVENTS = {"sut_connected": SutConnected, "lockstep_started": LockstepStarted}
 _CRC_EXTRAS = {msgid: cls.crc_extra for msgid, cls in mavlink.mavlink_map.items()}
@@ -99,6 +98,8 @@ class Summary:
     first_touchdown_s: float | None = None
     bad_frames: int = 0
     skipped_bytes: int = 0
+    # Answers to an earlier step (answer_times_echoed): late ones, skipped.
+    late_answers: int = 0
     wall_time_s: float = 0.0
     wall_in_run_s: float = 0.0
     wait_s: float = 0.0
@@ -323,6 +324,7 @@ class Bridge:
                 if msgid == codec.HIL_ACTUATOR_CONTROLS_ID:
                     answer_time_us, _flags, controls, _mode = codec.decode_hil_actuator_controls(payload)
                     if echoed and answer_time_us < time_us:
+                        self._late_answer(answer_time_us, time_us)
                         lockstep = True
                         continue
                     world.motors = controls[:4]
@@ -335,6 +337,14 @@ class Bridge:
                 # Bytes keep coming but no answer among them: a flood stalls a step as silence does.
                 world.end(EndReason.SUT_STALLED)
                 return False
+
+    def _late_answer(self, answer_time_us: int, time_us: int) -> None:
+        """Counted; the first said in the log, as a SUT declared to echo the step's time that does
+        not (time_usec 0, its own clock) has every answer skipped and stalls."""
+        self.summary.late_answers += 1
+        if self.summary.late_answers == 1:
+            log.warning("an answer for the step at %d us came in the step at %d us and was skipped (a SUT whose answers do not carry "
+                        "the time_usec of the HIL_SENSOR they answer must not be declared echoes_step_time)", answer_time_us, time_us)
 
     def run(self, sut: SutLink, control: ControlChannel) -> Summary:
         summary = self.summary

@@ -92,6 +92,8 @@ def test_two_cores_put_the_simulator_and_the_sut_apart_and_both_poll(tmp_path, p
     # The harness rewrites the simulator's recording compressed, and stops the SUT before it.
     assert bridge_argv[bridge_argv.index("--mcap-compression") + 1] == "none"
     assert float(bridge_argv[bridge_argv.index("--linger-s") + 1]) > 0
+    # The bundled autopilot answers every step from the first, with the step's time.
+    assert "--lockstep-from-start" in bridge_argv and "--answer-times-echoed" in bridge_argv
 
 
 @pytest.mark.skipif(MACHINE_CORES < 2, reason="needs two cores to place the simulator and the SUT apart")

@@ -80,8 +80,12 @@ def test_the_replay_holds_at_the_flights_pace_and_times_the_run_once_the_sut_has
     started = time.perf_counter()
     result = replay(link, steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 10.0), ready=lambda: time.perf_counter() - started > 0.2)
     assert result["in_step"] and result["timed_steps"] == 40 and result["started_up"]
-    assert link.sent_at[60] - link.sent_at[20] >= 40 * STARTING_UP_STEP_S
+    assert link.sent_at[59] - link.sent_at[20] >= 39 * STARTING_UP_STEP_S
     assert link.sent_at[60] - started > 0.2
     assert link.sent_at[99] - link.sent_at[60] < 0.1  # the run itself is not paced
+    started_up = _AnsweringLink()
+    replay(started_up, steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 1.0))
+    assert started_up.sent_at[59] - started_up.sent_at[20] >= 39 * dt_s  # the hold's own pace, real time here
+    assert started_up.sent_at[19] - started_up.sent_at[0] < 19 * dt_s  # before the hold, as fast as the SUT answers
     never = replay(_AnsweringLink(), steps, times, dt_s, timed_from=60, spin_s=0.0, hold=(20, 10.0), ready=lambda: False)
     assert never["in_step"] and not never["started_up"]
