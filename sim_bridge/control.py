@@ -227,6 +227,12 @@ class InjectFailure(Event):
     type: str
 
 
+# The summary's timers of a lockstep step's parts, over the run (before it the loop runs at
+# real-time pace): sensor messages, sending them, scoring and recording while the SUT computes,
+# waiting for its answer, JSBSim, the rest of the step.
+STEP_TIMERS = ("sensors_s", "send_s", "observe_s", "wait_s", "physics_s", "world_s")
+
+
 @dataclass(frozen=True)
 class Finished(Event):
     """The flight's end, its recording complete: the simulator's summary (its end_reason an EndReason)."""

@@ -28,7 +28,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import NORMAL_ENDS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
+from sim_bridge.control import NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
@@ -194,7 +194,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             sut=options.sut.name,
             sut_fault=options.sut.fault,
             artifacts=artifacts,
-            timings={**timings, **{k: summary[k] for k in ("wait_s", "send_s", "sensors_s", "physics_s", "observe_s", "world_s", "wall_in_run_s") if k in summary}},
+            timings={**timings, **{k: summary[k] for k in (*STEP_TIMERS, "wall_in_run_s") if k in summary}},
             mavsdk=dict(outcome.mavsdk),
             failures_refused=failures_refused or [],
             first_touchdown_s=summary.get("first_touchdown_s"),

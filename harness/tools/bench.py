@@ -99,8 +99,8 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                     first_log = first_log or Path(result.log_path)
                     if limit:
                         alone = replay_alone(first_log, sut.sut, cores, 1, pin_cpu)
-                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"], "in_step": alone["in_step"] and (sut_alone or alone)["in_step"],
-                                     "started_up": alone["started_up"] and (sut_alone or alone)["started_up"]}
+                        sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"],
+                                     **{check: alone[check] and (sut_alone or alone)[check] for check in ("in_step", "started_up")}}
                         rows[-1].update(sut_alone_real_time_factor=alone["real_time_factor"], flight_speed_of_sut_alone=rows[-1]["real_time_factor"] / alone["real_time_factor"])
                     if autopilot is None and sut.sut.name == "bundled":
                         autopilot = autopilot_step_bench(Path(result.log_path))
@@ -225,10 +225,11 @@ def bench_text(report: dict[str, Any]) -> str:
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
             f"      sensor messages           {m['sensors_us']:.0f} us",
-            f"      sending them, waiting for the SUT's answer {m['sut_wait_us']:.0f} us (sending {m['send_us']:.0f} us)",
-            f"      scoring, recording, moving obstacles while the SUT computes {m['observe_us']:.0f} us",
+            f"      sending them              {m['send_us']:.0f} us",
+            f"      scoring, recording        {m['observe_us']:.0f} us (while the SUT computes)",
+            f"      waiting for the answer    {m['sut_wait_us'] - m['send_us']:.0f} us",
             f"      JSBSim                    {m['physics_us']:.0f} us",
-            f"      after the step (control ops, end checks) {m['world_us']:.0f} us",
+            f"      control ops, end checks   {m['world_us']:.0f} us",
             f"      loop and timers           {m['other_us']:.0f} us",
         ]
     if report["autopilot_step"]:
