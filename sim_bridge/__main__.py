@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from sim_bridge import ardupilot_link
-from sim_bridge.bridge import Bridge, BridgeConfig
+from sim_bridge.bridge import Bridge
+from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
 from sim_bridge.control import EndReason, Finished, Load, LoadRefused, Quit, Rejected

@@ -14,7 +14,8 @@ from conftest import ROOT
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.bridge import Bridge, BridgeConfig
+from sim_bridge.bridge import Bridge
+from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.control import AddObstacle, MoveObstacle
 from sim_bridge.frames import UINT16_MAX
 from sim_bridge.obstacles import Obstacle, ObstacleField, ray_distances

@@ -55,7 +55,7 @@ def test_a_stop_that_arrives_while_the_recording_is_finished_waits_until_the_fil
     """The harness's SIGTERM can land as the simulator finishes a flight's file (closing a warm
     stack after a failed set-up): it is held until the file is complete, then stops the simulator."""
     from sim_bridge import __main__ as simulator
-    from sim_bridge.bridge import BridgeConfig
+    from sim_bridge.bridge_io import BridgeConfig
     from sim_bridge.channel import ControlChannel
 
     real_exit = Recorder.__exit__
