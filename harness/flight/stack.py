@@ -267,25 +267,30 @@ def _close(stack: "_ServingStack") -> None:
         log.warning("closing a kept stack failed: %s", error)
 
 
-def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
-    """One core: both on core slot (modulo the cores there are). Two: the bridge on core 2*slot,
-    the SUT on the next one. Every thread of each process: a SUT's threads started before it was
-    pinned keep the affinity they were born with (16 of PX4's 28 were, now and then, free to run
-    on the bridge's core, and such flights ran at half speed). A bridge that is this process (the
-    SUT-alone replay's stand-in) is its calling thread alone: the others (MAVSDK's, an
-    executor's) outlive the replay."""
+def placed_cores(slot: int, cores: int) -> tuple[int, int]:
+    """(the bridge's core, the SUT's core). One core: both on core slot (modulo the cores there
+    are). Two: the bridge on core 2*slot, the SUT on the next one."""
     available = sorted(os.sched_getaffinity(0))
     first = slot * cores
-    placement = {bridge_pid: available[first % len(available)]}
-    placement.update({pid: available[(first + cores - 1) % len(available)] for pid in sut_pids})
-    for pid, core in placement.items():
-        try:
-            if pid == os.getpid():
-                os.sched_setaffinity(0, {core})
-            else:
-                _pin_threads(pid, core)
-        except OSError as error:  # a process that already exited, or a restricted container
-            log.debug("cannot pin %d to core %d: %s", pid, core, error)
+    return available[first % len(available)], available[(first + cores - 1) % len(available)]
+
+
+def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
+    """The bridge and the SUT on their placed_cores."""
+    bridge_core, sut_core = placed_cores(slot, cores)
+    pin_process(bridge_pid, bridge_core)
+    for pid in sut_pids:
+        pin_process(pid, sut_core)
+
+
+def pin_process(pid: int, core: int) -> None:
+    """Every thread of pid on core: a SUT's threads started before it was pinned keep the
+    affinity they were born with (16 of PX4's 28 were, now and then, free to run on the bridge's
+    core, and such flights ran at half speed)."""
+    try:
+        _pin_threads(pid, core)
+    except OSError as error:  # a process that already exited, or a restricted container
+        log.debug("cannot pin %d to core %d: %s", pid, core, error)
 
 
 PINNING_PASSES = 5

@@ -219,7 +219,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     """The SUT alone on `cores` cores (2: the stand-in and the SUT a core each, the stand-in
     polling; 1: both on one core, sleeping while the other works), replaying the flight in
     `log_path` `repeats` times, each into a fresh SUT process: the median and each run."""
-    from harness.flight.stack import pin_to_cores
+    from harness.flight.stack import pin_process, placed_cores
 
     system = sut_adapter.system_for(sut)
     protocol = system.capabilities.sim_protocol
@@ -243,7 +243,11 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                 try:
                     handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={}, spin_s=spin_s, **extra)
                     if pin_cpu:
-                        pin_to_cores(os.getpid(), handle.pids, ports.slot, cores)
+                        # The stand-in is this thread alone: the process's others (MAVSDK's, an executor's) outlive the replay.
+                        stand_in_core, sut_core = placed_cores(ports.slot, cores)
+                        os.sched_setaffinity(0, {stand_in_core})
+                        for pid in handle.pids:
+                            pin_process(pid, sut_core)
                     try:
                         if protocol == "mavlink":
                             listener.settimeout(CONNECT_TIMEOUT_S)
