@@ -4,8 +4,11 @@ Listens for the SUT on the simulator port, runs the lockstep simulation, records
 prints the run's summary as one JSON line on stdout. Exit code 0 when the run ended normally
 (landed, time limit, stopped), 3 when the SUT never connected, stalled or disconnected, or when
 SIGTERM came as the recording was being finished (held until the file was complete).
-With a SUT inside the process (`python -m sut_adapter.inline`), `--serve` instead flies world
-after world, each named on the control channel (sim_bridge/bridge.py has the protocol).
+`--serve` instead flies world after world, each named on the control channel
+(sim_bridge/control.py has the protocol): with a SUT inside the process (`python -m
+sut_adapter.inline`) a fresh one for each, else whichever SUT connects next to the simulator
+port (the harness starts one for each flight), so that a campaign pays this process's start
+and imports once per worker rather than once per evaluation.
 """
 
 from __future__ import annotations
@@ -154,7 +157,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--mcap", help="where to record the flight")
     parser.add_argument("--mcap-compression", choices=sorted(COMPRESSIONS), default="zstd",
                         help="the recording's chunk compression: none for a log read once and rewritten, as the harness does (default zstd)")
-    parser.add_argument("--serve", action="store_true", help="fly world after world, each named on the control channel (a SUT inside this process only)")
+    parser.add_argument("--serve", action="store_true", help="fly world after world, each named on the control channel, each with the SUT that connects next")
     parser.add_argument("--harness-pid", type=int, help="with --serve: quit when this process, the harness that started us, is gone (default: our parent)")
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--hold-after-s", type=float, default=3.0, help="pause after this much simulation until the harness sends run; 0 = never")
@@ -177,8 +180,11 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                         help="the SUT's HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer: a late answer is not taken for a later step's")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
-    if args.serve and (inline_sut is None or not args.control_port):
-        parser.error("--serve needs a SUT inside this process (python -m sut_adapter.inline) and a --control-port")
+    if args.serve and not args.control_port:
+        parser.error("--serve needs a --control-port: the worlds to fly are named on it")
+    if args.serve and args.sim_protocol != "mavlink":
+        # A datagram of the last flight's SUT still queued on the port would be taken for the next one's.
+        parser.error("--serve takes its SUTs over a connection: ArduPilot's JSON link (UDP) is served one flight per process")
     if not args.serve and (args.world is None or args.mcap is None):
         parser.error("--world and --mcap are required (unless --serve)")
     if args.sim_socket is not None:
@@ -202,18 +208,17 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
                           rc_port=args.rc_port, lockstep_from_start=args.lockstep_from_start, answer_times_echoed=args.answer_times_echoed)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
-    if args.serve:
-        return _serve(control_listener, config, inline_sut, args.harness_pid or os.getppid(), args.mcap_compression)
-    try:
-        world = load_world(args.world)
-    except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
-        print(f"{args.world}: {error}", file=sys.stderr)
-        return 2
-    try:
-        Path(args.mcap).open("wb").close()  # before any SUT connects: fly() writes it from the start
-    except OSError as error:
-        print(f"--mcap {args.mcap}: cannot write the recording there: {error}", file=sys.stderr)
-        return 2
+    if not args.serve:
+        try:
+            world = load_world(args.world)
+        except (OSError, ValueError) as error:  # SpecError and JSONDecodeError are ValueErrors
+            print(f"{args.world}: {error}", file=sys.stderr)
+            return 2
+        try:
+            Path(args.mcap).open("wb").close()  # before any SUT connects: fly() writes it from the start
+        except OSError as error:
+            print(f"--mcap {args.mcap}: cannot write the recording there: {error}", file=sys.stderr)
+            return 2
     sim_listener = None
     if inline_sut is None:
         try:
@@ -227,15 +232,23 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             where = f"--sim-socket {args.sim_socket}" if args.sim_socket is not None else f"--sim-port {args.sim_port}"
             print(f"{where}: cannot listen: {error}", file=sys.stderr)
             return 2
-    control = ControlChannel(control_listener)
+    # A SUT inside this process goes when we do: there is no link to keep open for it.
+    linger_s = 0.0 if inline_sut is not None else args.linger_s
+
+    def connect_sut(control: ControlChannel) -> Callable[[], SutLink]:
+        return lambda: _connect_sut(sim_listener, args, inline_sut, control)
+
     try:
-        # A SUT inside this process goes when we do: there is no link to keep open for it.
-        summary = fly(world, config, Path(args.mcap), control, lambda: _connect_sut(sim_listener, args, inline_sut, control), args.mcap_compression,
-                      0.0 if inline_sut is not None else args.linger_s)
-    except KeyboardInterrupt:  # stopped as its recording was being finished: the file is complete, the harness gone
-        return 3
+        if args.serve:
+            return _serve(control_listener, config, connect_sut, args.harness_pid or os.getppid(), args.mcap_compression, linger_s)
+        control = ControlChannel(control_listener)
+        try:
+            summary = fly(world, config, Path(args.mcap), control, connect_sut(control), args.mcap_compression, linger_s)
+        except KeyboardInterrupt:  # stopped as its recording was being finished: the file is complete, the harness gone
+            return 3
+        finally:
+            control.close()
     finally:
-        control.close()
         if sim_listener is not None:
             sim_listener.close()
             if args.sim_socket is not None and not args.sim_socket.startswith("@"):
@@ -304,10 +317,12 @@ def _wait_for_hang_up(sut: SutLink, linger_s: float) -> None:
         pass
 
 
-def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[], SutLink], harness_pid: int, compression: str) -> int:
+def _serve(listener: socket.socket, config: BridgeConfig, connect_sut: Callable[[ControlChannel], Callable[[], SutLink]], harness_pid: int,
+           compression: str, linger_s: float) -> int:
     """Flight after flight in this one process (the harness's warm workers): each harness
     connection on the control port names a world and an MCAP file ({"op": "load", "world": PATH,
-    "mcap": PATH}) and gets a fresh world and a fresh SUT for them; {"op": "quit"}, the
+    "mcap": PATH}) and gets a fresh world for them, flown with a fresh SUT (one inside this
+    process, or the next to connect to the simulator port); {"op": "quit"}, the
     harness's SIGTERM or its death ends it. A flight that did not end normally ends it too, with exit code 3,
     so that nothing of it can leak into the next."""
     try:
@@ -327,7 +342,7 @@ def _serve(listener: socket.socket, config: BridgeConfig, inline_sut: Callable[[
                     continue
                 # The harness reports a crash with the end of our stderr: say where each flight's part begins.
                 print(f"flying {request.world}", file=sys.stderr, flush=True)
-                summary = fly(world, config, Path(request.mcap), control, inline_sut, compression)
+                summary = fly(world, config, Path(request.mcap), control, connect_sut(control), compression, linger_s)
                 if not summary["end_reason"].normal:
                     return 3
             finally:

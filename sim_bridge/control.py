@@ -19,10 +19,12 @@ The protocol (over TCP, one client, the harness; the messages below name their r
       {"op": "rc_mode_slot", "slot": N}: with the pilot drive, hold the pilot's mode switch in
       slot N from now on (`stella sut check` asks a SUT on the ground for Position mode so).
       A harness that hangs up before "finished" is gone: the run ends ("harness_gone").
-  Serving (`--serve`, a SUT inside the bridge's process): each harness connection starts with
+  Serving (`--serve`): each harness connection starts with
       {"op": "load", "world": PATH, "mcap": PATH} and ends after {"event": "finished"}, which
       then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
-      world that does not load); {"op": "quit"} ends the process.
+      world that does not load); {"op": "quit"} ends the process. The world is flown with a
+      fresh SUT: inside the bridge's process, or the next one to connect to the simulator port,
+      whose link the bridge keeps open after "finished" until that SUT hangs up.
   Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
       end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
       end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the

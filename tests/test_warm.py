@@ -20,6 +20,7 @@ from harness.flight.evaluation import evaluate
 from harness.flight.results import RunOptions
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortLease
+from simlink import shared_memory
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 
@@ -70,6 +71,28 @@ def test_warm_flights_are_the_cold_flights_to_the_last_bit_in_one_process(tmp_pa
     # MAVSDK's view is the flight's own: the last flight's mission progress, not the one before.
     assert kept[-1].mavsdk["mission_progress"] == cold["wall"].mavsdk["mission_progress"]
     # A warm flight skips the start: the process, its imports and MAVSDK's discovery.
+    assert kept[-1].timings["setup_s"] < cold["wall"].timings["setup_s"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("transport", ["tcp", "shm"])
+def test_a_kept_simulator_flies_each_sut_process_as_a_cold_start_would(tmp_path, profile, transport):
+    """A SUT in a process of its own (PX4's case, here the bundled autopilot over a socket):
+    the simulator is kept, a fresh SUT process connects to it for each flight."""
+    if transport == "shm" and not shared_memory.AVAILABLE:
+        pytest.skip("shared memory needs Linux on x86-64")
+    points = {"wall": (point(profile, "table3/scenario_31.json", 4), 4), "pilot": (point(profile, "examples/wall.json", 3, "pilot"), 3)}
+    order = ("wall", "pilot", "wall")
+    cold = {name: evaluate(*p, seed=seed, out_dir=tmp_path / "cold", options=RunOptions(transport=transport), name=name)
+            for name, (p, seed) in points.items()}
+    kept = [evaluate(*points[name][0], seed=points[name][1], out_dir=tmp_path / "warm", options=RunOptions(transport=transport, warm=True),
+                     name=f"{index}-{name}") for index, name in enumerate(order)]
+    assert [simulator_pid(r) for r in kept] == [simulator_pid(kept[0])] * len(order)
+    for result, name in zip(kept, order):
+        assert (result.status, result.fitness) == (cold[name].status, cold[name].fitness)
+        assert simulated(result) == simulated(cold[name]) and len(simulated(result)) > 1000
+        assert json.loads(logs.metadata(result.log_path)["placement"]["json"])["transport"] == transport
+    # The simulator's start and imports are paid once.
     assert kept[-1].timings["setup_s"] < cold["wall"].timings["setup_s"]
 
 
@@ -177,13 +200,17 @@ def test_each_flight_of_a_serving_process_starts_from_the_start_up_parameters():
         second.close()
 
 
-def test_serving_needs_a_sut_inside_the_process(capsys):
+@pytest.mark.parametrize("argv, why", [
+    (["--serve"], "--serve needs a --control-port"),
+    (["--serve", "--control-port", "24999", "--sim-protocol", "ardupilot-json"], "ArduPilot's JSON link (UDP) is served one flight per process"),
+])
+def test_serving_is_refused_where_it_cannot_work(capsys, argv, why):
     from sim_bridge.__main__ import main
 
     with pytest.raises(SystemExit) as exit_info:
-        main(["--serve", "--control-port", "24999"])
+        main(argv)
     assert exit_info.value.code == 2
-    assert "--serve needs a SUT inside this process" in capsys.readouterr().err
+    assert why in capsys.readouterr().err
 
 
 def test_a_serving_simulator_whose_harness_is_gone_quits(tmp_path):

@@ -292,7 +292,8 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             return None
 
         # From a cold start MAVSDK finds the SUT while the simulation runs up to its hold; a warm
-        # stack's session is connected already, to the fresh SUT once that has spoken, by the hold.
+        # simulator starts that run on the load request, by when MAVSDK has found the fresh SUT too
+        # (a session kept with a SUT in memory reconnects to it once that has spoken).
         for stage in (discovered, held) if stack.load is None else (held, discovered):
             failure = stage()
             if failure is not None:

@@ -5,8 +5,8 @@ the simulator link (RunOptions.transport, .cores), and a warm stack kept for the
 Warm stacks: starting an evaluation's simulator process costs about a quarter of a second of one
 core in Python imports before the flight begins, and MAVSDK a connection; a campaign pays that on
 every evaluation. A process that flies evaluation after evaluation with the same options keeps one
-stack (the simulator with the SUT inside, serving flight after flight) and hands it to the next
-evaluation if the last flight ended cleanly. One stack per process: a warm evaluation with other
+stack (the simulator serving flight after flight, with the SUT inside it or a fresh SUT process
+connecting to it for each) and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a warm evaluation with other
 options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
 before it exits or when its campaign ends.
 """
@@ -100,96 +100,156 @@ def in_memory(options: RunOptions, system: SystemUnderTest) -> bool:
     return placed_transport(options, system) == "memory"
 
 
+def serves_warm(options: RunOptions, system: SystemUnderTest) -> bool:
+    """Whether a warm evaluation (RunOptions.warm) can keep its simulator for the next one: a
+    SUT in memory is served with it, one in a process of its own connects to it anew for each
+    flight over a connection (not ArduPilot's JSON link, whose UDP port would still hold the
+    last SUT's datagrams)."""
+    return in_memory(options, system) or system.capabilities.sim_protocol == "mavlink"
+
+
 @contextmanager
 def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
     """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
     on exit close MAVSDK and stop the SUT and the bridge (the bridge finishes its log first).
-    With options.warm and the SUT in memory, a stack kept from this process's last evaluation
-    flies it instead, and is kept for the next if the flight ended cleanly."""
+    With options.warm, a simulator kept from this process's last evaluation flies it instead
+    (serves_warm), and is kept for the next if the flight ended cleanly."""
     world_path = workdir / "world.json"
     world_path.write_text(json.dumps(world.as_dict()))
     bridge_log = workdir / "bridge.mcap"
-    if options.warm and in_memory(options, system):
+    if options.warm and serves_warm(options, system):
         with _reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
-            yield serving.begin(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)))
+            with serving.flight(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)), world, workdir) as stack:
+                yield stack
         return
     with ExitStack() as contexts:
-        yield _start(contexts, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)], bridge_log, world)
+        ports = _lease(contexts, options, system)
+        session = _listening_session(contexts, ports)
+        simulator = _Simulator.start(contexts, ports, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)])
+        sut = simulator.start_sut(contexts, options, system, workdir, world, session)
+        yield Stack(ports, simulator.bridge, bridge_log, simulator.tap, sut, session, simulator.placement)
 
 
-def _start(contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, run_arguments: list[str], bridge_log: Path | None,
-           world: WorldSpec | None = None) -> Stack:
-    """A stack whose parts stop when contexts close: the bridge runs python -m sim_bridge
-    run_arguments (a world and its log, or --serve; a SUT that needs_world gets the one flown)."""
-    capabilities = system.capabilities
-    limited = capabilities.instance_count
-    ports = contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
-    transport = placed_transport(options, system)
-    inline = transport == "memory"
-    # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
-    cores = 1 if inline else cores_for(options)
-    spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
-    rc_port = capabilities.rc_port(ports.slot)
-    bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
-                   "--rate-hz", str(options.rate_hz or capabilities.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", capabilities.hold_mode,
-                   "--hold-pace", str(capabilities.hold_pace),
-                   "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
-                   "--sim-protocol", capabilities.sim_protocol,
-                   *(["--rc-port", str(rc_port)] if rc_port is not None else []),
-                   *(["--lockstep-from-start"] if capabilities.answers_every_step else []),
-                   *(["--answer-times-echoed"] if capabilities.echoes_step_time else []),
-                   # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
-                   "--mcap-compression", "none",
-                   # stop() stops the SUT before the simulator, with the simulator link still open.
-                   "--linger-s", str(LINGER_S)]
-    # Named after the leased simulator port, so unique on this machine while the lease lasts; in
-    # the abstract namespace, so nothing is left behind however the processes end.
-    sim_socket = f"@stella-sim-{ports.sim}" if transport in ("unix", "shm") else None
-    if sim_socket is not None:
-        bridge_argv += ["--sim-socket", sim_socket]
-    if transport == "shm":
-        bridge_argv.append("--sim-shared-memory")
-    if inline:
-        bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
-                       *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
+def _lease(contexts: ExitStack, options: RunOptions, system: SystemUnderTest) -> PortBlock:
+    """A free port block, released when contexts close; for a SUT that can run only so many
+    instances at once, one of its slots."""
+    limited = system.capabilities.instance_count
+    return contexts.enter_context(PortLease(slots=limited, wait_s=options.setup_timeout_s) if limited else PortLease())
+
+
+def _listening_session(contexts: ExitStack, ports: PortBlock) -> MavsdkSession:
+    """MAVSDK behind the tap, listening before any SUT can speak, closed when contexts close."""
     session = MavsdkSession(ports.api + CLIENT_PORT_OFFSET)
     contexts.callback(session.close)
-    bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
-    tap = contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET))
-    if inline:
-        sut = SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
-    else:
-        extra: dict[str, Any] = {"sim_socket": sim_socket} if sim_socket is not None else {}
+    return session
+
+
+@dataclass
+class _Simulator:
+    """The bridge on its port block with the API tap before it, placed for the SUT that flies with
+    it: what a warm stack keeps between flights."""
+
+    ports: PortBlock
+    bridge: ManagedProcess
+    tap: ApiTap
+    transport: str
+    cores: int
+    spin_s: float
+    sim_socket: str | None  # the Unix-domain socket that carries the simulator link, if one does
+    serving: bool  # flying world after world (--serve): it goes on after a flight, and the SUT stops without it
+
+    @classmethod
+    def start(cls, contexts: ExitStack, ports: PortBlock, options: RunOptions, system: SystemUnderTest, workdir: Path,
+              run_arguments: list[str]) -> "_Simulator":
+        """Started on the port block, stopped when contexts close: python -m sim_bridge
+        run_arguments (a world and its log, or --serve)."""
+        capabilities = system.capabilities
+        transport = placed_transport(options, system)
+        inline = transport == "memory"
+        # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
+        cores = 1 if inline else cores_for(options)
+        spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
+        rc_port = capabilities.rc_port(ports.slot)
+        bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
+                       "--rate-hz", str(options.rate_hz or capabilities.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", capabilities.hold_mode,
+                       "--hold-pace", str(capabilities.hold_pace),
+                       "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
+                       "--sim-protocol", capabilities.sim_protocol,
+                       *(["--rc-port", str(rc_port)] if rc_port is not None else []),
+                       *(["--lockstep-from-start"] if capabilities.answers_every_step else []),
+                       *(["--answer-times-echoed"] if capabilities.echoes_step_time else []),
+                       # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.
+                       "--mcap-compression", "none",
+                       # The SUT is stopped before the simulator's flight is over, with the simulator link still open.
+                       "--linger-s", str(LINGER_S)]
+        # Named after the leased simulator port, so unique on this machine while the lease lasts; in
+        # the abstract namespace, so nothing is left behind however the processes end.
+        sim_socket = f"@stella-sim-{ports.sim}" if transport in ("unix", "shm") else None
+        if sim_socket is not None:
+            bridge_argv += ["--sim-socket", sim_socket]
+        if transport == "shm":
+            bridge_argv.append("--sim-shared-memory")
+        if inline:
+            bridge_argv = [sys.executable, "-m", "sut_adapter.inline", *bridge_argv[3:], "--",
+                           *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
+        bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
+        simulator = cls(ports, bridge, contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET)), transport, cores, spin_s,
+                        sim_socket, "--serve" in run_arguments)
+        if options.pin_cpu:
+            pin_process(bridge.pid, placed_cores(ports.slot, cores)[0])
+        if not simulator.serving:
+            # A simulator flying one world ends by itself once its log is written; its SUT stops first, then it.
+            contexts.callback(lambda: (bridge.wait(5.0), bridge.stop()))
+        return simulator
+
+    @property
+    def placement(self) -> dict[str, Any]:
+        return {"cores": self.cores, "transport": self.transport}
+
+    def start_sut(self, contexts: ExitStack, options: RunOptions, system: SystemUnderTest, workdir: Path, world: WorldSpec | None,
+                  session: MavsdkSession) -> SutHandle:
+        """The SUT that flies with this simulator (world: the one it flies, for a SUT that takes
+        it with its start), stopped when contexts close, after session (MAVSDK is not to hear it
+        go); a SUT in memory runs inside the bridge's process, which started it."""
+        bridge = self.bridge
+        if self.transport == "memory":
+            contexts.callback(session.close)
+            return SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
+        capabilities = system.capabilities
+        extra: dict[str, Any] = {"sim_socket": self.sim_socket} if self.sim_socket is not None else {}
         if capabilities.needs_world:
             extra["world"] = world
         if capabilities.params_at_start and world is not None:
             extra["flight_params"] = capabilities.flight_params(world)
-        if transport == "shm":
+        if self.transport == "shm":
             extra["sim_shared_memory"] = True
-        sut = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=options.sut.params, spin_s=spin_s, **extra)
+        sut = system.start(sim_port=self.ports.sim, api_port=self.ports.api, instance=self.ports.slot, workdir=workdir, params=options.sut.params,
+                           spin_s=self.spin_s, **extra)
 
-    def stop() -> None:
-        session.close()
-        sut_exit = sut.stop()
-        if bridge_log is not None:  # a bridge flying one world ends by itself once its log is written
-            bridge.wait(5.0)
-        bridge.stop()
-        log.info("sut exited with %s, bridge with %s", sut_exit, bridge.process.returncode)
+        def stop() -> None:
+            session.close()
+            sut_exit = sut.stop()
+            log.info("sut exited with %s, bridge %s", sut_exit, "serving on" if self.serving else f"exited with {bridge.poll()}")
 
-    contexts.callback(stop)
-    if options.pin_cpu:
-        pin_to_cores(bridge.pid, sut.pids, ports.slot, cores)
-    placement = {"cores": cores, "transport": transport}
-    return Stack(ports, bridge, bridge_log, tap, sut, session, placement)
+        contexts.callback(stop)
+        if options.pin_cpu:
+            for pid in sut.pids:
+                pin_process(pid, placed_cores(self.ports.slot, self.cores)[1])
+        return sut
 
 
 class _ServingStack:
-    """A warm stack: the bridge with the SUT inside, serving flight after flight (its --serve),
-    with its own directory for its logs and the SUT's files."""
+    """A warm stack: the bridge serving flight after flight (its --serve), with the SUT inside
+    it or a fresh SUT process for each flight, and with its own directory for its logs (and the
+    SUT's files when it is inside)."""
 
-    def __init__(self, contexts: ExitStack, stack: Stack):
+    def __init__(self, contexts: ExitStack, simulator: _Simulator, options: RunOptions, system: SystemUnderTest,
+                 inline: tuple[SutHandle, MavsdkSession] | None):
         self._contexts = contexts
-        self._stack = stack
+        self._simulator = simulator
+        self._options = options
+        self._system = system
+        self._inline = inline
         self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
 
     @classmethod
@@ -198,26 +258,42 @@ class _ServingStack:
         contexts = ExitStack()
         contexts.callback(shutil.rmtree, home, ignore_errors=True)
         try:
-            return cls(contexts, _start(contexts, options, system, home, ["--serve", "--harness-pid", str(os.getpid())], None))
+            ports = _lease(contexts, options, system)
+            # In memory each flight's autopilot is fresh but the API link's port is the same:
+            # MAVSDK stays, its system found once. A SUT process of its own gets one of its own.
+            session = _listening_session(contexts, ports) if in_memory(options, system) else None
+            simulator = _Simulator.start(contexts, ports, options, system, home, ["--serve", "--harness-pid", str(os.getpid())])
+            inline = (simulator.start_sut(contexts, options, system, home, None, session), session) if session is not None else None
+            return cls(contexts, simulator, options, system, inline)
         except BaseException:
             contexts.close()
             raise
 
-    def begin(self, bridge_log: Path, load: Load) -> Stack:
-        """The stack for one evaluation: MAVSDK's and the tap's records of the last one dropped."""
-        self._stack.tap.restart()
-        self._stack.session.restart()
-        self._flight = replace(self._stack, bridge_log=bridge_log, load=load, clean=False)
-        return self._flight
+    @contextmanager
+    def flight(self, bridge_log: Path, load: Load, world: WorldSpec, workdir: Path) -> Iterator[Stack]:
+        """The stack for one evaluation, MAVSDK's and the tap's records of the last one dropped: a
+        SUT process of its own is started for it (in workdir, as from a cold start) and stopped
+        after it, with a MAVSDK of its own, which has heard no other."""
+        simulator = self._simulator
+        simulator.tap.restart()
+        with ExitStack() as contexts:
+            if self._inline is not None:
+                sut, session = self._inline
+                session.restart()
+            else:
+                session = _listening_session(contexts, simulator.ports)
+                sut = simulator.start_sut(contexts, self._options, self._system, workdir, world, session)
+            self._flight = Stack(simulator.ports, simulator.bridge, bridge_log, simulator.tap, sut, session, simulator.placement, load)
+            yield self._flight
 
     def _flew_cleanly(self) -> bool:
         return self._flight is not None and self._flight.clean
 
     def reusable(self) -> bool:
-        return self._flew_cleanly() and self._stack.bridge.poll() is None
+        return self._flew_cleanly() and self._simulator.bridge.poll() is None
 
     def close(self) -> None:
-        bridge = self._stack.bridge
+        bridge = self._simulator.bridge
         if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
             log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
         self._contexts.close()
