@@ -21,6 +21,7 @@ from harness.flight.results import RunOptions
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortLease
 from simlink import shared_memory
+from sut_adapter import SutConfig
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 
@@ -94,6 +95,23 @@ def test_a_kept_simulator_flies_each_sut_process_as_a_cold_start_would(tmp_path,
         assert json.loads(logs.metadata(result.log_path)["placement"]["json"])["transport"] == transport
     # The simulator's start and imports are paid once.
     assert kept[-1].timings["setup_s"] < cold["wall"].timings["setup_s"]
+
+
+@pytest.mark.slow
+def test_a_kept_simulator_flies_whichever_sut_process_each_evaluation_names(tmp_path, profile):
+    """Mutation analysis and differential search alternate builds in a worker: the simulator is
+    kept across them, and each flight is its own SUT's."""
+    wall = point(profile, "table3/scenario_31.json", 4)
+    suts = {"default": SutConfig(), "wary": SutConfig(params={"CP_DIST": 8.0})}
+    cold = {name: evaluate(*wall, seed=4, out_dir=tmp_path / "cold", options=RunOptions(transport="tcp", sut=sut), name=name)
+            for name, sut in suts.items()}
+    order = ("default", "wary", "default")
+    kept = [evaluate(*wall, seed=4, out_dir=tmp_path / "warm", options=RunOptions(transport="tcp", warm=True, sut=suts[name]), name=f"{index}-{name}")
+            for index, name in enumerate(order)]
+    assert [simulator_pid(r) for r in kept] == [simulator_pid(kept[0])] * len(order)
+    assert cold["default"].min_clearance_m < cold["wary"].min_clearance_m
+    for result, name in zip(kept, order):
+        assert simulated(result) == simulated(cold[name])
 
 
 @pytest.mark.slow

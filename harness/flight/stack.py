@@ -19,7 +19,7 @@ import os
 import shutil
 import sys
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -32,7 +32,7 @@ from sim_bridge.control import Load
 from sim_bridge.spec import WorldSpec
 from simlink import shared_memory
 import sut_adapter
-from sut_adapter import SutHandle, SystemUnderTest
+from sut_adapter import SutConfig, SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -108,6 +108,15 @@ def serves_warm(options: RunOptions, system: SystemUnderTest) -> bool:
     return in_memory(options, system) or system.capabilities.sim_protocol == "mavlink"
 
 
+def _kept_for(options: RunOptions, system: SystemUnderTest) -> str:
+    """What a kept stack serves: the options it was started with; for a SUT started with each
+    flight, not which SUT (mutation analysis and differential search alternate builds of PX4
+    in a worker), only what the simulator was started for."""
+    if in_memory(options, system):
+        return repr(options)
+    return repr((replace(options, sut=SutConfig()), system.capabilities))
+
+
 @contextmanager
 def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderTest, workdir: Path) -> Iterator[Stack]:
     """Start the bridge, the API tap and the SUT on a free port block, with MAVSDK listening;
@@ -118,8 +127,8 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
     world_path.write_text(json.dumps(world.as_dict()))
     bridge_log = workdir / "bridge.mcap"
     if options.warm and serves_warm(options, system):
-        with _reuse(repr(options), lambda: _ServingStack.start(options, system)) as serving:
-            with serving.flight(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)), world, workdir) as stack:
+        with _reuse(_kept_for(options, system), lambda: _ServingStack.start(options, system)) as serving:
+            with serving.flight(bridge_log, Load(world=str(world_path), mcap=str(bridge_log)), world, workdir, options, system) as stack:
                 yield stack
         return
     with ExitStack() as contexts:
@@ -243,12 +252,9 @@ class _ServingStack:
     it or a fresh SUT process for each flight, and with its own directory for its logs (and the
     SUT's files when it is inside)."""
 
-    def __init__(self, contexts: ExitStack, simulator: _Simulator, options: RunOptions, system: SystemUnderTest,
-                 inline: tuple[SutHandle, MavsdkSession] | None):
+    def __init__(self, contexts: ExitStack, simulator: _Simulator, inline: tuple[SutHandle, MavsdkSession] | None):
         self._contexts = contexts
         self._simulator = simulator
-        self._options = options
-        self._system = system
         self._inline = inline
         self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
 
@@ -264,16 +270,17 @@ class _ServingStack:
             session = _listening_session(contexts, ports) if in_memory(options, system) else None
             simulator = _Simulator.start(contexts, ports, options, system, home, ["--serve", "--harness-pid", str(os.getpid())])
             inline = (simulator.start_sut(contexts, options, system, home, None, session), session) if session is not None else None
-            return cls(contexts, simulator, options, system, inline)
+            return cls(contexts, simulator, inline)
         except BaseException:
             contexts.close()
             raise
 
     @contextmanager
-    def flight(self, bridge_log: Path, load: Load, world: WorldSpec, workdir: Path) -> Iterator[Stack]:
+    def flight(self, bridge_log: Path, load: Load, world: WorldSpec, workdir: Path, options: RunOptions, system: SystemUnderTest) -> Iterator[Stack]:
         """The stack for one evaluation, MAVSDK's and the tap's records of the last one dropped: a
-        SUT process of its own is started for it (in workdir, as from a cold start) and stopped
-        after it, with a MAVSDK of its own, which has heard no other."""
+        SUT process of its own (options.sut's, which may differ from the last flight's) is started
+        for it in workdir, as from a cold start, and stopped after it, with a MAVSDK of its own,
+        which has heard no other."""
         simulator = self._simulator
         simulator.tap.restart()
         with ExitStack() as contexts:
@@ -282,7 +289,7 @@ class _ServingStack:
                 session.restart()
             else:
                 session = _listening_session(contexts, simulator.ports)
-                sut = simulator.start_sut(contexts, self._options, self._system, workdir, world, session)
+                sut = simulator.start_sut(contexts, options, system, workdir, world, session)
             self._flight = Stack(simulator.ports, simulator.bridge, bridge_log, simulator.tap, sut, session, simulator.placement, load)
             yield self._flight
 
