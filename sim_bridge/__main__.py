@@ -31,7 +31,7 @@ from sim_bridge.bridge import Bridge
 from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
-from sim_bridge.control import EndReason, Finished, Load, LoadRefused, Quit, Rejected
+from sim_bridge.control import EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
 from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
@@ -276,6 +276,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
         with ExitStack() as finishing, open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
             recorder.metadata("world", {"json": json.dumps(world.as_dict())})
             recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
+            control.send(Loaded())
             bridge = Bridge(world, config, recorder)
             try:
                 sut = connect_sut()

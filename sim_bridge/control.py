@@ -5,7 +5,8 @@ simulator, so a client in any language can speak it. A field left None is left o
 wire; a field the wire leaves out is None.
 
 The protocol (over TCP, one client, the harness; the messages below name their records):
-  bridge -> harness: {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
+  bridge -> harness: {"event": "loaded"} once the flight's recording is open, before the SUT
+      connects; {"event": "sut_connected", "t": 0.0} and {"event": "lockstep_started",
       "t": ..., "step": N} as they happen; {"event": "holding", "t": ...} once `hold_after_s` of
       simulation have passed: the harness can now connect, upload and arm while simulated time
       stands still (hold mode "frozen") or runs on at `hold_pace` times real time (hold mode
@@ -24,7 +25,8 @@ The protocol (over TCP, one client, the harness; the messages below name their r
       then also means the MCAP file is complete ({"event": "load_refused", "why": ...} for a
       world that does not load); {"op": "quit"} ends the process. The world is flown with a
       fresh SUT: inside the bridge's process, or the next one to connect to the simulator port,
-      whose link the bridge keeps open after "finished" until that SUT hangs up.
+      whose link the bridge keeps open after "finished" until that SUT hangs up (at most
+      --linger-s).
   Failures the SUT is to be told of (world "failures" with delivery "sut"): at each onset and
       end the bridge sends {"event": "inject_failure", "unit": U, "type": T (or "ok" at the
       end), "t": ...} and waits, simulated time frozen (hold mode "frozen") or paced, until the
@@ -199,6 +201,14 @@ class Event(_Message):
 
 
 @dataclass(frozen=True)
+class Loaded(Event):
+    """The flight's recording is open: however the flight ends from here, its file will be
+    complete (a serving simulator stopped before this had not begun the flight)."""
+
+    NAME = "loaded"
+
+
+@dataclass(frozen=True)
 class SutConnected(Event):
     NAME = "sut_connected"
     t: float
@@ -264,7 +274,7 @@ class LoadRefused(Event):
 
 
 OPS: dict[str, type[Op]] = {cls.NAME: cls for cls in (Run, Stop, AddObstacle, MoveObstacle, RemoveObstacle, RcModeSlot, FailureInjected, Load, Quit)}
-EVENTS: dict[str, type[Event]] = {cls.NAME: cls for cls in (SutConnected, LockstepStarted, Holding, InjectFailure, Finished, LoadRefused)}
+EVENTS: dict[str, type[Event]] = {cls.NAME: cls for cls in (Loaded, SutConnected, LockstepStarted, Holding, InjectFailure, Finished, LoadRefused)}
 
 
 def end_reason(value: str) -> EndReason:

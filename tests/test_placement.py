@@ -17,7 +17,7 @@ from conftest import FIG4, fig4_job, stored_result
 from harness.execution.executor import Executor
 from harness.execution.local import LocalExecutor
 from harness.flight.results import RunOptions
-from harness.flight.stack import pin_to_cores, simulation_stack
+from harness.flight.stack import pin_process, placed_cores, simulation_stack
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
@@ -108,8 +108,10 @@ def test_pinning_a_sut_pins_the_threads_it_started_before():
                             "print('started', flush=True)\ntime.sleep(60)"], stdout=subprocess.PIPE)
     try:
         assert sut.stdout.readline() == b"started\n"
-        pin_to_cores(bridge.pid, [sut.pid], slot=0, cores=2)
-        bridge_core, sut_core = sorted(os.sched_getaffinity(0))[:2]
+        bridge_core, sut_core = placed_cores(slot=0, cores=2)
+        pin_process(bridge.pid, bridge_core)
+        pin_process(sut.pid, sut_core)
+        assert (bridge_core, sut_core) == tuple(sorted(os.sched_getaffinity(0))[:2])
         affinities = [os.sched_getaffinity(int(tid)) for tid in os.listdir(f"/proc/{sut.pid}/task")]
         assert len(affinities) == threads + 1 and all(cores == {sut_core} for cores in affinities)
         assert os.sched_getaffinity(bridge.pid) == {bridge_core}

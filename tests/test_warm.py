@@ -1,5 +1,6 @@
-"""Warm workers (RunOptions.warm): a worker keeps the simulator with the autopilot inside between
-evaluations, and every flight in it is the flight a cold start flies, to the last bit."""
+"""Warm workers (RunOptions.warm): a worker keeps the simulator between evaluations, with the
+autopilot inside it or a fresh SUT process connecting to it for each, and every flight in it is
+the flight a cold start flies, to the last bit."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from harness.flight.results import RunOptions
 from harness.flight.mavsdk_session import MavsdkSession
 from harness.flight.ports import PortLease
 from simlink import shared_memory
+import sut_adapter
 from sut_adapter import SutConfig
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -93,8 +96,6 @@ def test_a_kept_simulator_flies_each_sut_process_as_a_cold_start_would(tmp_path,
         assert (result.status, result.fitness) == (cold[name].status, cold[name].fitness)
         assert simulated(result) == simulated(cold[name]) and len(simulated(result)) > 1000
         assert json.loads(logs.metadata(result.log_path)["placement"]["json"])["transport"] == transport
-    # The simulator's start and imports are paid once.
-    assert kept[-1].timings["setup_s"] < cold["wall"].timings["setup_s"]
 
 
 @pytest.mark.slow
@@ -220,15 +221,59 @@ def test_each_flight_of_a_serving_process_starts_from_the_start_up_parameters():
 
 @pytest.mark.parametrize("argv, why", [
     (["--serve"], "--serve needs a --control-port"),
-    (["--serve", "--control-port", "24999", "--sim-protocol", "ardupilot-json"], "ArduPilot's JSON link (UDP) is served one flight per process"),
+    (["--serve", "--control-port", "24999", "--sim-port", "0", "--sim-protocol", "ardupilot-json"],
+     "ArduPilot's JSON link (UDP) is served one flight per process"),
 ])
-def test_serving_is_refused_where_it_cannot_work(capsys, argv, why):
-    from sim_bridge.__main__ import main
+def test_serving_is_refused_where_it_cannot_work(argv, why):
+    # In a process of its own: a simulator that took the request would serve until stopped.
+    refused = subprocess.run([sys.executable, "-m", "sim_bridge", *argv], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert refused.returncode == 2 and why in refused.stderr
 
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    assert why in capsys.readouterr().err
+
+def test_a_kept_stack_is_kept_for_whichever_sut_process_flies_but_not_for_other_placements():
+    px4_config = SutConfig(name="command", command="px4 --sim {sim_port} --api {api_port}")
+    px4 = sut_adapter.system_for(px4_config)
+    key = stack._kept_for(RunOptions(transport="tcp", warm=True, sut=px4_config), px4)
+    other_build = SutConfig(name="command", command="px4-mutant --sim {sim_port} --api {api_port}", params={"CP_DIST": 3.0})
+    assert stack._kept_for(RunOptions(transport="tcp", warm=True, sut=other_build), sut_adapter.system_for(other_build)) == key
+    for other in (RunOptions(transport="tcp", warm=True, sut=px4_config, cores=2), RunOptions(transport="tcp", warm=True, sut=px4_config, rate_hz=400.0),
+                  RunOptions(transport="tcp", warm=True, sut=px4_config, pin_cpu=False), RunOptions(transport="tcp", warm=True, sut=px4_config, hold_after_s=1.0)):
+        assert stack._kept_for(other, px4) != key
+    frozen = SutConfig(name="command", command="px4 --sim {sim_port} --api {api_port}", hold="frozen")
+    assert stack._kept_for(RunOptions(transport="tcp", warm=True, sut=frozen), sut_adapter.system_for(frozen)) != key
+    # With the SUT inside the simulator, which SUT is what the simulator is.
+    bundled, mutant = SutConfig(), SutConfig(params={"CP_DIST": 3.0})
+    assert stack._kept_for(RunOptions(transport="memory", sut=bundled), sut_adapter.system_for(bundled)) != \
+        stack._kept_for(RunOptions(transport="memory", sut=mutant), sut_adapter.system_for(mutant))
+
+
+def test_only_a_connection_is_served_warm():
+    assert stack.serves_warm(RunOptions(transport="tcp"), sut_adapter.system_for(SutConfig(name="command", command="x {sim_port} {api_port}")))
+    assert not stack.serves_warm(RunOptions(), sut_adapter.system_for(SutConfig(name="ardupilot", ardupilot_bin=sys.executable)))
+
+
+def test_a_sut_that_does_not_start_leaves_nothing_kept(tmp_path, profile):
+    """Its evaluation says so; the next warm evaluation starts a fresh simulator."""
+    missing = SutConfig(name="command", command=f"{tmp_path}/no-such-autopilot --sim {{sim_port}} --api {{api_port}}")
+    wall = point(profile, "table3/scenario_31.json", 4)
+    for warm in (False, True):
+        result = evaluate(*wall, seed=4, out_dir=tmp_path, options=RunOptions(transport="tcp", warm=warm, sut=missing), name=f"warm-{warm}")
+        assert result.status == "sut_crashed" and "no-such-autopilot" in result.why
+        assert stack._kept is None
+
+
+@pytest.mark.slow
+def test_the_first_repeat_flies_on_a_simulator_started_before_it(tmp_path, profile):
+    """`stella run --repeat` compares its flights: the first must not share its start with the simulator's."""
+    options = RunOptions(transport="tcp", warm=True)
+    stack.start_kept(options)
+    serving = [pid for pid in _children() if "--serve" in Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")]
+    result = evaluate(*point(profile, "table3/scenario_31.json", 4), seed=4, out_dir=tmp_path, options=options)
+    assert [int(simulator_pid(result))] == serving
+
+
+def _children() -> list[int]:
+    return [int(pid) for task in Path("/proc/self/task").iterdir() for pid in (task / "children").read_text().split()]
 
 
 def test_a_serving_simulator_whose_harness_is_gone_quits(tmp_path):

@@ -152,7 +152,8 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
     run_path = mutants_dir / RUN
     document = _load(run_path, plan)
     cache = ReferenceCache(mutants_dir / CACHE)
-    options = RunOptions(sut=reference, sut_logs=plan.sut_logs)
+    # A worker whose process lives on keeps its simulator from mutant to mutant and for the reference.
+    options = RunOptions(sut=reference, sut_logs=plan.sut_logs, warm=executor.keeps_stacks)
     try:
         for entry in sorted(built["mutants"].values(), key=lambda e: e["id"]):
             if entry["state"] != "built" or (only and entry["id"] not in only):
@@ -216,7 +217,7 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
                             confirm=plan.confirm, reference=reference, objective=plan.objective)
     store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
     with Store.for_campaign(store_path) as store:
-        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs), reference_cache=cache,
+        run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,
                      on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
 

@@ -53,12 +53,12 @@ class BridgeControl:
             self.events.extend(new)
         return new
 
-    def seen(self, kind: type[E]) -> E | None:
-        """The first event of a kind heard so far."""
+    def seen(self, kind: type[E] | tuple[type[E], ...]) -> E | None:
+        """The first event of a kind (of any of several) heard so far."""
         return next((event for event in self.events if isinstance(event, kind)), None)
 
-    def wait_for(self, kind: type[E], timeout_s: float, alive: Callable[[], bool] = lambda: True) -> E | None:
-        """The first event of a kind, waiting up to timeout_s while alive() holds."""
+    def wait_for(self, kind: type[E] | tuple[type[E], ...], timeout_s: float, alive: Callable[[], bool] = lambda: True) -> E | None:
+        """The first event of a kind (of any of several), waiting up to timeout_s while alive() holds."""
         deadline = time.monotonic() + timeout_s
         seen = self.seen(kind)
         if seen is not None:

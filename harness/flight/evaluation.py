@@ -28,7 +28,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, LoadRefused, Run, Stop
+from sim_bridge.control import NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
@@ -270,9 +270,16 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
     t0 = time.monotonic()
     control = BridgeControl(stack.ports.control)
     try:
+        alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
         if stack.load is not None:
             control.send(stack.load)
-        alive = lambda: bridge.poll() is None and sut.alive()  # noqa: E731
+            # Until the simulator has begun the flight, stopping it (as after a SUT that died at
+            # once) would leave the flight without a log.
+            loaded = control.wait_for((Loaded, LoadRefused), options.setup_timeout_s, lambda: bridge.poll() is None)
+            if isinstance(loaded, LoadRefused):
+                return FlightOutcome(Failure(Status.SIM_CRASHED, f"the simulator refused the world: {loaded.why}"), control_summary(control), {})
+            if loaded is None:
+                return FlightOutcome(_setup_failure(bridge, sut, control, "the simulator did not begin the flight"), control_summary(control), {})
 
         def discovered() -> Failure | None:
             try:
@@ -284,9 +291,6 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
 
         def held() -> Failure | None:
             if control.wait_for(Holding, options.setup_timeout_s, alive) is None:
-                refused = control.seen(LoadRefused)
-                if refused is not None:  # as a cold-started simulator exits on a world it cannot load
-                    return Failure(Status.SIM_CRASHED, f"the simulator refused the world: {refused.why}")
                 return _setup_failure(bridge, sut, control, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None

@@ -24,7 +24,7 @@ class RunOptions:
     setup_timeout_s: float = 60.0
     min_real_time_factor: float = 1.0  # the run's wall timeout is the time limit divided by this
     keep_workdir: bool = False
-    # Pin the simulator and the SUT to the evaluation's cores (harness/flight/stack.py: pin_to_cores).
+    # Pin the simulator and the SUT to the evaluation's cores (harness/flight/stack.py: placed_cores).
     pin_cpu: bool = True
     # Cores one evaluation may keep busy. 1: the simulator and the SUT share a core and sleep
     # while the other works (a lockstep round trip costs about 20 us there; waking a process on
@@ -42,10 +42,12 @@ class RunOptions:
     # through shared memory is. "auto": memory where an evaluation has one core, shm (else unix)
     # where it has two, whichever the SUT can, else tcp.
     transport: str = "auto"
-    # Keep the simulator with the SUT inside (transport memory) running after the evaluation and
-    # fly this process's next evaluation with the same options in it: a fresh world and a fresh
-    # autopilot, without starting a process or connecting MAVSDK again. The caller closes what
-    # is kept (stack.close_kept); executors do when they close.
+    # Keep the simulator running after the evaluation and fly this process's next evaluation
+    # with the same options in it (harness/flight/stack.py), without starting its process again:
+    # a fresh world, and a fresh autopilot inside it (transport memory, MAVSDK staying connected)
+    # or a fresh SUT process that connects to it (with a MAVSDK of its own). ArduPilot's JSON
+    # link always starts cold. The caller closes what is kept (stack.close_kept); executors do
+    # when they close.
     warm: bool = False
     # The SUT's own flight logs beside each MCAP (PX4's ULog, about 19 MB for a 50 s flight;
     # ArduPilot's dataflash .BIN): which flights keep them (keeps_sut_log), so that a campaign of

@@ -2,10 +2,10 @@
 MAVSDK on a free port block, placed on the evaluation's cores with the transport that carries
 the simulator link (RunOptions.transport, .cores), and a warm stack kept for the next flight.
 
-Warm stacks: starting an evaluation's simulator process costs about a quarter of a second of one
-core in Python imports before the flight begins, and MAVSDK a connection; a campaign pays that on
-every evaluation. A process that flies evaluation after evaluation with the same options keeps one
-stack (the simulator serving flight after flight, with the SUT inside it or a fresh SUT process
+Warm stacks: starting an evaluation's simulator process costs 0.3-0.4 s of one core in Python
+imports before the flight begins, and MAVSDK a connection; a campaign pays that on every
+evaluation. A process that flies evaluation after evaluation with the same options (but for
+which SUT, where the SUT runs in a process of its own) keeps one stack (the simulator serving flight after flight, with the SUT inside it or a fresh SUT process
 connecting to it for each) and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a warm evaluation with other
 options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
 before it exits or when its campaign ends.
@@ -51,7 +51,7 @@ class Stack:
 
     ports: PortBlock
     bridge: ManagedProcess
-    bridge_log: Path | None  # None: a warm stack between its evaluations
+    bridge_log: Path
     tap: ApiTap
     sut: SutHandle
     session: MavsdkSession
@@ -134,7 +134,7 @@ def simulation_stack(world: WorldSpec, options: RunOptions, system: SystemUnderT
     with ExitStack() as contexts:
         ports = _lease(contexts, options, system)
         session = _listening_session(contexts, ports)
-        simulator = _Simulator.start(contexts, ports, options, system, workdir, ["--world", str(world_path), "--mcap", str(bridge_log)])
+        simulator = _Simulator.start(contexts, ports, options, system, workdir, (world_path, bridge_log))
         sut = simulator.start_sut(contexts, options, system, workdir, world, session)
         yield Stack(ports, simulator.bridge, bridge_log, simulator.tap, sut, session, simulator.placement)
 
@@ -166,13 +166,17 @@ class _Simulator:
     spin_s: float
     sim_socket: str | None  # the Unix-domain socket that carries the simulator link, if one does
     serving: bool  # flying world after world (--serve): it goes on after a flight, and the SUT stops without it
+    flown: bool = False  # a SUT was started to fly with it
 
     @classmethod
     def start(cls, contexts: ExitStack, ports: PortBlock, options: RunOptions, system: SystemUnderTest, workdir: Path,
-              run_arguments: list[str]) -> "_Simulator":
-        """Started on the port block, stopped when contexts close: python -m sim_bridge
-        run_arguments (a world and its log, or --serve)."""
+              flying: tuple[Path, Path] | None) -> "_Simulator":
+        """Started on the port block, stopped when contexts close: python -m sim_bridge flying
+        one world and recording it (flying: the world's file and the log's), or serving world
+        after world (None)."""
         capabilities = system.capabilities
+        serving = flying is None
+        run_arguments = ["--serve", "--harness-pid", str(os.getpid())] if serving else ["--world", str(flying[0]), "--mcap", str(flying[1])]
         transport = placed_transport(options, system)
         inline = transport == "memory"
         # In memory the SUT steps inside the bridge: one process, one core, nobody to poll for.
@@ -203,13 +207,19 @@ class _Simulator:
                            *system.inline_arguments(api_port=ports.api, workdir=workdir, params=options.sut.params)]
         bridge = contexts.enter_context(ManagedProcess("bridge", bridge_argv, log_dir=workdir))
         simulator = cls(ports, bridge, contexts.enter_context(ApiTap(ports.api, ports.api + CLIENT_PORT_OFFSET)), transport, cores, spin_s,
-                        sim_socket, "--serve" in run_arguments)
+                        sim_socket, serving)
         if options.pin_cpu:
             pin_process(bridge.pid, placed_cores(ports.slot, cores)[0])
-        if not simulator.serving:
-            # A simulator flying one world ends by itself once its log is written; its SUT stops first, then it.
-            contexts.callback(lambda: (bridge.wait(5.0), bridge.stop()))
+        contexts.callback(simulator._stop)
         return simulator
+
+    def _stop(self) -> None:
+        """After its SUT has stopped and before the tap closes: a simulator that flew one world
+        ends by itself once its log is written (one whose SUT never started waits for none)."""
+        if self.flown and not self.serving:
+            self.bridge.wait(5.0)
+        self.bridge.stop()
+        log.info("bridge exited with %s", self.bridge.process.returncode)
 
     @property
     def placement(self) -> dict[str, Any]:
@@ -221,6 +231,7 @@ class _Simulator:
         it with its start), stopped when contexts close, after session (MAVSDK is not to hear it
         go); a SUT in memory runs inside the bridge's process, which started it."""
         bridge = self.bridge
+        self.flown = True
         if self.transport == "memory":
             contexts.callback(session.close)
             return SutHandle(name=system.name, alive=lambda: bridge.poll() is None, stop=lambda: bridge.poll(), stderr_tail=bridge.stderr_tail, pids=[])
@@ -232,15 +243,18 @@ class _Simulator:
             extra["flight_params"] = capabilities.flight_params(world)
         if self.transport == "shm":
             extra["sim_shared_memory"] = True
-        sut = system.start(sim_port=self.ports.sim, api_port=self.ports.api, instance=self.ports.slot, workdir=workdir, params=options.sut.params,
-                           spin_s=self.spin_s, **extra)
+        started: list[SutHandle] = []
 
         def stop() -> None:
             session.close()
-            sut_exit = sut.stop()
-            log.info("sut exited with %s, bridge %s", sut_exit, "serving on" if self.serving else f"exited with {bridge.poll()}")
+            for sut in started:
+                log.info("sut exited with %s", sut.stop())
 
+        # Registered first: a time limit may land between the SUT's start and the next line.
         contexts.callback(stop)
+        sut = system.start(sim_port=self.ports.sim, api_port=self.ports.api, instance=self.ports.slot, workdir=workdir, params=options.sut.params,
+                           spin_s=self.spin_s, **extra)
+        started.append(sut)
         if options.pin_cpu:
             for pid in sut.pids:
                 pin_process(pid, placed_cores(self.ports.slot, self.cores)[1])
@@ -256,7 +270,8 @@ class _ServingStack:
         self._contexts = contexts
         self._simulator = simulator
         self._inline = inline
-        self._flight: Stack | None = None  # the last evaluation's, whose `clean` says if it may fly again
+        self._flights = 0
+        self._flight: Stack | None = None  # the last flight's once it began, whose `clean` says if it may fly again
 
     @classmethod
     def start(cls, options: RunOptions, system: SystemUnderTest) -> "_ServingStack":
@@ -268,7 +283,7 @@ class _ServingStack:
             # In memory each flight's autopilot is fresh but the API link's port is the same:
             # MAVSDK stays, its system found once. A SUT process of its own gets one of its own.
             session = _listening_session(contexts, ports) if in_memory(options, system) else None
-            simulator = _Simulator.start(contexts, ports, options, system, home, ["--serve", "--harness-pid", str(os.getpid())])
+            simulator = _Simulator.start(contexts, ports, options, system, home, None)
             inline = (simulator.start_sut(contexts, options, system, home, None, session), session) if session is not None else None
             return cls(contexts, simulator, inline)
         except BaseException:
@@ -277,11 +292,14 @@ class _ServingStack:
 
     @contextmanager
     def flight(self, bridge_log: Path, load: Load, world: WorldSpec, workdir: Path, options: RunOptions, system: SystemUnderTest) -> Iterator[Stack]:
-        """The stack for one evaluation, MAVSDK's and the tap's records of the last one dropped: a
-        SUT process of its own (options.sut's, which may differ from the last flight's) is started
-        for it in workdir, as from a cold start, and stopped after it, with a MAVSDK of its own,
-        which has heard no other."""
+        """The stack for one evaluation, the tap's records of the last one dropped. With the SUT
+        inside the simulator, the simulator gives the flight a fresh autopilot and MAVSDK stays,
+        its records dropped. Otherwise a SUT process of its own (options.sut's, which may differ
+        from the last flight's) is started for it in workdir, as from a cold start, and stopped
+        after it, with a MAVSDK of its own, which has heard no other."""
         simulator = self._simulator
+        self._flights += 1
+        self._flight = None  # unfit until this flight has ended cleanly
         simulator.tap.restart()
         with ExitStack() as contexts:
             if self._inline is not None:
@@ -293,15 +311,17 @@ class _ServingStack:
             self._flight = Stack(simulator.ports, simulator.bridge, bridge_log, simulator.tap, sut, session, simulator.placement, load)
             yield self._flight
 
-    def _flew_cleanly(self) -> bool:
-        return self._flight is not None and self._flight.clean
+    def _fit(self) -> bool:
+        """Whether it may fly the next evaluation as far as its flights tell: none yet, or the
+        last ended cleanly."""
+        return self._flights == 0 or (self._flight is not None and self._flight.clean)
 
     def reusable(self) -> bool:
-        return self._flew_cleanly() and self._simulator.bridge.poll() is None
+        return self._fit() and self._simulator.bridge.poll() is None
 
     def close(self) -> None:
         bridge = self._simulator.bridge
-        if self._flew_cleanly() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
+        if self._fit() and bridge.poll() is not None:  # died between flights; its stderr goes with its folder
             log.warning("a kept simulator exited with %s after a clean flight: %s", bridge.poll(), bridge.stderr_tail())
         self._contexts.close()
 
@@ -335,6 +355,24 @@ def _reuse(key: str, start: Callable[[], "_ServingStack"]) -> Iterator["_Serving
                 _close(leftover)
 
 
+def start_kept(options: RunOptions) -> None:
+    """Start now the stack that warm evaluations with these options keep, unless one is kept
+    for them: the first of them then flies as the rest do (`stella run --repeat`, whose repeats
+    are compared; PX4's flights follow the wall clock, which a simulator's start would share)."""
+    global _kept
+    try:
+        system = sut_adapter.system_for(options.sut)
+    except sut_adapter.SutError:
+        return  # the evaluation says so
+    if not serves_warm(options, system):
+        return
+    key = _kept_for(options, system)
+    if _kept is not None and _kept[0] == key and _kept[1].reusable():
+        return
+    close_kept()
+    _kept = (key, _ServingStack.start(options, system))
+
+
 def close_kept() -> None:
     """Close the stack this process kept warm, if any."""
     global _kept
@@ -356,14 +394,6 @@ def placed_cores(slot: int, cores: int) -> tuple[int, int]:
     available = sorted(os.sched_getaffinity(0))
     first = slot * cores
     return available[first % len(available)], available[(first + cores - 1) % len(available)]
-
-
-def pin_to_cores(bridge_pid: int, sut_pids: list[int], slot: int, cores: int) -> None:
-    """The bridge and the SUT on their placed_cores."""
-    bridge_core, sut_core = placed_cores(slot, cores)
-    pin_process(bridge_pid, bridge_core)
-    for pid in sut_pids:
-        pin_process(pid, sut_core)
 
 
 def pin_process(pid: int, core: int) -> None:

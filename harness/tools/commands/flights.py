@@ -124,9 +124,11 @@ def _repeat(args: argparse.Namespace, space, x, options) -> list[EvaluationResul
 
     stem = slug(f"{space.logical.name}-seed{args.seed}")
     results = []
+    options = replace(options, warm=True)
     try:
+        stack.start_kept(options)
         for index in range(args.repeat):
-            results.append(evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=replace(options, warm=True),
+            results.append(evaluate(space, x, seed=args.seed, out_dir=Path(args.out), options=options,
                                     name=f"{stem}-repeat{index + 1}"))
             if not args.json:
                 print(f"repeat {index + 1}/{args.repeat}: {results[-1].status}, fitness {results[-1].fitness:.6f}", file=sys.stderr)
