@@ -5,9 +5,10 @@ the simulator link (RunOptions.transport, .cores), and a warm stack kept for the
 Warm stacks: starting an evaluation's simulator process costs 0.3-0.4 s of one core in Python
 imports before the flight begins, and MAVSDK a connection; a campaign pays that on every
 evaluation. A process that flies evaluation after evaluation with the same options (but for
-which SUT, where the SUT runs in a process of its own) keeps one stack (the simulator serving flight after flight, with the SUT inside it or a fresh SUT process
-connecting to it for each) and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a warm evaluation with other
-options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
+which SUT, where the SUT runs in a process of its own) keeps one stack (the simulator serving
+flight after flight, with the SUT inside it or a fresh SUT process connecting to it for each)
+and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a
+warm evaluation with other options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
 before it exits or when its campaign ends.
 """
 
@@ -359,18 +360,13 @@ def start_kept(options: RunOptions) -> None:
     """Start now the stack that warm evaluations with these options keep, unless one is kept
     for them: the first of them then flies as the rest do (`stella run --repeat`, whose repeats
     are compared; PX4's flights follow the wall clock, which a simulator's start would share)."""
-    global _kept
     try:
         system = sut_adapter.system_for(options.sut)
     except sut_adapter.SutError:
         return  # the evaluation says so
-    if not serves_warm(options, system):
-        return
-    key = _kept_for(options, system)
-    if _kept is not None and _kept[0] == key and _kept[1].reusable():
-        return
-    close_kept()
-    _kept = (key, _ServingStack.start(options, system))
+    if serves_warm(options, system):
+        with _reuse(_kept_for(options, system), lambda: _ServingStack.start(options, system)):
+            pass  # a stack that has flown nothing yet is fit to be kept
 
 
 def close_kept() -> None:
