@@ -130,6 +130,16 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text} is not a port: give 0 to 65535")
+    return value
+
+
 def _range_messages(text: str) -> tuple[str, ...]:
     names = tuple(name for name in text.split(",") if name)
     unknown = sorted(set(names) - set(RANGE_MESSAGES))
@@ -142,7 +152,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     """inline_sut: a SUT in this process (sut_adapter/inline.py): its link instead of the simulator port."""
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
     parser.add_argument("--world", help="world spec JSON (stella sample --json prints one)")
-    parser.add_argument("--sim-port", type=int, default=4560)
+    parser.add_argument("--sim-port", type=_port, default=4560)
     parser.add_argument("--sim-socket", help="listen for the SUT on this Unix-domain socket (a path, or @NAME in the abstract namespace) instead of the simulator port")
     parser.add_argument("--sim-shared-memory", action="store_true",
                         help="with --sim-socket: hand the SUT shared memory on it and exchange the link's bytes there (simlink/shared_memory.py; "
@@ -150,9 +160,9 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--sim-protocol", choices=ardupilot_link.PROTOCOLS, default="mavlink",
                         help="mavlink: PX4's HIL messages, the SUT connects over TCP (default); ardupilot-json: ArduPilot's JSON physics backend, "
                              "its servo frames arrive over UDP on the simulator port (ArduPilot's --sim-port-out)")
-    parser.add_argument("--rc-port", type=int, help="with --sim-protocol ardupilot-json and the pilot drive: send the pilot's sticks to this UDP port "
+    parser.add_argument("--rc-port", type=_port, help="with --sim-protocol ardupilot-json and the pilot drive: send the pilot's sticks to this UDP port "
                                                     "(ArduPilot SITL's --rc-in-port)")
-    parser.add_argument("--control-port", type=int, default=0, help="harness control channel; 0 = none")
+    parser.add_argument("--control-port", type=_port, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
     parser.add_argument("--mcap-compression", choices=sorted(COMPRESSIONS), default="zstd",

@@ -221,6 +221,7 @@ def test_each_flight_of_a_serving_process_starts_from_the_start_up_parameters():
 
 @pytest.mark.parametrize("argv, why", [
     (["--serve"], "--serve needs a --control-port"),
+    (["--serve", "--control-port", "99999"], "99999 is not a port: give 0 to 65535"),
     (["--serve", "--control-port", "24999", "--sim-port", "0", "--sim-protocol", "ardupilot-json"],
      "ArduPilot's JSON link (UDP) is served one flight per process"),
 ])
