@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Mapping, Protocol
 
-from sut_adapter.processes import ManagedProcess
+from sut_adapter.processes import ManagedProcess, process_cpu_s
 
 if TYPE_CHECKING:
     from sim_bridge.spec import WorldSpec
@@ -87,6 +87,12 @@ class SutHandle:
     # Whether it has finished starting up: a SUT may speak MAVLink before it answers all of it
     # (PX4 drops parameter messages until the end of its start-up script).
     booted: Callable[[], bool] = lambda: True
+
+    def cpu_s(self) -> float | None:
+        """The CPU time its processes have used so far; None for a SUT without processes of
+        its own (in memory) or where the system cannot say."""
+        used = [process_cpu_s(pid) for pid in self.pids]
+        return None if not used or None in used else sum(used)
 
     def settled_exit_status(self) -> int | None:
         """Its exit status, waited for a moment: a dying process closes its links before it can

@@ -110,6 +110,19 @@ def printed(path: Path, text: str) -> Callable[[], bool]:
     return check
 
 
+def process_cpu_s(pid: int) -> float | None:
+    """The CPU time a process has used, with that of the children it has reaped (PX4's start-up
+    script runs each command as a client process); None where /proc cannot say."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            text = stat.read()
+    except OSError:
+        return None
+    # Fields 14-17 (utime, stime, cutime, cstime), counted after the command name, which may hold spaces.
+    fields = text[text.rindex(")") + 2:].split()
+    return sum(int(ticks) for ticks in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+
+
 def non_empty(paths: list[Path]) -> list[Path]:
     return [p for p in paths if p.exists() and p.stat().st_size > 0]
 

@@ -1,4 +1,5 @@
-"""Child processes die with the harness, even when the harness dies while one is being started."""
+"""Child processes die with the harness, even when the harness dies while one is being started,
+and say how much CPU they used."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import textwrap
 import time
 
 from conftest import ROOT, alive
+from sut_adapter.base import SutHandle
+from sut_adapter.processes import process_cpu_s
 
 # The parent makes the hook, forks, and exits at once; its child sets the hook up only after
 # that, as a Popen child does when the parent is killed between fork and preexec_fn.
@@ -32,3 +35,28 @@ def test_a_child_whose_parent_died_before_it_set_up_its_death_signal_ends_itself
     while alive(child) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not alive(child)
+
+
+# A start-up script's way: a shell runs a command that computes for a while, reaps it, then waits.
+BUSY_CHILD_THEN_WAIT = f"""{sys.executable} -c 'import time
+end = time.process_time() + 0.4
+while time.process_time() < end: pass'; sleep 30"""
+
+
+def test_a_sut_processes_cpu_time_counts_the_children_it_reaped_and_none_is_said_when_it_is_gone():
+    """GIVEN a SUT process whose child computed 0.4 s of CPU and was reaped (as PX4's start-up
+    script's client processes are) WHEN its CPU time is read THEN the child's is in it (to the
+    clock ticks /proc counts in); a handle
+    of no processes (a SUT in memory) or of one that is gone says None rather than a number."""
+    shell = subprocess.Popen(["sh", "-c", BUSY_CHILD_THEN_WAIT])
+    try:
+        handle = SutHandle(name="busy", alive=lambda: shell.poll() is None, stop=shell.kill, pids=[shell.pid])
+        deadline = time.monotonic() + 10.0
+        while (handle.cpu_s() or 0.0) < 0.35 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert 0.35 <= handle.cpu_s() < 1.0
+    finally:
+        shell.kill()
+        shell.wait()
+    assert process_cpu_s(shell.pid) is None
+    assert SutHandle(name="inline", alive=lambda: True, stop=lambda: None).cpu_s() is None

@@ -186,6 +186,12 @@ def test_bench_limit_replays_a_px4_flight_to_px4_alone_in_lockstep_and_reports_t
     # (not PX4's paced set-up before it, whose simulated length follows the wall clock).
     assert abs(alone["timed_steps"] - placement["per_run"][0]["run_steps"]) <= 2
     assert 0.0 < placement["median"]["flight_speed_of_sut_alone"] < math.inf
+    # PX4's CPU time a step, in the flight and alone: PX4 is pinned to one core, so it computes
+    # in at most the step's wall time (give or take a 10 ms clock tick over a second's run).
+    run = placement["per_run"][0]
+    assert 0.0 < run["sut_cpu_share_of_step"] < 1.02
+    replayed_step_us = 1e6 / (report["rate_hz"] * run["sut_alone_real_time_factor"])
+    assert 0.0 < run["sut_alone_cpu_us"] < 1.02 * replayed_step_us
 
 
 def test_a_px4_campaigns_failure_mode_becomes_a_bundle_with_px4s_ulog_and_the_binarys_digest(capsys, tmp_path):

@@ -45,6 +45,16 @@ def test_the_replay_keeps_a_fresh_autopilot_in_lockstep_and_times_the_run(flight
     assert alone["in_step"], "an answer carried another step's time: the replay lost lockstep"
     assert alone["timed_steps"] == len(recorded["steps"]) - recorded["run_step"] > 0
     assert alone["real_time_factor"] > 1.0
+    # The autopilot shares the one core with the stand-in: its CPU time is a part of each step's wall time.
+    assert 0.0 < alone["sut_cpu_us"] < alone["step_us"]
+
+
+def test_a_flight_says_what_its_sut_process_computed_over_the_steps_it_timed(flight_log):
+    """The SUT's CPU time over the flight's run (`stella bench` reports it a step, beside the
+    replay's): the autopilot, a process pinned to a core of its own, computes in at most the
+    run's wall time (to the 10 ms clock ticks /proc counts in), and computes something."""
+    timings = logs.json_metadata(flight_log, "result")["timings"]
+    assert 0.0 < timings["sut_cpu_in_run_s"] <= timings["wall_in_run_s"] + 0.02
 
 
 class _AnsweringLink:

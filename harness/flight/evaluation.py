@@ -340,10 +340,15 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
                        else Failure(Status.MISSION_FAILED, f"setup: the SUT refused: {error}"))
             return FlightOutcome(refused, control_summary(control), {})
         timings["setup_s"] = time.monotonic() - t0
+        sut_cpu_at_run = sut.cpu_s()
         control.send(Run())
         deadline = world.time_limit_s / options.min_real_time_factor + 30.0
         finished = _fly_until_finished(control, session, deadline, lambda: bridge.poll() is None)
         timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
+        sut_cpu_at_end = sut.cpu_s()
+        if sut_cpu_at_run is not None and sut_cpu_at_end is not None:
+            # What the SUT computed over the steps the real-time factor counts (`stella bench` per step).
+            timings["sut_cpu_in_run_s"] = sut_cpu_at_end - sut_cpu_at_run
         info = {"status_texts": list(session.status_texts), "mission_progress": list(session.mission_progress)}
         if finished is None:
             if control.closed:

@@ -13,7 +13,9 @@ computes); the rest is the loop itself and its timers.
 
 With `limit`, a SUT in a process of its own is also measured alone after each flight
 (harness/tools/sut_alone.py): the first flight's simulator link replayed to it in lockstep, the
-yardstick a flight through the bridge is reported against ("PX4 alone").
+yardstick a flight through the bridge is reported against ("PX4 alone"), and the SUT's CPU time
+a step in both (from /proc, its processes with the children they reaped): what it computes in a
+flight beyond the replay, its flight and its API link, is the SUT's own and not the bridge's.
 """
 
 from __future__ import annotations
@@ -102,13 +104,16 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
                         sut_alone = {"log": str(first_log), "timed_steps": alone["timed_steps"],
                                      **{check: alone[check] and (sut_alone or alone)[check] for check in ("in_step", "started_up")}}
                         rows[-1].update(sut_alone_real_time_factor=alone["real_time_factor"], flight_speed_of_sut_alone=rows[-1]["real_time_factor"] / alone["real_time_factor"])
+                        if alone["sut_cpu_us"] is not None:
+                            rows[-1]["sut_alone_cpu_us"] = alone["sut_cpu_us"]
                     if autopilot is None and sut.sut.name == "bundled":
                         autopilot = autopilot_step_bench(Path(result.log_path))
                     if physics_alone is None:
                         physics_alone = jsbsim_alone(Path(result.log_path), rate_hz, repeats=runs)
             finally:
                 stack.close_kept()
-            median = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
+            # A figure some run could not read (a SUT's CPU time) has no median.
+            median = {key: statistics.median(r[key] for r in rows) for key in rows[0] if all(key in r for r in rows)}
             workers = machine_cores // cores
             alone_s = median["sim_time_s"] / physics_alone["real_time_factor"]
             report_placements.append({"cores_per_evaluation": cores, "transport": transport, "warm": keep_warm, "workers": workers, "median": median,
@@ -156,6 +161,10 @@ def _run_figures(result, rate_hz: float, wall_time_s: float) -> dict[str, Any]:
         "run_steps": round(run_steps),
         "fitness": result.fitness,
     }
+    if "sut_cpu_in_run_s" in timings:
+        figures["sut_cpu_us"] = 1e6 * timings["sut_cpu_in_run_s"] / run_steps
+        # The step's wall time the SUT spent computing: a harness that cost nothing would be at 1.
+        figures["sut_cpu_share_of_step"] = figures["sut_cpu_us"] / figures["step_us"]
     figures["other_us"] = figures["step_us"] - sum(figures[k] for k in ("sut_wait_us", "sensors_us", "physics_us", "observe_us", "world_us"))
     return figures
 
@@ -222,6 +231,8 @@ def bench_text(report: dict[str, Any]) -> str:
             f"{placement['evaluation_cost_in_jsbsim_alone']:.1f}x JSBSim alone's time for its {m['sim_time_s']:.1f} s",
             *([f"    {report['sut']} alone{' ' * (22 - len(report['sut']))}{m['sut_alone_real_time_factor']:.1f}x; the flight at "
                f"{m['flight_speed_of_sut_alone']:.3f} of it (median of the paired ratios)"] if "flight_speed_of_sut_alone" in m else []),
+            *([f"    {report['sut']}'s CPU a step{' ' * (16 - len(report['sut']))}{m['sut_cpu_us']:.0f} us in the flight ({m['sut_cpu_share_of_step']:.2f} of its step), "
+               f"{m['sut_alone_cpu_us']:.0f} us alone (in the flight it also flies and talks to MAVSDK)"] if "sut_alone_cpu_us" in m and "sut_cpu_us" in m else []),
             f"    evaluations per hour        {placement['evaluations_per_hour']:.0f} with {workers} worker{'s' if workers != 1 else ''}",
             f"    one lockstep step           {m['step_us']:.0f} us:",
             f"      sensor messages           {m['sensors_us']:.0f} us",

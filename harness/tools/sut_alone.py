@@ -110,13 +110,13 @@ def recorded_link(log_path: Path, protocol: str = "mavlink") -> dict[str, Any]:
 
 
 def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: float, timed_from: int, spin_s: float, hold: tuple[int, float] = (0, 0.0),
-           ready: Callable[[], bool] = lambda: True) -> dict[str, Any]:
+           ready: Callable[[], bool] = lambda: True, cpu_s: Callable[[], float | None] = lambda: None) -> dict[str, Any]:
     """Send the steps as the bridge does: at real-time pace until the SUT's first answer, then
     each step once the last one is answered, the hold's (from step hold[0] to the run) no faster
     than hold[1] times real time (0: as fast), and the run's once ready() (the SUT has started
     up). Times the steps from `timed_from` on, and says
     whether each timed step's answer carried that step's time (`in_step`: the replay and the SUT
-    kept in lockstep)."""
+    kept in lockstep), and the SUT's CPU time a timed step (`sut_cpu_us`, as cpu_s() reads it)."""
     splitter = codec.FrameSplitter(_CRC_EXTRAS)
     answer_times: list[int] = []
     lockstep_from = None
@@ -125,6 +125,7 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
     for index, frames in enumerate(steps):
         if index == timed_from:
             started_up = _wait_until_ready(ready)
+            cpu_at_start = cpu_s()
             started = perf()
         sent = perf()
         link.send(frames)
@@ -141,23 +142,26 @@ def replay(link: SocketLink, steps: list[bytes], times_us: list[int], dt_s: floa
         raise RuntimeError(f"the SUT answered in lockstep from step {lockstep_from}, not by step {timed_from} where timing starts")
     wall_s = perf() - started
     timed = len(steps) - timed_from
+    sut_cpu_us = _cpu_per_step_us(cpu_at_start, cpu_s(), timed)
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": lockstep_from, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
-            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:], "started_up": started_up}
+            "real_time_factor": timed * dt_s / wall_s, "in_step": answer_times[-timed:] == times_us[timed_from:], "started_up": started_up,
+            "sut_cpu_us": sut_cpu_us}
 
 
 def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int, spin_s: float, hold: tuple[int, float] = (0, 0.0),
-                ready: Callable[[], bool] = lambda: True) -> dict[str, Any]:
+                ready: Callable[[], bool] = lambda: True, cpu_s: Callable[[], float | None] = lambda: None) -> dict[str, Any]:
     """Answer each of ArduPilot's servo frames with the next recorded line, from the frame that
     opened the link (ArduPilot waits for each answer: lockstep from the start), the hold's as
     replay() paces them, and time the
     steps from `timed_from` on. `in_step`: every timed frame counted one up from the one before
-    (none sent again, none skipped)."""
+    (none sent again, none skipped); `sut_cpu_us` as replay() says it."""
     counts = [decode_servo_frame(link.first).frame_count]
     started = None
     perf = time.perf_counter
     for index, line in enumerate(steps):
         if index == timed_from:
             started_up = _wait_until_ready(ready)
+            cpu_at_start = cpu_s()
             started = perf()
         sent = perf()
         link.send(line)
@@ -168,9 +172,15 @@ def replay_json(link: UdpLink, steps: list[bytes], dt_s: float, timed_from: int,
         raise RuntimeError(f"the recording has {len(steps)} steps, fewer than the {timed_from} before its run")
     wall_s = perf() - started
     timed = len(steps) - timed_from
+    sut_cpu_us = _cpu_per_step_us(cpu_at_start, cpu_s(), timed)
     in_step = all(later == earlier + 1 for earlier, later in zip(counts[timed_from:], counts[timed_from + 1:]))
     return {"steps": len(steps), "timed_steps": timed, "lockstep_from": 0, "wall_s": wall_s, "step_us": 1e6 * wall_s / timed,
-            "real_time_factor": timed * dt_s / wall_s, "in_step": in_step, "started_up": started_up}
+            "real_time_factor": timed * dt_s / wall_s, "in_step": in_step, "started_up": started_up, "sut_cpu_us": sut_cpu_us}
+
+
+def _cpu_per_step_us(at_start: float | None, at_end: float | None, steps: int) -> float | None:
+    """The SUT's CPU time a timed step (None where its CPU time cannot be read)."""
+    return None if at_start is None or at_end is None else 1e6 * (at_end - at_start) / steps
 
 
 def _wait_until_ready(ready: Callable[[], bool]) -> bool:
@@ -226,8 +236,12 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     if protocol not in ("mavlink", "ardupilot-json"):
         raise ValueError(f"{system.name}'s simulator link speaks {protocol}; the replay speaks PX4's MAVLink protocol and ArduPilot's JSON one")
     recorded = recorded_link(log_path, protocol)
-    # ArduPilot starts at the world's origin with rangefinders of its sensor's reach, as in the flight.
-    extra = {"world": logs.world_of(log_path)} if system.capabilities.needs_world else {}
+    # Started as in the flight: ArduPilot at the world's origin with rangefinders of its sensor's
+    # reach; the user's parameters and, for a SUT that takes them with its start, the flight's.
+    world = logs.world_of(log_path)
+    extra: dict[str, Any] = {"world": world} if system.capabilities.needs_world else {}
+    if system.capabilities.params_at_start and world is not None:
+        extra["flight_params"] = system.capabilities.flight_params(world)
     spin_s = SPIN_S if cores >= 2 else 0.0
     hold = (recorded["hold_step"], system.capabilities.hold_pace if system.capabilities.hold_mode == "paced" else 0.0)
     runs = []
@@ -241,7 +255,7 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                 listener = listen(ports.sim) if protocol == "mavlink" else listen_udp(ports.sim)
                 handle = None
                 try:
-                    handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params={}, spin_s=spin_s, **extra)
+                    handle = system.start(sim_port=ports.sim, api_port=ports.api, instance=ports.slot, workdir=workdir, params=sut.params, spin_s=spin_s, **extra)
                     if pin_cpu:
                         # The stand-in is this thread alone: the process's others (MAVSDK's, an executor's) outlive the replay.
                         stand_in_core, sut_core = placed_cores(ports.slot, cores)
@@ -258,9 +272,9 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
                         raise RuntimeError(f"{system.name} did not connect to the stand-in within {CONNECT_TIMEOUT_S:.0f} s: {handle.stderr_tail()}") from None
                     try:
                         if protocol == "mavlink":
-                            runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted))
+                            runs.append(replay(link, recorded["steps"], recorded["times_us"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted, handle.cpu_s))
                         else:
-                            runs.append(replay_json(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted))
+                            runs.append(replay_json(link, recorded["steps"], recorded["dt_s"], recorded["run_step"], spin_s, hold, handle.booted, handle.cpu_s))
                     except (BlockingIOError, OSError) as error:
                         raise RuntimeError(f"{system.name} stopped answering the replay ({error}): {handle.stderr_tail()}") from None
                     finally:
@@ -276,4 +290,5 @@ def sut_alone(log_path: Path, sut: SutConfig, cores: int, repeats: int, pin_cpu:
     rtf = statistics.median(r["real_time_factor"] for r in runs)
     return {"log": str(log_path), "cores": cores, "timed_steps": runs[0]["timed_steps"], "real_time_factor": rtf,
             "step_us": statistics.median(r["step_us"] for r in runs), "per_run": [r["real_time_factor"] for r in runs],
-            "in_step": all(r["in_step"] for r in runs), "started_up": all(r["started_up"] for r in runs)}
+            "in_step": all(r["in_step"] for r in runs), "started_up": all(r["started_up"] for r in runs),
+            "sut_cpu_us": None if None in (cpu := [r["sut_cpu_us"] for r in runs]) else statistics.median(cpu)}
