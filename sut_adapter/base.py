@@ -89,8 +89,8 @@ class SutHandle:
     booted: Callable[[], bool] = lambda: True
 
     def cpu_s(self) -> float | None:
-        """The CPU time its processes have used so far; None for a SUT without processes of
-        its own (in memory) or where the system cannot say."""
+        """The CPU time its processes and their descendants have used so far; None for a SUT
+        without processes of its own (in memory) or where the system cannot say."""
         used = [process_cpu_s(pid) for pid in self.pids]
         return None if not used or None in used else sum(used)
 

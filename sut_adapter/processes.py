@@ -111,16 +111,26 @@ def printed(path: Path, text: str) -> Callable[[], bool]:
 
 
 def process_cpu_s(pid: int) -> float | None:
-    """The CPU time a process has used, with that of the children it has reaped (PX4's start-up
-    script runs each command as a client process); None where /proc cannot say."""
+    """The CPU time a process and its descendants have used, with that of the children each has
+    reaped (PX4's start-up script runs its commands as client processes; a command SUT may be a
+    script that starts the autopilot as its child); None where /proc cannot say."""
     try:
         with open(f"/proc/{pid}/stat") as stat:
             text = stat.read()
+        tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:
         return None
     # Fields 14-17 (utime, stime, cutime, cstime), counted after the command name, which may hold spaces.
     fields = text[text.rindex(")") + 2:].split()
-    return sum(int(ticks) for ticks in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    used = sum(int(ticks) for ticks in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    for task in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{task}/children") as children:
+                # A child gone meanwhile has its time in ours once we reaped it: counted as none.
+                used += sum(process_cpu_s(int(child)) or 0.0 for child in children.read().split())
+        except OSError:
+            continue
+    return used
 
 
 def non_empty(paths: list[Path]) -> list[Path]:

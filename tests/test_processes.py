@@ -3,10 +3,14 @@ and say how much CPU they used."""
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import textwrap
 import time
+
+import pytest
 
 from conftest import ROOT, alive
 from sut_adapter.base import SutHandle
@@ -37,18 +41,22 @@ def test_a_child_whose_parent_died_before_it_set_up_its_death_signal_ends_itself
     assert not alive(child)
 
 
-# A start-up script's way: a shell runs a command that computes for a while, reaps it, then waits.
-BUSY_CHILD_THEN_WAIT = f"""{sys.executable} -c 'import time
+# A child computes for a while; a start-up script's shell has reaped it, a wrapper script's still waits on it.
+BUSY = f"""{sys.executable} -c 'import time
 end = time.process_time() + 0.4
-while time.process_time() < end: pass'; sleep 30"""
+while time.process_time() < end: pass
+time.sleep({{after}})'"""
+REAPED_THEN_WAIT = BUSY.format(after=0) + "; sleep 30"
+STILL_RUNNING = BUSY.format(after=30) + " & wait"
 
 
-def test_a_sut_processes_cpu_time_counts_the_children_it_reaped_and_none_is_said_when_it_is_gone():
-    """GIVEN a SUT process whose child computed 0.4 s of CPU and was reaped (as PX4's start-up
-    script's client processes are) WHEN its CPU time is read THEN the child's is in it (to the
-    clock ticks /proc counts in); a handle
-    of no processes (a SUT in memory) or of one that is gone says None rather than a number."""
-    shell = subprocess.Popen(["sh", "-c", BUSY_CHILD_THEN_WAIT])
+@pytest.mark.parametrize("script", [REAPED_THEN_WAIT, STILL_RUNNING], ids=["reaped", "running"])
+def test_a_sut_processes_cpu_time_counts_its_childrens_and_none_is_said_when_it_is_gone(script):
+    """GIVEN a SUT process whose child computed 0.4 s of CPU, reaped (as PX4's start-up script's
+    client processes are) or still running (a wrapper script's autopilot) WHEN its CPU time is
+    read THEN the child's is in it (to the clock ticks /proc counts in); a handle of no processes
+    (a SUT in memory) or of one that is gone says None rather than a number."""
+    shell = subprocess.Popen(["sh", "-c", script], start_new_session=True)
     try:
         handle = SutHandle(name="busy", alive=lambda: shell.poll() is None, stop=shell.kill, pids=[shell.pid])
         deadline = time.monotonic() + 10.0
@@ -56,7 +64,7 @@ def test_a_sut_processes_cpu_time_counts_the_children_it_reaped_and_none_is_said
             time.sleep(0.05)
         assert 0.35 <= handle.cpu_s() < 1.0
     finally:
-        shell.kill()
+        os.killpg(shell.pid, signal.SIGKILL)
         shell.wait()
     assert process_cpu_s(shell.pid) is None
     assert SutHandle(name="inline", alive=lambda: True, stop=lambda: None).cpu_s() is None
