@@ -14,8 +14,9 @@ computes); the rest is the loop itself and its timers.
 With `limit`, a SUT in a process of its own is also measured alone after each flight
 (harness/tools/sut_alone.py): the first flight's simulator link replayed to it in lockstep, the
 yardstick a flight through the bridge is reported against ("PX4 alone"), and the SUT's CPU time
-a step in both (from /proc, its processes and their descendants, living or reaped): what it computes in a
-flight beyond the replay, its flight and its API link, is the SUT's own and not the bridge's.
+a step in both (from /proc, its processes and their descendants, living or reaped): what it
+computes in a flight beyond the replay, its flight and its API link, is the SUT's own and not
+the bridge's.
 """
 
 from __future__ import annotations
