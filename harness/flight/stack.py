@@ -8,8 +8,8 @@ evaluation. A process that flies evaluation after evaluation with the same optio
 which SUT, where the SUT runs in a process of its own) keeps one stack (the simulator serving
 flight after flight, with the SUT inside it or a fresh SUT process connecting to it for each)
 and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a
-warm evaluation with other options closes the kept one first. The owner of the process closes what is kept (`close_kept`)
-before it exits or when its campaign ends.
+warm evaluation with other options closes the kept one first. The owner of the process closes
+what is kept (`close_kept`) before it exits or when its campaign ends.
 """
 
 from __future__ import annotations
