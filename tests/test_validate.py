@@ -46,6 +46,20 @@ def test_table3_scenarios_and_examples_and_profile_are_valid(capsys):
     assert "lighting = normal (profile default) is not simulated" in out
 
 
+def test_a_note_shared_by_many_scenarios_is_said_once_unless_verbose(capsys):
+    # GIVEN Table III, whose 32 scenarios leave the same weather categories unsimulated
+    paths = [str(p) for p in TABLE3]
+    # WHEN validated, THEN each such note is one line that says how many files it holds for
+    assert main(["validate", *paths]) == 0
+    out = capsys.readouterr().out
+    lighting = [line for line in out.splitlines() if "lighting = normal (profile default) is not simulated" in line]
+    assert len(lighting) == 1 and "32 files" in lighting[0]
+    assert len(out.splitlines()) < 32 + 10
+    # AND with --verbose each file says its own notes again
+    assert main(["-v", "validate", *paths]) == 0
+    assert capsys.readouterr().out.count("lighting = normal (profile default) is not simulated") == 32
+
+
 def test_console_script_exits_2_and_names_file_and_pointer():
     path = MALFORMED / "18_misspelt_wind.json"
     result = subprocess.run(

@@ -76,9 +76,23 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(problem)
         for entry in report:
             if entry["ok"]:
-                notes = "; ".join(entry["notes"])
+                notes = "; ".join(entry["notes"]) if args.verbose else ""
                 print(f"ok: {entry['file']} ({entry['kind']})" + (f"; note: {notes}" if notes else ""))
+        if not args.verbose:
+            _print_each_note_once(report)
     return 2 if problems else 0
+
+
+def _print_each_note_once(report: list[dict]) -> None:
+    """Most scenarios share the profile's unsimulated defaults (lighting, lightning, ...): one
+    line per note with how many files it holds for, rather than the same four notes per file."""
+    files_of: dict[str, list[str]] = {}
+    for entry in report:
+        for note in entry.get("notes", []):
+            files_of.setdefault(note, []).append(entry["file"])
+    for note, files in files_of.items():
+        where = files[0] if len(files) == 1 else f"{len(files)} files"
+        print(f"note: {note} ({where}; each file's notes with --verbose)")
 
 
 def _expand(paths: Sequence[str]) -> list[Path]:
