@@ -43,6 +43,11 @@ from enum import StrEnum
 from typing import Any, ClassVar, Mapping
 
 
+# The simulator's exit code when its SUT never connected, stalled or went away (or when SIGTERM
+# came as its recording was being finished): the harness tells a SUT's crash from its own by it.
+EXIT_SUT_LOST = 3
+
+
 class EndReason(StrEnum):
     """Why a flight ended (the simulator's summary, "end_reason"). A str, so it is its own JSON."""
 

@@ -15,7 +15,7 @@ import pytest
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import evaluate
+from harness.flight.evaluation import _setup_failure, evaluate
 from harness.flight.results import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -23,7 +23,9 @@ from harness.scenario.world import world_spec
 from harness.tools.cli import main
 import sut_adapter
 from sut_adapter import SutConfig, registry
+from sut_adapter.base import start_process
 from sut_adapter.command import CommandSut
+from sut_adapter.processes import ManagedProcess
 from sut_adapter.px4 import API_STREAM_RATES_HZ, DEFAULT_PARAMS, Px4Sitl, collect_artifacts
 
 FIG4 = ROOT / "scenarios" / "examples" / "fig4.json"
@@ -363,3 +365,26 @@ def test_a_sut_adapter_that_declares_no_capabilities_is_told_how_to_declare_them
     monkeypatch.setattr(registry, "_REGISTRY", {**registry._REGISTRY, "custom": Adapter})
     with pytest.raises(sut_adapter.SutError, match=r"custom: its adapter declares no capabilities: give it `capabilities = sut_adapter.Capabilities\("):
         sut_adapter.get("custom")
+
+
+@pytest.mark.parametrize("simulator_exit", [3, 1], ids=["simulator lost its SUT", "simulator failed after"])
+def test_a_sut_dead_of_a_signal_crashed_the_flight_whoever_is_found_gone_first(tmp_path, simulator_exit):
+    # GIVEN a SUT that died of SIGSEGV and a simulator that exited after it (with the code it
+    # gives when its SUT's link went, or any other): both gone before the harness looks, as
+    # happens with every core busy
+    sut = start_process("px4", ManagedProcess("px4", [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"], log_dir=tmp_path))
+    with ManagedProcess("bridge", [sys.executable, "-c", f"import time; time.sleep(0.2); raise SystemExit({simulator_exit})"], log_dir=tmp_path) as bridge:
+        assert bridge.wait(10.0) == simulator_exit and sut.settled_exit_status() is not None
+        # WHEN the harness says why set-up failed, THEN it is the SUT's crash, named by its signal
+        failure = _setup_failure(bridge, sut, "setup: no heartbeat")
+    assert failure.status == "sut_crashed" and "px4 died of SIGSEGV" in failure.why
+    sut.stop()
+
+
+def test_a_simulator_that_failed_while_its_sut_ran_crashed_the_flight(tmp_path):
+    sut = start_process("px4", ManagedProcess("px4", [sys.executable, "-c", "import time; time.sleep(30)"], log_dir=tmp_path))
+    with ManagedProcess("bridge", [sys.executable, "-c", "raise SystemExit(1)"], log_dir=tmp_path) as bridge:
+        bridge.wait(10.0)
+        failure = _setup_failure(bridge, sut, "setup: no heartbeat")
+    sut.stop()
+    assert failure.status == "sim_crashed" and "simulator exited with 1" in failure.why

@@ -28,7 +28,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
+from sim_bridge.control import EXIT_SUT_LOST, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
@@ -279,19 +279,19 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if isinstance(loaded, LoadRefused):
                 return FlightOutcome(Failure(Status.SIM_CRASHED, f"the simulator refused the world: {loaded.why}"), control_summary(control), {})
             if loaded is None:
-                return FlightOutcome(_setup_failure(bridge, sut, control, "the simulator did not begin the flight"), control_summary(control), {})
+                return FlightOutcome(_setup_failure(bridge, sut, "the simulator did not begin the flight"), control_summary(control), {})
 
         def discovered() -> Failure | None:
             try:
                 session.discover(options.setup_timeout_s, alive)
             except InfrastructureError as error:
-                return _setup_failure(bridge, sut, control, str(error))
+                return _setup_failure(bridge, sut, str(error))
             timings["discover_s"] = time.monotonic() - t0
             return None
 
         def held() -> Failure | None:
             if control.wait_for(Holding, options.setup_timeout_s, alive) is None:
-                return _setup_failure(bridge, sut, control, "the simulation never reached its hold point")
+                return _setup_failure(bridge, sut, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None
 
@@ -332,10 +332,10 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             else:
                 session.upload_and_start(mission_items(world, system.capabilities.mission_home_item), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
-            return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: {error}"), control_summary(control), {})
+            return FlightOutcome(_setup_failure(bridge, sut, f"setup: {error}"), control_summary(control), {})
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
             if _unanswered(error):
-                return FlightOutcome(_setup_failure(bridge, sut, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
+                return FlightOutcome(_setup_failure(bridge, sut, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
             refused = (Failure(Status.SUT_CRASHED, f"setup: {sut.how_it_ended()} ({error})") if not sut.alive()
                        else Failure(Status.MISSION_FAILED, f"setup: the SUT refused: {error}"))
             return FlightOutcome(refused, control_summary(control), {})
@@ -353,8 +353,9 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         if finished is None:
             if control.closed:
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
-            if bridge.poll() is not None:
-                return FlightOutcome(Failure(Status.SIM_CRASHED, f"simulator exited with {bridge.poll()}: {bridge.stderr_tail()}"), control_summary(control), info)
+            crashed = _crash(bridge, sut, "in flight")
+            if crashed is not None:
+                return FlightOutcome(crashed, control_summary(control), info)
             control.send(Stop())
             finished = control.wait_for(Finished, 10.0, lambda: bridge.poll() is None)
             return FlightOutcome(Failure(Status.TIMEOUT, f"no end within {deadline:.0f} s wall time"), finished.summary if finished else {}, info)
@@ -389,9 +390,22 @@ def _unanswered(error: Exception) -> bool:
     return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
-def _setup_failure(bridge: ManagedProcess, sut, control: BridgeControl, what: str) -> Failure:
-    if bridge.poll() is not None:
-        return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {bridge.poll()}: {bridge.stderr_tail()}")
-    if not sut.alive() or sut.settled_exit_status() is not None:
+def _setup_failure(bridge: ManagedProcess, sut: SutHandle, what: str) -> Failure:
+    return _crash(bridge, sut, what) or Failure(Status.TIMEOUT, what)
+
+
+def _crash(bridge: ManagedProcess, sut: SutHandle, what: str) -> Failure | None:
+    """Which of the two died, if one did. A SUT that dies closes its simulator link, and the
+    simulator then ends its flight and exits (EXIT_SUT_LOST): by the time the harness looks, both
+    may be gone. So a SUT that died of a signal crashed the flight whatever the simulator did
+    afterwards, as does one that exited where the simulator says it lost its SUT; otherwise a
+    simulator that exited crashed it."""
+    sut_status = sut.settled_exit_status()
+    simulator_status = bridge.poll()
+    if sut_status is not None and (sut_status < 0 or simulator_status in (None, EXIT_SUT_LOST)):
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
-    return Failure(Status.TIMEOUT, what)
+    if simulator_status is not None:
+        return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {simulator_status}: {bridge.stderr_tail()}")
+    if not sut.alive():
+        return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
+    return None
