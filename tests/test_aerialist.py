@@ -30,6 +30,7 @@ from sim_bridge.spec import Origin
 DATA = ROOT / "tests" / "data" / "aerialist"
 HOVER = DATA / "hover_two_boxes.yaml"
 LAND_AT = DATA / "takeoff_land_at.yaml"  # takeoff and a land item at a position, no waypoint
+THIN_WALLS = DATA / "two_thin_walls.yaml"  # two long, thin boxes 2.5 m apart, beside the way
 BODY_M = 0.6  # the default profile's F450 box, length and width
 
 
@@ -206,6 +207,41 @@ def fly_land_at_case(tmp_path, capsys, *sut_options: str) -> None:
     competition = json.loads(capsys.readouterr().out)["competition"]
     # The box stands about 6 m beside the way: the competition passes the flight and gives no points.
     assert (competition["verdict"], competition["points"]) == ("pass", 0) and 4.0 < competition["min_distance_m"] < 9.0, competition
+
+
+def test_long_thin_boxes_apart_are_not_refused_as_overlapping():
+    # GIVEN two 16 x 1 m boxes side by side with 2.5 m between their footprints, whose
+    # circumscribed discs (radius 8 m, centres 3.5 m apart) overlap
+    concrete, _params = import_aerialist(THIN_WALLS)
+    # THEN both stand where the test puts them, their footprints the test's gap apart
+    boxes = [o for o in world_of(concrete).obstacles]
+    assert [(o["a"]["north_m"], o["a"]["east_m"]) for o in boxes] == [(20.0, -8.0), (20.0, -11.5)]
+    walls = [rotated_rectangle(20.0, east, 16.0, 1.0, 0.0) for east in (-8.0, -11.5)]
+    assert polygon_distance(*walls) == pytest.approx(2.5)
+
+
+def test_boxes_whose_footprints_touch_are_refused_however_thin(tmp_path, capsys):
+    test = yaml.safe_load(THIN_WALLS.read_text())
+    test["simulation"]["obstacles"][1]["position"]["y"] = -8.9  # 0.1 m from the first: no gap left
+    bad = tmp_path / "touching.yaml"
+    bad.write_text(yaml.safe_dump(test))
+    for name in ("takeoff_land_at-params.csv", "takeoff_land_at.plan"):
+        shutil.copy(DATA / name, tmp_path / name)
+    assert main(["import", "aerialist", str(bad), "--out", str(tmp_path / "out.json")]) == 2
+    assert "/simulation/obstacles: obstacle_1 and obstacle_2 overlap" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_long_thin_boxes_import_and_fly_with_the_printed_command(tmp_path, capsys):
+    out = tmp_path / "walls.json"
+    assert main(["import", "aerialist", str(THIN_WALLS), "--out", str(out), "--json"]) == 0
+    command = shlex.split(json.loads(capsys.readouterr().out)["fly"])
+    assert main([*command[1:], "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["status"] == "ok", result["why"]
+    assert main(["inspect", result["log_path"], "--competition", "--json"]) == 0
+    competition = json.loads(capsys.readouterr().out)["competition"]
+    assert competition["verdict"] == "pass" and 8.0 < competition["min_distance_m"] < 11.0, competition
 
 
 SQUARE = [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]  # 2 m box at the origin

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import fcl
 import numpy as np
 import pytest
 
@@ -14,6 +15,7 @@ from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, sensor_range_m, world_spec
 from harness.tools.cli import main
+from sim_bridge.obstacles import yaw_rotation
 from sim_bridge.terrain import terrain_height_m
 
 SIZE_DIMS = {"cuboid": 3, "sphere": 1, "cylinder": 2}
@@ -68,27 +70,52 @@ def test_ten_thousand_sampled_points_keep_every_constraint(space, profile):
     assert X.shape == (10_000, space.n_dimensions)
     assert np.all((X >= space.lower) & (X <= space.upper))
     assert space.feasible(X).all()
-    # Independently of the space's own constraint code: distances in the world spec.
+    # Independently of the space's own constraint code: distances between the world spec's
+    # shapes, with fcl, as tall prisms (footprints), all along a moving obstacle's path.
     keep_out = profile.keep_out_radius_m
     landing = space.mission.landing_point
     for x in X[:100]:
         world = world_spec(space, x, seed=0)
         statics = []
         for obstacle in world.obstacles:
-            size = obstacle["size"]
-            radius = 0.5 * (math.hypot(size["length_m"], size["width_m"]) if obstacle["form"] == "cuboid" else size["diameter_m"])
-            for point in filter(None, (obstacle["a"], obstacle["b"])):
-                assert math.hypot(point["north_m"], point["east_m"]) - radius >= keep_out - 1e-9
-                assert math.hypot(point["north_m"] - landing[0], point["east_m"] - landing[1]) - radius >= keep_out - 1e-9
+            for north, east in centres_along(obstacle):
+                assert footprint_distance(obstacle, (north, east), point=(0.0, 0.0)) >= keep_out - 1e-6
+                assert footprint_distance(obstacle, (north, east), point=landing) >= keep_out - 1e-6
             if obstacle["kind"] == "static":
-                statics.append((obstacle["a"], radius))
+                statics.append(obstacle)
                 assert obstacle["speed_m_s"] == 0.0
             else:
                 assert profile.obstacle_speed_m_s.min <= obstacle["speed_m_s"] <= profile.obstacle_speed_m_s.max
-        for i, (a, ra) in enumerate(statics):
-            for b, rb in statics[i + 1 :]:
-                gap = math.hypot(a["north_m"] - b["north_m"], a["east_m"] - b["east_m"]) - ra - rb
-                assert gap >= profile.min_separation_m - 1e-9
+        for i, a in enumerate(statics):
+            for b in statics[i + 1 :]:
+                assert footprint_distance(a, (a["a"]["north_m"], a["a"]["east_m"]), other=b) >= profile.min_separation_m - 1e-6
+
+
+def centres_along(obstacle, samples: int = 40) -> list[tuple[float, float]]:
+    points = obstacle.get("path") or [p for p in (obstacle["a"], obstacle["b"]) if p is not None]
+    if len(points) == 1:
+        return [(points[0]["north_m"], points[0]["east_m"])]
+    centres = []
+    for a, b in zip(points, points[1:]):
+        for t in np.linspace(0.0, 1.0, samples):
+            centres.append((a["north_m"] + t * (b["north_m"] - a["north_m"]), a["east_m"] + t * (b["east_m"] - a["east_m"])))
+    return centres
+
+
+def prism(obstacle, north: float, east: float) -> fcl.CollisionObject:
+    size = obstacle["size"]
+    shape = (fcl.Box(size["length_m"], size["width_m"], 1000.0) if obstacle["form"] == "cuboid"
+             else fcl.Cylinder(size["diameter_m"] / 2.0, 1000.0))
+    return fcl.CollisionObject(shape, fcl.Transform(yaw_rotation(obstacle.get("yaw_rad", 0.0)), np.array([north, east, 0.0])))
+
+
+def footprint_distance(obstacle, centre, *, point=None, other=None) -> float:
+    """Horizontal distance from an obstacle's footprint to a point or to another's footprint."""
+    if point is not None:
+        target = fcl.CollisionObject(fcl.Cylinder(1e-6, 1000.0), fcl.Transform(np.array([point[0], point[1], 0.0])))
+    else:
+        target = prism(other, other["a"]["north_m"], other["a"]["east_m"])
+    return fcl.distance(prism(obstacle, *centre), target, fcl.DistanceRequest(), fcl.DistanceResult())
 
 
 def test_vector_to_concrete_json_and_back_is_exact(space):

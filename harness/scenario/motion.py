@@ -13,6 +13,10 @@ from typing import Sequence
 
 import numpy as np
 
+# Points per curved path: the world spec flies them, the realism constraints check them; about
+# 0.5 m apart for a 30 m arc.
+PATH_SAMPLES = 64
+
 
 def arc_points(north, east, heading_deg, radius_m, turn_deg, samples: int) -> tuple[np.ndarray, np.ndarray]:
     """`samples` points along a circle arc that starts at (north, east) heading `heading_deg` and

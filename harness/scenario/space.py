@@ -18,7 +18,8 @@ from harness.errors import InputError, Problem
 from harness.scenario import units
 from harness.scenario.documents import pointer
 from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
-from harness.scenario.motion import RouteTiming, arc_points, intruder_speed, smooth_points
+from harness.scenario.footprints import Footprints
+from harness.scenario.motion import PATH_SAMPLES, RouteTiming, arc_points, intruder_speed, smooth_points
 from harness.scenario.plan import Plan
 from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from sim_bridge.terrain import max_height_on_segment_m
@@ -28,8 +29,6 @@ CONCRETE_FORMAT = "stella.concrete/1"
 # clockwise; 0 flies the route's way). A crossing is anything between overtaking and head-on
 # on either side: its range spans both sides and a realism constraint cuts the head-on sector out.
 ENCOUNTER_CROSSING_DEG = {"head-on": (150.0, 210.0), "overtaking": (-30.0, 30.0), "crossing": (30.0, 330.0), "any": (0.0, 360.0)}
-# Samples along a curved path for the keep-out constraints (the world spec's paths are finer).
-CONSTRAINT_SAMPLES = 9
 
 
 @dataclass(frozen=True)
@@ -320,31 +319,27 @@ class SearchSpace:
             return X[:, self._index[name]]
         return np.full(X.shape[0], self._fixed[name])
 
-    def _footprint_radius(self, X: np.ndarray, index: int) -> np.ndarray:
-        prefix = f"obstacle_{index + 1}"
-        if self.logical.obstacles[index].form == "cuboid":
-            return 0.5 * np.hypot(self.column(X, f"{prefix}.length_m"), self.column(X, f"{prefix}.width_m"))
-        return 0.5 * self.column(X, f"{prefix}.diameter_m")
-
-    def _points(self, X: np.ndarray, index: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """Where an obstacle is on the ground plan, labelled: its position, a straight mover's far
-        end too, and for a curved path samples along it (arrays of shape (rows, samples))."""
+    def _footprints(self, X: np.ndarray, index: int) -> Footprints:
+        """An obstacle's footprint in each row, swept along the path the world spec flies it on."""
         prefix = f"obstacle_{index + 1}"
         obstacle = self.logical.obstacles[index]
         north, east = self.column(X, f"{prefix}.north_m"), self.column(X, f"{prefix}.east_m")
-        if obstacle.kind != "dynamic" or obstacle.motion == "vertical":
-            return [("", north, east)]
-        if obstacle.motion == "straight":
+        if obstacle.kind != "dynamic" or obstacle.motion == "vertical":  # stays over its spot
+            path_n, path_e = north, east
+        elif obstacle.motion == "straight":
             heading = np.radians(self.column(X, f"{prefix}.heading_deg"))
             travel = self.column(X, f"{prefix}.travel_m")
-            return [("start point", north, east), ("end point", north + travel * np.cos(heading), east + travel * np.sin(heading))]
-        if obstacle.motion == "arc":
+            path_n, path_e = np.stack([north, north + travel * np.cos(heading)], axis=1), np.stack([east, east + travel * np.sin(heading)], axis=1)
+        elif obstacle.motion == "arc":
             path_n, path_e = arc_points(north, east, self.column(X, f"{prefix}.heading_deg"), self.column(X, f"{prefix}.radius_m"),
-                                        self.column(X, f"{prefix}.turn_deg"), CONSTRAINT_SAMPLES)
+                                        self.column(X, f"{prefix}.turn_deg"), PATH_SAMPLES + 1)
         else:
             vias = [(self.column(X, f"{prefix}.{via}.north_m"), self.column(X, f"{prefix}.{via}.east_m")) for via in ("via_1", "via_2")]
-            path_n, path_e = smooth_points([(north, east), *vias], CONSTRAINT_SAMPLES // 2)
-        return [("path", path_n, path_e)]
+            path_n, path_e = smooth_points([(north, east), *vias], PATH_SAMPLES // 2)
+        if obstacle.form == "cuboid":
+            return Footprints.rectangles(self.column(X, f"{prefix}.length_m"), self.column(X, f"{prefix}.width_m"),
+                                         self.column(X, f"{prefix}.yaw_deg"), path_n, path_e)
+        return Footprints.discs(self.column(X, f"{prefix}.diameter_m"), path_n, path_e)
 
     def intruder_speeds(self, X: np.ndarray, index: int) -> np.ndarray:
         """The ground speed of intruder `index` in each row (NaN where its closing speed cannot be had)."""
@@ -357,26 +352,21 @@ class SearchSpace:
         margins: dict[str, np.ndarray] = {}
         keep_out = self.profile.keep_out_radius_m
         landing = self.mission.landing_point
+        footprints = {}
         for index, obstacle in enumerate(self.logical.obstacles):
             name = f"obstacle_{index + 1}"
             if obstacle.kind == "intruder":
                 margins.update(self._intruder_margins(X, index))
                 continue
-            radius = self._footprint_radius(X, index)
-            for which, north, east in self._points(X, index):
-                where = f"{name} ({which})" if which else name
-                to_start = np.hypot(north, east)
-                to_landing = np.hypot(north - landing[0], east - landing[1])
-                if to_start.ndim == 2:
-                    to_start, to_landing = to_start.min(axis=1), to_landing.min(axis=1)
-                margins[f"{where} keeps out of the start area"] = to_start - radius - keep_out
-                margins[f"{where} keeps out of the landing area"] = to_landing - radius - keep_out
+            footprint = footprints[index] = self._footprints(X, index)
+            where = f"{name} (path)" if footprint.moving else name
+            margins[f"{where} keeps out of the start area"] = footprint.clearance_to(0.0, 0.0) - keep_out
+            margins[f"{where} keeps out of the landing area"] = footprint.clearance_to(*landing) - keep_out
         static = [i for i, o in enumerate(self.logical.obstacles) if o.kind == "static"]
         for a_pos, a in enumerate(static):
             for b in static[a_pos + 1 :]:
-                (_, na, ea), (_, nb, eb) = self._points(X, a)[0], self._points(X, b)[0]
                 margins[f"obstacle_{a + 1} and obstacle_{b + 1} do not overlap"] = (
-                    np.hypot(na - nb, ea - eb) - self._footprint_radius(X, a) - self._footprint_radius(X, b) - self.profile.min_separation_m
+                    footprints[a].separation_from(footprints[b]) - self.profile.min_separation_m
                 )
         return margins
 

@@ -11,7 +11,7 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
 from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
-from harness.scenario.motion import arc_points, intruder_speed, intruder_track, smooth_points
+from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, intruder_track, smooth_points
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
 from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface,
@@ -23,8 +23,6 @@ ORIGIN = Origin(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 # Failures of readings the simulator owns are applied there, as PX4's simulator does for its own
 # sensors; the others reach the SUT as MAV_CMD_INJECT_FAILURE (docs/scenarios.md, Failures).
 SIMULATOR_FAILURE_UNITS = ("distance sensor", "gps")
-# Points per curved path in the world spec: about 0.5 m apart for a 30 m arc.
-PATH_SAMPLES = 64
 
 
 def sensor_range_m(sensor: Mapping[str, Any], visibility_m: float) -> float:
