@@ -6,6 +6,7 @@ import json
 import random
 import shutil
 import sqlite3
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ import pytest
 from conftest import ROOT, stored_result
 from harness.campaigns.campaign import least_explored, run_sequence
 from harness.campaigns.problem import CampaignProblem
+from harness.campaigns.shrink import load_case
 from harness.campaigns.statistics import a12, compare, p_value, relative_performance, spread, table
 from harness.campaigns.store import Store
 from harness.errors import InputError
@@ -23,6 +25,7 @@ from jmetal.util.evaluator import Evaluator
 from jmetal.util.termination_criterion import StoppingByEvaluations
 
 from harness.search.termination import AllOf, AnyOf, EvaluationBudget, FirstViolation, Progress, WallTimeBudget
+from harness.tools.cli import main
 
 SCENARIO = ROOT / "scenarios" / "table3" / "scenario_16.json"  # one dynamic obstacle: 12 dimensions
 
@@ -240,7 +243,6 @@ def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_noth
     import errno
 
     from harness.flight import logs
-    from harness.tools.cli import main
 
     scenario = ROOT / "tests" / "data" / "scenarios" / "one_dynamic_sphere.json"
 
@@ -251,7 +253,7 @@ def test_a_full_disk_stops_the_campaign_with_one_message_and_a_resume_loses_noth
     real_merge = logs.merge
 
     def merge_until_the_disk_is_full(recording, out, **kwargs):
-        if "eval00003" in str(out):  # the disk fills up while the fourth evaluation's log is written
+        if "eval00004" in str(out):  # the disk fills up while the fourth evaluation's log is written (ids count from 1)
             raise OSError(errno.ENOSPC, "No space left on device", str(out))
         return real_merge(recording, out, **kwargs)
 
@@ -297,7 +299,6 @@ def killed_before_its_last_evaluation(store) -> None:
 
 @pytest.mark.slow
 def test_a_store_copied_to_another_clone_at_another_path_resumes_there(tmp_path, capsys):
-    from harness.tools.cli import main
 
     # GIVEN two clones with the same scenario at different paths, and a campaign made in the first
     here, there = tmp_path / "clone" / "scenarios", tmp_path / "elsewhere" / "other-clone" / "s"
@@ -349,7 +350,6 @@ def test_a_rebuilt_firmware_is_another_campaign_also_where_the_environment_names
 
 @pytest.mark.slow
 def test_a_store_made_when_campaigns_were_known_by_path_keeps_resuming(tmp_path, capsys):
-    from harness.tools.cli import main
 
     scenario = tmp_path / "sphere.json"
     shutil.copy(SPHERE, scenario)
@@ -391,3 +391,26 @@ def test_an_executor_registered_by_name_is_made_by_that_name_and_listed_when_a_n
     finally:
         registry._REGISTRY.pop("analytic")
 
+
+
+@pytest.mark.slow
+def test_an_evaluation_is_one_number_in_its_log_name_its_regression_case_and_shrink(tmp_path):
+    # GIVEN a campaign of two runs, so that a run's third candidate is not the store's third
+    store = tmp_path / "c.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "3", "--runs", "2",
+                 "--store", str(store), "--workers", "2"]) == 0
+    with Store.existing(store) as opened:
+        stored = opened.all_evaluations()
+    assert len(stored) == 6 and {e.ordinal for e in stored} == {0, 1, 2}
+    # THEN each log is named by the evaluation's id in the store
+    flown = [e for e in stored if e.log_path is not None]  # an infeasible candidate is not flown
+    assert len(flown) >= 2 and all(Path(e.log_path).name == f"eval{e.id:05d}.mcap" for e in flown)
+    # AND shrink takes that number, or the log's name, for the same evaluation
+    last = max(flown, key=lambda e: e.id)
+    assert load_case(store, last.id, None).found["log"] == last.log_path
+    assert load_case(store, Path(last.log_path).name, None).found["evaluation"] == last.id
+    # AND a regression case says the same number, in its name and in what it found
+    assert main(["export-regressions", str(store), "--threshold=inf", "--out", str(tmp_path / "cases")]) == 0
+    for case in (tmp_path / "cases").glob("*.regression.json"):
+        found = json.loads(case.read_text())["found"]
+        assert case.name.endswith(f"-eval{found['evaluation']:05d}.regression.json") and Path(found["log"]).name == f"eval{found['evaluation']:05d}.mcap"

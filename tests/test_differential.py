@@ -215,7 +215,7 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     # THEN the hop reveals are withdrawn and said so, in both searches; the clearance reveal is now
     # the finished search's first kill
     said = capsys.readouterr().out
-    assert "m0001 wall RANDOM run 0 candidate 2: behaviour (flight time 72.9 s" in said and "-> no reveal" in said and "2 stored verdicts changed" in said
+    assert "m0001 evaluation 2 (wall RANDOM run 0): behaviour (flight time 72.9 s" in said and "-> no reveal" in said and "2 stored verdicts changed" in said
     search = json.loads((folder / mutation.RUN).read_text())["mutants"]["m0001"]["search"]["RANDOM"]["wall"]
     assert search == {**stored_search, "evaluation": 3}
     for path in (finished, under_way):
@@ -250,8 +250,8 @@ def test_a_differential_campaigns_store_is_judged_again_too(tmp_path, capsys):
     said = capsys.readouterr().out
     # THEN the hop reveal is withdrawn, and the late touchdown is a reveal now: one flight a side
     # was all this campaign flew of any pair
-    assert "wall RANDOM run 0 candidate 2: behaviour (flight time 72.9 s" in said and "2 stored verdicts changed" in said
-    assert "candidate 1: no reveal (no difference beyond the reference's spread) -> behaviour (touchdown 62.0 s" in said
+    assert "evaluation 2 (wall RANDOM run 0): behaviour (flight time 72.9 s" in said and "2 stored verdicts changed" in said
+    assert "evaluation 1 (wall RANDOM run 0): no reveal (no difference beyond the reference's spread) -> behaviour (touchdown 62.0 s" in said
     assert f"the logs of 1 flight are gone (e.g. {tmp_path / 'closer1.mcap'})" in said
     with Store.existing(tmp_path / "diff.db") as store:
         assert sorted(e.ordinal for e in store.revealing_cases()) == [0, 2]

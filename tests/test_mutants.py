@@ -141,7 +141,7 @@ def _add_mutant(folder: Path, index: dict, ident: str, line: int, new_text: str)
     (None, "survived the suite"),  # screened, its searches still to come
     ({"NSGAII": {"wall": {"evaluation": None, "level": None}}}, "survived the suite; survived 1 search"),
     ({"NSGAII": {"wall": {"evaluation": None, "level": None}, "scenario_10": {"evaluation": 12, "level": "behaviour"}}},
-     "survived the suite; killed by NSGAII on scenario_10 (behaviour at evaluation 12)"),
+     "survived the suite; killed by NSGAII on scenario_10 (behaviour after 12 evaluations)"),
 ])
 def test_the_progress_line_says_what_a_survivor_has_been_through_so_far(search, said):
     outcome = {"state": "survived_suite", "suite_flights": 17, **({"search": search} if search else {})}

@@ -50,7 +50,7 @@ def make_store(path, profile) -> Store:
 def test_export_writes_each_violation_once_as_a_loadable_case(tmp_path, profile):
     make_store(tmp_path / "c.db", profile).close()
     written = export_regressions(tmp_path / "c.db", tmp_path / "out")
-    assert [p.name for p in written] == ["fig4-NSGAII-run0-eval1.regression.json"]
+    assert [p.name for p in written] == ["fig4-NSGAII-run0-eval00002.regression.json"]
     case = load_regression(written[0])
     assert (case.expect, case.seed, case.sut, case.found["fitness"], case.found["status"]) == ("safe", 7, SutConfig(), -0.4, "violation")
     assert "must keep the safety distance" in json.loads(written[0].read_text())["note"]

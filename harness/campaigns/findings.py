@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from harness.campaigns.explain import explain, explain_text
-from harness.campaigns.regression import SUFFIX, case_document
+from harness.campaigns.regression import SUFFIX, case_document, case_name
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.campaigns.triage import FailureMode, triage
 from harness.errors import InputError, Problem
@@ -66,7 +66,7 @@ def _bundle(folder: Path, mode: FailureMode, case: StoredEvaluation | None, sut:
     if case is None or case.concrete is None or not case.log_path:
         raise InputError([Problem(str(store_path), "", f"the worst violation of mode {mode.mode!r} has no concrete scenario or log")])
     log = Path(case.log_path)
-    name = slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}")
+    name = case_name(case)
     regression = folder / f"case{SUFFIX}"
     # A differential campaign's case holds the subject to the reference's clearance instead.
     expect = "as_reference" if "reference" in config else "safe"
@@ -131,7 +131,7 @@ def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, A
         f"# {mode.mode}",
         "",
         f"{mode.count} violations of this mode in the campaign ({mode.contacts} contacts, {mode.near_misses} near misses). "
-        f"The worst: scenario {case.scenario!r}, found by {case.algorithm} (run {case.run_index}, evaluation {case.ordinal}), "
+        f"The worst: scenario {case.scenario!r}, evaluation {case.id}, found by {case.algorithm} (run {case.run_index}), "
         f"{outcome}.",
         "",
         "* obstacle: " + str(mode.keys["obstacle"]) + "; approach: " + str(mode.keys["approach"]) + "; phase: " + str(mode.keys["phase"])

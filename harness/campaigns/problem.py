@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from harness.campaigns.store import Store, vector_key
+from harness.campaigns.store import Store, evaluation_name, vector_key
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
 from harness.flight.evaluation import infeasible
@@ -147,6 +147,7 @@ class CampaignProblem:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
         candidates = [self._candidate(index, raw) for index, raw in enumerate(vectors)]
         to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
+        ids: dict[int, int] = {}  # the store's evaluation id by ordinal
         stop: StopSearch | None = None
         for candidate in candidates:
             # Known already, or a duplicate inside this batch: answered from its first one's outcome.
@@ -164,12 +165,15 @@ class CampaignProblem:
                 self.replayed += 1
                 self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path))
                 continue
+            # Its id in the store, known now so that its log carries it: one number for an
+            # evaluation in its log's name and in every command that shows or takes it.
+            ids[ordinal] = self.store.new_evaluation_id()
             refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
             if refused is not None:
-                self._finish(ordinal, candidate, refused, None)
+                self._finish(ordinal, ids[ordinal], candidate, refused, None)
                 continue
-            name = f"run{self.run_id}-eval{ordinal:05d}"
-            to_fly[ordinal] = (candidate, Job.of(ordinal, self.space, candidate.vector, seed=self.seed, out_dir=self.out_dir, name=name, options=self.options))
+            to_fly[ordinal] = (candidate, Job.of(ordinal, self.space, candidate.vector, seed=self.seed, out_dir=self.out_dir,
+                                                 name=evaluation_name(ids[ordinal]), options=self.options))
         to_confirm: list[tuple[Job, EvaluationResult]] = []
         # A pair is confirmed on both sides where it reveals a difference (PairedFlights), not here.
         flights = self.pairs or self.executor
@@ -177,9 +181,9 @@ class CampaignProblem:
             if result.status == Status.VIOLATION and self.confirm and self.pairs is None:
                 to_confirm.append((job, result))
             else:
-                self._finish(job.key, to_fly[job.key][0], result, job.concrete)
+                self._finish(job.key, ids[job.key], to_fly[job.key][0], result, job.concrete)
         for job, result in self._confirmed(to_confirm):
-            self._finish(job.key, to_fly[job.key][0], result, job.concrete)
+            self._finish(job.key, ids[job.key], to_fly[job.key][0], result, job.concrete)
         if stop is not None or any(c.key not in self._trials for c in candidates):
             raise stop or StopSearch(campaign_done=True)
         return [self._told(self._trials[c.key]) for c in candidates]
@@ -206,9 +210,9 @@ class CampaignProblem:
             confirmed.append((job, replace(result, confirmations=confirmations)))
         return confirmed
 
-    def _finish(self, ordinal: int, candidate: _Candidate, result: EvaluationResult, concrete) -> None:
-        self.store.add_evaluation(self.run_id, ordinal=ordinal, step=self._step.index, optimizer=self._step.optimizer, vector=candidate.vector,
-                                  result=result, concrete=concrete)
+    def _finish(self, ordinal: int, evaluation_id: int, candidate: _Candidate, result: EvaluationResult, concrete) -> None:
+        self.store.add_evaluation(self.run_id, evaluation_id=evaluation_id, ordinal=ordinal, step=self._step.index, optimizer=self._step.optimizer,
+                                  vector=candidate.vector, result=result, concrete=concrete)
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
         self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from harness.campaigns.store import Store, StoredEvaluation
+from harness.campaigns.store import Store, StoredEvaluation, evaluation_name
 from harness.errors import InputError, Problem
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare, flight_times
 from harness.flight.results import EvaluationResult
@@ -161,6 +161,11 @@ def revealing_case(case: StoredEvaluation) -> dict[str, Any]:
     return entry
 
 
+def case_name(case: StoredEvaluation) -> str:
+    """A case's file or folder name: where it was found, and the evaluation's id as its log has it."""
+    return slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-{evaluation_name(case.id)}")
+
+
 def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool = False) -> tuple[dict[str, Any], list[tuple[str, StoredEvaluation]]]:
     """The campaign's SUT and (name, case) for each distinct concrete scenario with fitness below
     `threshold`, plus the `worst` lowest-fitness ones of each run; a scenario found twice comes
@@ -171,14 +176,14 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
     if per_mode:
         from harness.campaigns.triage import triage
 
-        wanted = {(m.worst.scenario_file, m.worst.algorithm, m.worst.run, m.worst.evaluation) for m in triage(store_path).modes}
-        cases = [c for c in cases if (c.scenario_file, c.algorithm, c.run_index, c.ordinal) in wanted]
+        wanted = {m.worst.id for m in triage(store_path).modes}
+        cases = [c for c in cases if c.id in wanted]
     chosen, seen = [], set()
     for case in cases:
         if case.concrete is None or case.vector_key in seen:
             continue
         seen.add(case.vector_key)
-        chosen.append((slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}"), case))
+        chosen.append((case_name(case), case))
     return sut, chosen
 
 
@@ -193,7 +198,7 @@ def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, S
         if case.concrete is None or case.vector_key in seen:
             continue
         seen.add(case.vector_key)
-        chosen.append((slug(f"{Path(case.scenario_file).stem}-{case.algorithm}-run{case.run_index}-eval{case.ordinal}-{case.reveals}"), case))
+        chosen.append((f"{case_name(case)}-{case.reveals}", case))
     return sut, chosen
 
 
@@ -232,7 +237,7 @@ def case_document(name: str, case: StoredEvaluation, sut: Mapping[str, Any], sto
         "sut": dict(sut),
         "found": {
             "fitness": case.fitness, "status": str(case.status), "min_clearance_m": case.min_clearance_m, "store": str(store_path.resolve()),
-            "run": case.run_index, "algorithm": case.algorithm, "evaluation": case.ordinal, "log": case.log_path,
+            "run": case.run_index, "algorithm": case.algorithm, "evaluation": case.id, "log": case.log_path,
             **({"confirmations": case.confirmations, "flaky": case.flaky} if case.confirmations else {}),
         },
         "note": f"{EXPECTATIONS[expect]}; found by {case.algorithm} with fitness {case.fitness:.3f} ({case.status})"

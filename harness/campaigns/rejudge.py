@@ -28,17 +28,17 @@ from harness.flight.differential import Outcome, compare
 class Rejudged:
     """One stored pair whose verdict changed (level or reason)."""
 
+    evaluation_id: int
     scenario: str
     algorithm: str
     run_index: int
-    ordinal: int  # 0-based, as stored
     before: str | None
     why_before: str
     after: str | None
     why_after: str
 
     def text(self) -> str:
-        return (f"{self.scenario} {self.algorithm} run {self.run_index} candidate {self.ordinal + 1}: {self.before or 'no reveal'} "
+        return (f"evaluation {self.evaluation_id} ({self.scenario} {self.algorithm} run {self.run_index}): {self.before or 'no reveal'} "
                 f"({self.why_before}) -> {self.after or 'no reveal'} ({self.why_after})")
 
 
@@ -101,7 +101,7 @@ def rejudge(store: Store, logs_gone: set[str]) -> list[Rejudged]:
                 store.rejudge(evaluation.id, {**pair, **sides})
             continue
         store.rejudge(evaluation.id, {**pair, "reveals": after, "why": verdict.why, **sides})
-        changed.append(Rejudged(evaluation.scenario, evaluation.algorithm, evaluation.run_index, evaluation.ordinal, pair["reveals"], pair["why"],
+        changed.append(Rejudged(evaluation.id, evaluation.scenario, evaluation.algorithm, evaluation.run_index, pair["reveals"], pair["why"],
                                 after, verdict.why))
     return changed
 

@@ -123,7 +123,7 @@ def _worst(store: Store, count: int) -> list[str]:
             clearance = worst.min_clearance_m
             sections.append(
                 f"<h3>{index + 1}. {html.escape(worst.scenario)}: fitness {worst.fitness:.3f} ({worst.status})</h3>"
-                f"<p>{worst.algorithm} run {worst.run_index}, evaluation {worst.ordinal}; min clearance {clearance if clearance is None else round(clearance, 3)} m; "
+                f"<p>evaluation {worst.id} ({worst.algorithm} run {worst.run_index}); min clearance {clearance if clearance is None else round(clearance, 3)} m; "
                 f"log <code>{html.escape(worst.log_path)}</code></p><p><code>{html.escape(json.dumps(environment))}</code></p>{image}"
             )
     return sections
@@ -151,12 +151,12 @@ def _failure_modes(store: Store) -> str:
     if not report.modes:
         return "<p>No violation to triage.</p>"
     spread = report.mean_pairwise_trajectory_distance_m
-    rows = ["<tr><th>violations</th><th>mode</th><th>contact</th><th>near miss</th><th>worst (fitness, log)</th><th>typical (fitness, log)</th></tr>"]
+    rows = ["<tr><th>violations</th><th>mode</th><th>contact</th><th>near miss</th><th>worst (evaluation, fitness, log)</th><th>typical (evaluation, fitness, log)</th></tr>"]
     for mode in report.modes:
         worst, typical = mode.worst, mode.typical
         rows.append(f"<tr><td>{mode.count}</td><td class='text'>{html.escape(mode.mode)}</td><td>{mode.contacts}</td><td>{mode.near_misses}</td>"
-                    f"<td class='text'>{worst.fitness:.3f} <code>{html.escape(worst.log)}</code></td>"
-                    f"<td class='text'>{typical.fitness:.3f} <code>{html.escape(typical.log)}</code></td></tr>")
+                    f"<td class='text'>{worst.id}, {worst.fitness:.3f} <code>{html.escape(worst.log)}</code></td>"
+                    f"<td class='text'>{typical.id}, {typical.fitness:.3f} <code>{html.escape(typical.log)}</code></td></tr>")
     summary = (f"<p>{report.violations} distinct violations in {len(report.modes)} failure modes; mean pairwise trajectory distance "
                f"{'-' if spread is None else f'{spread:.1f} m'}.</p>")
     return summary + f"<table>{''.join(rows)}</table>"
@@ -172,7 +172,7 @@ def _revealing(store: Store) -> list[str]:
         sides = [" / ".join(f"{f['status']} {f['min_clearance_m'] if f['min_clearance_m'] is None else round(f['min_clearance_m'], 3)} m"
                             for f in case.differential[side]) for side in ("subject", "reference")]
         rows.append(f"<tr><td class='text'>{case.reveals}</td><td class='text'>{html.escape(Path(case.scenario_file).stem)}</td>"
-                    f"<td class='text'>{case.algorithm}</td><td>{case.run_index}</td><td>{case.ordinal}</td>"
+                    f"<td class='text'>{case.algorithm}</td><td>{case.run_index}</td><td>{case.id}</td>"
                     f"<td class='text'>{html.escape(sides[0])}</td><td class='text'>{html.escape(sides[1])}</td>"
                     f"<td class='text'>{html.escape(case.differential['why'])}</td><td class='text'><code>{html.escape(str(case.log_path))}</code></td></tr>")
     table = f"<table>{''.join(rows)}</table>" if cases else "<p>No candidate revealed a difference from the reference.</p>"

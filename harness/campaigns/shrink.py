@@ -60,9 +60,9 @@ class Case:
     found: Mapping[str, Any] = field(default_factory=dict)
 
 
-def load_case(path: Path, evaluation: int | None, seed: int | None) -> Case:
+def load_case(path: Path, evaluation: int | str | None, seed: int | None) -> Case:
     """A concrete scenario or regression case (JSON), an evaluation log (MCAP) or a campaign store
-    (SQLite, with `evaluation`: its id)."""
+    (SQLite, with `evaluation`: its id or its log's file name)."""
     if not path.is_file():
         raise InputError([Problem(str(path), "", "no such file: give a concrete scenario or regression case (JSON), "
                                                   "an evaluation log (.mcap) or a campaign store with --evaluation N")])
@@ -79,20 +79,26 @@ def load_case(path: Path, evaluation: int | None, seed: int | None) -> Case:
     return case if seed is None else Case(case.document, seed, case.sut, case.label, case.name, case.found)
 
 
-def _from_store(path: Path, evaluation: int | None) -> Case:
+def _from_store(path: Path, evaluation: int | str | None) -> Case:
     from harness.campaigns.store import Store
 
     if evaluation is None:
         raise InputError([Problem("--evaluation", "", f"{path} is a campaign store: say which evaluation to shrink with --evaluation N "
                                                       "(its id, as `stella triage --json` and the campaign page show it)")])
     with Store.existing(path) as store:
+        if isinstance(evaluation, str):
+            stored = store.evaluation_logged_as(evaluation)
+            if stored is None:
+                raise InputError([Problem(str(path), "--evaluation", f"no evaluation of this store logged as {evaluation}: "
+                                                                     "give the id, or the name of a log in its logs folder")])
+            evaluation = stored.id
         stored = store.evaluation(evaluation)
         sut = store.campaign_sut()
         count = len(store.all_evaluations())
     label = f"{path} evaluation {evaluation}"
     if stored is None:
-        raise InputError([Problem(str(path), "--evaluation", f"no evaluation {evaluation} in this store (it holds {count}, "
-                                                             "by id; `stella triage --json` and the campaign page show the ids)")])
+        raise InputError([Problem(str(path), "--evaluation", f"no evaluation {evaluation} in this store (it holds {count}; "
+                                                             "an evaluation's id is the number in its log's name, as triage and the campaign page show it)")])
     if stored.concrete is None:
         raise InputError([Problem(str(path), "--evaluation", f"evaluation {evaluation} kept no concrete scenario to fly again")])
     found = {"store": str(path.resolve()), "evaluation": evaluation, "run": stored.run_index, "algorithm": stored.algorithm,

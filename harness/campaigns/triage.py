@@ -132,12 +132,11 @@ def mode_name(entry: Mapping[str, Any]) -> str:
 class Example:
     """The evaluation that stands for a failure mode (its worst or its most typical)."""
 
-    id: int
+    id: int  # the evaluation's id in the store, the number in its log's name
     scenario: str
     scenario_file: str
     algorithm: str
     run: int
-    evaluation: int
     fitness: float
     min_clearance_m: float
     log: str
@@ -180,7 +179,7 @@ class _Violation:
 
     def example(self) -> Example:
         e = self.evaluation
-        return Example(e.id, e.scenario, e.scenario_file, e.algorithm, e.run_index, e.ordinal, e.fitness, self.features["min_clearance_m"], e.log_path)
+        return Example(e.id, e.scenario, e.scenario_file, e.algorithm, e.run_index, e.fitness, self.features["min_clearance_m"], e.log_path)
 
 
 def triage(store_path: Path) -> Triage:
@@ -224,7 +223,7 @@ def triage(store_path: Path) -> Triage:
 
 def _skipped(evaluation: StoredEvaluation, why: str) -> dict[str, Any]:
     return {"id": evaluation.id, "scenario": evaluation.scenario, "scenario_file": evaluation.scenario_file, "algorithm": evaluation.algorithm,
-            "run": evaluation.run_index, "evaluation": evaluation.ordinal, "fitness": evaluation.fitness, "log": evaluation.log_path,
+            "run": evaluation.run_index, "fitness": evaluation.fitness, "log": evaluation.log_path,
             "reveals": evaluation.reveals, "why": why}
 
 
@@ -235,8 +234,8 @@ def triage_text(report: Triage) -> str:
              + (f"{spread:.1f} m" if spread is not None else "-")]
     for mode in report.modes:
         lines.append(f"{mode.count:>4}  {mode.mode}  ({mode.contacts} contact, {mode.near_misses} near miss)")
-        lines.append(f"      worst: fitness {mode.worst.fitness:.3f}, {mode.worst.log}")
-        lines.append(f"      typical: fitness {mode.typical.fitness:.3f}, {mode.typical.log}")
+        lines.append(f"      worst: evaluation {mode.worst.id}, fitness {mode.worst.fitness:.3f}, {mode.worst.log}")
+        lines.append(f"      typical: evaluation {mode.typical.id}, fitness {mode.typical.fitness:.3f}, {mode.typical.log}")
     for skipped in report.skipped:
-        lines.append(f"not triaged: {skipped['algorithm']} run {skipped['run']} evaluation {skipped['evaluation']}: {skipped['why']}")
+        lines.append(f"not triaged: evaluation {skipped['id']} ({skipped['algorithm']} run {skipped['run']}): {skipped['why']}")
     return "\n".join(lines)

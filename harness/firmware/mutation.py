@@ -274,7 +274,7 @@ def describe(outcome: Mapping[str, Any]) -> str:
     if outcome["state"] != "survived_suite":
         return f"{outcome['state']}" + (f" ({outcome['level']})" if outcome.get("level") else "") + f" by {outcome.get('case')}: {outcome.get('why')}"
     searches = [(algorithm, scenario, first) for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items()]
-    kills = [f"{algorithm} on {scenario} ({first['level']} at evaluation {first['evaluation']})" for algorithm, scenario, first in searches if first["evaluation"]]
+    kills = [f"{algorithm} on {scenario} ({first['level']} after {first['evaluation']} evaluations)" for algorithm, scenario, first in searches if first["evaluation"]]
     if kills:
         return "survived the suite; killed by " + ", ".join(kills)
     return "survived the suite" + (f"; survived {len(searches)} search{'es' if len(searches) > 1 else ''}" if searches else "")

@@ -17,6 +17,12 @@ def vector_key(x: np.ndarray) -> str:
     return np.ascontiguousarray(np.asarray(x, dtype=np.float64)).tobytes().hex()
 
 
+def evaluation_name(evaluation_id: int) -> str:
+    """The name of an evaluation's log (and of its folder of SUT logs): its id in the store, the
+    number every command shows and takes (`stella shrink DB --evaluation 25` for eval00025.mcap)."""
+    return f"eval{evaluation_id:05d}"
+
+
 @dataclass(frozen=True)
 class StoredEvaluation:
     """One stored evaluation, with the run it belongs to (scenario, algorithm, run index)."""

@@ -136,6 +136,7 @@ class Store:
 
     def __init__(self, path: Path):
         self.path = Path(path)
+        self._last_id_given = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(self.path, timeout=30.0)
         self.db.execute("PRAGMA journal_mode=WAL")
@@ -225,13 +226,23 @@ class Store:
         """A run's evaluations by their vector's key: what a resumed run answers from."""
         return {row.vector_key: row for row in self._evaluations("WHERE e.run_id = ?", (run_id,))}
 
-    def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult, concrete: Mapping[str, Any] | None) -> None:
+    def new_evaluation_id(self) -> int:
+        """The id an evaluation about to fly will be stored under, so that its log can be named by
+        it (`evaluation_name`). An id given out and never stored (a campaign killed in flight) is
+        given out again after a restart."""
+        stored = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM evaluations").fetchone()[0]
+        self._last_id_given = max(stored, self._last_id_given) + 1
+        return self._last_id_given
+
+    def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult,
+                       concrete: Mapping[str, Any] | None, evaluation_id: int | None = None) -> None:
+        """Store an evaluation under `evaluation_id` (from new_evaluation_id), or the next free id."""
         with self.db:
             self.db.execute(
-                "INSERT INTO evaluations (run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
-                " reveals, differential, failures_refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO evaluations (id, run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
+                " reveals, differential, failures_refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
-                    run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
+                    evaluation_id, run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
                     result.min_clearance_m, result.sim_time_s, result.wall_time_s, result.log_path, result.seed, time.time(),
                     json.dumps(result.attempts) if result.attempts else None,
@@ -267,6 +278,13 @@ class Store:
     def lowest(self, count: int, *, logged: bool = False) -> list[StoredEvaluation]:
         """The count lowest-fitness evaluations (logged: of those whose log was kept)."""
         return self._evaluations(f"{'WHERE e.log_path IS NOT NULL' if logged else ''} ORDER BY e.fitness LIMIT ?", (count,))
+
+    def evaluation_logged_as(self, file_name: str) -> StoredEvaluation | None:
+        """The evaluation whose log has this file name, wherever its folder now lies."""
+        for evaluation_id, log_path in self.db.execute("SELECT id, log_path FROM evaluations WHERE log_path IS NOT NULL"):
+            if Path(log_path).name == file_name:
+                return self.evaluation(evaluation_id)
+        return None
 
     def evaluation(self, evaluation_id: int) -> StoredEvaluation | None:
         found = self._evaluations("WHERE e.id = ?", (evaluation_id,))

@@ -10,15 +10,25 @@ from dataclasses import replace
 from pathlib import Path
 
 from harness.campaigns.regression import EXPECTATIONS
-from harness.tools.commands.common import command, emit, non_negative_int, positive_float, positive_int, seed_int
+from harness.tools.commands.common import command, emit, positive_float, positive_int, seed_int
 from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
+
+
+def evaluation_of_store(text: str) -> int | str:
+    """An evaluation's id, or the file name of its log (which older stores named otherwise)."""
+    if text.isdigit():
+        return int(text)
+    if not text.endswith(".mcap"):
+        raise argparse.ArgumentTypeError(f"{text!r} is neither an evaluation's id (a whole number) nor its log's file name (*.mcap)")
+    return Path(text).name
 
 
 def _shrink_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", metavar="CASE|LOG|DB", help="a concrete scenario or regression case (JSON), an evaluation log (.mcap), "
                                                          "or a campaign store with --evaluation")
-    p.add_argument("--evaluation", type=non_negative_int, metavar="N", help="with a campaign store: the id of the evaluation to shrink")
+    p.add_argument("--evaluation", type=evaluation_of_store, metavar="ID|LOG",
+                   help="with a campaign store: the evaluation to shrink, by its id (the number in its log's name, eval00025.mcap is 25) or its log's file name")
     p.add_argument("--out", default="shrunk", help="folder for the shrunk case, its regression case, its log and the journal (default: shrunk/)")
     p.add_argument("--name", help="stem of the files written (default: from the source)")
     p.add_argument("--confirm", type=positive_int, default=1,

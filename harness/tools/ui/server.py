@@ -270,7 +270,7 @@ def triage(name: str = Depends(known), campaigns: Campaigns = Depends(campaigns_
         examples = [mode[which] for mode in report["modes"] for which in ("worst", "typical")]
         stored = {example["id"]: store.evaluation(example["id"]) for example in examples}
     for example in examples:
-        example.update(ordinal=example["evaluation"], status=str(stored[example["id"]].status), concrete=stored[example["id"]].concrete)
+        example.update(status=str(stored[example["id"]].status), concrete=stored[example["id"]].concrete)
     return report
 
 

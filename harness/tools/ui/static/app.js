@@ -199,7 +199,7 @@ async function loadDetails(name) {
     const row = element("tr", null, { class: e.status });
     const cell = element("td");
     if (e.has_log) cell.append(evaluationLink(name, e, "open", "open-evaluation"));
-    row.append(element("td", e.ordinal), element("td", e.scenario), element("td", e.algorithm), element("td", e.run), element("td", e.status),
+    row.append(element("td", e.id), element("td", e.scenario), element("td", e.algorithm), element("td", e.run), element("td", e.status),
       element("td", number(e.fitness), { class: "number" }), element("td", number(e.min_clearance_m), { class: "number" }), cell);
     return row;
   });
@@ -236,7 +236,7 @@ async function triage() {
 
 function showEvaluation(name, e) {
   $("evaluation").hidden = false;
-  $("evaluation-title").textContent = `Evaluation ${e.ordinal} of ${e.algorithm} run ${e.run}: ${e.status}, fitness ${number(e.fitness)}`;
+  $("evaluation-title").textContent = `Evaluation ${e.id} (${e.algorithm} run ${e.run}): ${e.status}, fitness ${number(e.fitness)}`;
   const base = `/api/campaigns/${encodeURIComponent(name)}/evaluations/${e.id}`;
   $("mcap-link").href = `${base}/log.mcap`;
   $("plot").src = `${base}/plot.png`;
