@@ -4,6 +4,7 @@ ULog collection (without PX4), and the generic adapter flying the bundled autopi
 from __future__ import annotations
 
 import json
+import re
 import os
 import stat
 import sys
@@ -15,7 +16,7 @@ import pytest
 
 from conftest import ROOT
 from harness.flight import logs
-from harness.flight.evaluation import _setup_failure, evaluate
+from harness.flight.evaluation import _crash, evaluate
 from harness.flight.results import RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -376,7 +377,7 @@ def test_a_sut_dead_of_a_signal_crashed_the_flight_whoever_is_found_gone_first(t
     with ManagedProcess("bridge", [sys.executable, "-c", f"import time; time.sleep(0.2); raise SystemExit({simulator_exit})"], log_dir=tmp_path) as bridge:
         assert bridge.wait(10.0) == simulator_exit and sut.settled_exit_status() is not None
         # WHEN the harness says why set-up failed, THEN it is the SUT's crash, named by its signal
-        failure = _setup_failure(bridge, sut, "setup: no heartbeat")
+        failure = _crash(bridge, sut, "setup: no heartbeat")
     assert failure.status == "sut_crashed" and "px4 died of SIGSEGV" in failure.why
     sut.stop()
 
@@ -385,6 +386,23 @@ def test_a_simulator_that_failed_while_its_sut_ran_crashed_the_flight(tmp_path):
     sut = start_process("px4", ManagedProcess("px4", [sys.executable, "-c", "import time; time.sleep(30)"], log_dir=tmp_path))
     with ManagedProcess("bridge", [sys.executable, "-c", "raise SystemExit(1)"], log_dir=tmp_path) as bridge:
         bridge.wait(10.0)
-        failure = _setup_failure(bridge, sut, "setup: no heartbeat")
+        failure = _crash(bridge, sut, "setup: no heartbeat")
     sut.stop()
     assert failure.status == "sim_crashed" and "simulator exited with 1" in failure.why
+
+
+@pytest.mark.slow
+def test_a_sut_that_stops_answering_says_when_and_after_what_before_its_console(tmp_path, profile):
+    # GIVEN the bundled autopilot, frozen (SIGSTOP) 0.8 s after it starts: alive, silent on both links
+    stalling = f"sh -c '{AUTOPILOT} & sleep 0.8; kill -STOP $!; wait'"
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    result = evaluate(space, x, seed=1, out_dir=tmp_path, options=RunOptions(sut=SutConfig("command", command=stalling, hold="frozen")))
+    # THEN the flight is the SUT's failure, saying what stopped, when, and what it had last been asked
+    assert result.status == "sut_crashed", result.why
+    # (when depends on the machine's load: before it connected, in set-up or in flight)
+    said = re.fullmatch(r"command (never connected to its simulator link|stopped answering its simulator link "
+                        r"(in set-up, [0-9.]+ s of simulated time after it started|[0-9.]+ s into the flight))"
+                        r"(, after (?P<request>[^;]+))?; command still ran but stopped answering; its console ends: .*", result.why, re.DOTALL)
+    assert said, result.why
+    assert "into the flight" not in result.why or said["request"] in ("the mission was started", "take-off was requested"), result.why

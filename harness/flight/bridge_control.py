@@ -57,6 +57,13 @@ class BridgeControl:
         """The first event of a kind (of any of several) heard so far."""
         return next((event for event in self.events if isinstance(event, kind)), None)
 
+    def heard(self, kind: type[E] | tuple[type[E], ...]) -> E | None:
+        """The first event of a kind (of any of several), once all the simulator sent is read: a
+        simulator that exited may have said why just before."""
+        while not self.closed and select.select([self._sock], [], [], 0.0)[0]:
+            self.poll(0.0)
+        return self.seen(kind)
+
     def wait_for(self, kind: type[E] | tuple[type[E], ...], timeout_s: float, alive: Callable[[], bool] = lambda: True) -> E | None:
         """The first event of a kind (of any of several), waiting up to timeout_s while alive() holds."""
         deadline = time.monotonic() + timeout_s

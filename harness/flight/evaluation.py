@@ -208,13 +208,13 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             timings["start_s"] = time.monotonic() - started
             outcome = _fly(world, options, stack, timings, system)
             # Inside the stack: once it stops the SUT, the exit status is the harness's own SIGTERM.
-            sut_end = stack.sut.how_it_ended() if outcome.end_reason is not None and outcome.end_reason.sut_lost else ""
+            lost = _sut_lost(stack.sut, outcome.summary, stack.session.last_request) if outcome.end_reason is not None and outcome.end_reason.sut_lost else ""
             stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
             stopping = time.monotonic()
         timings["stop_s"] = time.monotonic() - stopping
         failure = outcome.failure
-        if failure is None and outcome.end_reason is not None and outcome.end_reason.sut_lost:
-            failure = Failure(Status.SUT_CRASHED, f"{outcome.end_reason}: {sut_end}")
+        if failure is None and lost:
+            failure = Failure(Status.SUT_CRASHED, lost)
         # The SUT's consoles (*.log) are always kept; its own flight log (a PX4 ULog, about 19 MB)
         # as --sut-logs chooses, once the flight's status is known.
         sut_files = stack.sut.artifacts()
@@ -279,19 +279,19 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             if isinstance(loaded, LoadRefused):
                 return FlightOutcome(Failure(Status.SIM_CRASHED, f"the simulator refused the world: {loaded.why}"), control_summary(control), {})
             if loaded is None:
-                return FlightOutcome(_setup_failure(bridge, sut, "the simulator did not begin the flight"), control_summary(control), {})
+                return FlightOutcome(_setup_failure(stack, control, "the simulator did not begin the flight"), control_summary(control), {})
 
         def discovered() -> Failure | None:
             try:
                 session.discover(options.setup_timeout_s, alive)
             except InfrastructureError as error:
-                return _setup_failure(bridge, sut, str(error))
+                return _setup_failure(stack, control, str(error))
             timings["discover_s"] = time.monotonic() - t0
             return None
 
         def held() -> Failure | None:
             if control.wait_for(Holding, options.setup_timeout_s, alive) is None:
-                return _setup_failure(bridge, sut, "the simulation never reached its hold point")
+                return _setup_failure(stack, control, "the simulation never reached its hold point")
             timings["hold_s"] = time.monotonic() - t0
             return None
 
@@ -332,10 +332,10 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
             else:
                 session.upload_and_start(mission_items(world, system.capabilities.mission_home_item), arm_retry_s)
         except InfrastructureError as error:  # not healthy in time, a parameter refused
-            return FlightOutcome(_setup_failure(bridge, sut, f"setup: {error}"), control_summary(control), {})
+            return FlightOutcome(_setup_failure(stack, control, f"setup: {error}"), control_summary(control), {})
         except Exception as error:  # MAVSDK raises its own error type per plugin, each with a result
             if _unanswered(error):
-                return FlightOutcome(_setup_failure(bridge, sut, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
+                return FlightOutcome(_setup_failure(stack, control, f"setup: the SUT stopped answering: {error}"), control_summary(control), {})
             refused = (Failure(Status.SUT_CRASHED, f"setup: {sut.how_it_ended()} ({error})") if not sut.alive()
                        else Failure(Status.MISSION_FAILED, f"setup: the SUT refused: {error}"))
             return FlightOutcome(refused, control_summary(control), {})
@@ -353,7 +353,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         if finished is None:
             if control.closed:
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
-            crashed = _crash(bridge, sut, "in flight")
+            crashed = _crash(bridge, sut, "in flight", control.heard(Finished), session.last_request)
             if crashed is not None:
                 return FlightOutcome(crashed, control_summary(control), info)
             control.send(Stop())
@@ -390,22 +390,38 @@ def _unanswered(error: Exception) -> bool:
     return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
-def _setup_failure(bridge: ManagedProcess, sut: SutHandle, what: str) -> Failure:
-    return _crash(bridge, sut, what) or Failure(Status.TIMEOUT, what)
+def _setup_failure(stack: Stack, control: BridgeControl, what: str) -> Failure:
+    return _crash(stack.bridge, stack.sut, what, control.heard(Finished), stack.session.last_request) or Failure(Status.TIMEOUT, what)
 
 
-def _crash(bridge: ManagedProcess, sut: SutHandle, what: str) -> Failure | None:
-    """Which of the two died, if one did. A SUT that dies closes its simulator link, and the
-    simulator then ends its flight and exits (EXIT_SUT_LOST): by the time the harness looks, both
-    may be gone. So a SUT that died of a signal crashed the flight whatever the simulator did
-    afterwards, as does one that exited where the simulator says it lost its SUT; otherwise a
-    simulator that exited crashed it."""
+def _crash(bridge: ManagedProcess, sut: SutHandle, what: str, finished: Finished | None = None, last_request: str | None = None) -> Failure | None:
+    """Which of the two died or stopped, if one did. A SUT that dies closes its simulator link,
+    and the simulator then ends its flight and exits (EXIT_SUT_LOST): by the time the harness
+    looks, both may be gone. So a SUT that died of a signal crashed the flight whatever the
+    simulator did afterwards, as does one that exited where the simulator says it lost its SUT,
+    or one the simulator saw stop answering (`finished`, its summary); otherwise a simulator that
+    exited crashed it."""
     sut_status = sut.settled_exit_status()
     simulator_status = bridge.poll()
     if sut_status is not None and (sut_status < 0 or simulator_status in (None, EXIT_SUT_LOST)):
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
+    if finished is not None and (finished.summary["end_reason"].sut_lost or finished.summary["end_reason"] == EndReason.SUT_NEVER_CONNECTED):
+        return Failure(Status.SUT_CRASHED, _sut_lost(sut, finished.summary, last_request))
     if simulator_status is not None:
         return Failure(Status.SIM_CRASHED, f"{what}: simulator exited with {simulator_status}: {bridge.stderr_tail()}")
     if not sut.alive():
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
     return None
+
+
+def _sut_lost(sut: SutHandle, summary: Mapping[str, Any], last_request: str | None) -> str:
+    """What the simulator saw of a SUT it lost, when, and what the harness had last asked of it,
+    before the end of its console: a stalled PX4's last line is often start-up noise printed
+    long before ("uxrce_dds_client: not found")."""
+    what = {EndReason.SUT_STALLED: "stopped answering its simulator link", EndReason.SUT_DISCONNECTED: "closed its simulator link",
+            EndReason.SUT_NEVER_CONNECTED: "never connected to its simulator link"}[summary["end_reason"]]
+    run_time_s = summary.get("run_time_s") or 0.0
+    when = (f" {run_time_s:.1f} s into the flight" if run_time_s > 0.0
+            else "" if summary["end_reason"] == EndReason.SUT_NEVER_CONNECTED
+            else f" in set-up, {summary.get('sim_time_s', 0.0):.1f} s of simulated time after it started")
+    return f"{sut.name} {what}{when}" + (f", after {last_request}" if last_request else "") + f"; {sut.how_it_ended()}"

@@ -121,6 +121,9 @@ class MavsdkSession:
         # -> parameters, None where it has no means; and what each unit's failure set.
         self.failure_params: Callable[[str, str], Mapping[str, float] | None] | None = None
         self._failed_params: dict[str, Mapping[str, float]] = {}
+        # What the harness last asked of the SUT, in words: a SUT that stops answering is
+        # reported with it ("after arming was requested").
+        self.last_request: str | None = None
 
     def restart(self) -> None:
         """A new flight with the same connection (a warm stack's next evaluation): forget what the
@@ -130,6 +133,7 @@ class MavsdkSession:
             self.mission_progress = (0, 0)
         self.failure = None
         self._failed_params = {}
+        self.last_request = None
 
     def discover(self, timeout_s: float = 20.0, alive=lambda: True) -> "MavsdkSession":
         """Wait for the autopilot's heartbeat, giving up early when alive() turns false; with a
@@ -163,6 +167,7 @@ class MavsdkSession:
 
     def wait_healthy(self, timeout_s: float) -> float:
         """Seconds until MAVSDK reports every health check ok and the vehicle armable."""
+        self.last_request = "its health was awaited"
         start = time.monotonic()
         while time.monotonic() - start < timeout_s:
             if self.telemetry.health_all_ok():
@@ -176,6 +181,7 @@ class MavsdkSession:
         as one type is tried as the other (a user's --sut-param cannot know PX4's types)."""
         as_int, as_float = (self.param.set_param_int, int), (self.param.set_param_float, float)
         for name, value in values.items():
+            self.last_request = f"parameter {name} was set"
             attempts = [as_int, as_float] if isinstance(value, int) else [as_float, as_int]
             if not float(value).is_integer():
                 attempts = attempts[:1]
@@ -188,8 +194,10 @@ class MavsdkSession:
                         raise InfrastructureError(f"the SUT refused parameter {name} = {value}: {error}") from None
 
     def upload_and_start(self, items: Sequence[MissionItem], arm_retry_s: float) -> None:
+        self.last_request = "the mission was uploaded"
         self.mission.upload_mission(list(items))
         self.arm(arm_retry_s)
+        self.last_request = "the mission was started"
         self.mission.start_mission()
 
     def arm_and_take_off(self, arm_retry_s: float, command_altitude_m: float | None = None) -> None:
@@ -200,6 +208,7 @@ class MavsdkSession:
         if command_altitude_m is not None:
             self.action.set_takeoff_altitude(float(command_altitude_m))
         self.arm(arm_retry_s)
+        self.last_request = "take-off was requested"
         self.action.takeoff()
 
     def arm(self, retry_for_s: float) -> None:
@@ -209,6 +218,7 @@ class MavsdkSession:
         for 30 s; here up to half of PX4 main's flights did, 2026-11). ArduCopter answers an
         arming its pre-arm checks fail with MAV_RESULT_FAILED: on a loaded machine MAVSDK can
         call it healthy a second before its AHRS has settled ("Arm: Gyros inconsistent")."""
+        self.last_request = "arming was requested"
         deadline = time.monotonic() + retry_for_s
         denials = 0
         while True:
@@ -232,6 +242,7 @@ class MavsdkSession:
         """MAV_CMD_INJECT_FAILURE for a scenario's unit and type ("ok" clears it); the SUT's
         answer by name (SUCCESS, DENIED, UNSUPPORTED, ...)."""
         failure_type = FailureType.OK if kind == "ok" else FailureType(int(TYPE_BY_NAME[kind]))
+        self.last_request = f"the failure of its {unit} was injected" if kind != "ok" else f"its {unit} was restored"
         if self.failure is None and self.failure_params is not None:
             return self._fail_by_params(unit, kind)
         if self.failure is None:
