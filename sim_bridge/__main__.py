@@ -148,8 +148,7 @@ def _range_messages(text: str) -> tuple[str, ...]:
     return names
 
 
-def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None = None) -> int:
-    """inline_sut: a SUT in this process (sut_adapter/inline.py): its link instead of the simulator port."""
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim_bridge", description=__doc__.splitlines()[0])
     parser.add_argument("--world", help="world spec JSON (stella sample --json prints one)")
     parser.add_argument("--sim-port", type=_port, default=4560)
@@ -189,7 +188,11 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     parser.add_argument("--answer-times-echoed", action="store_true",
                         help="the SUT's HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer: a late answer is not taken for a later step's")
     parser.add_argument("-v", "--verbose", action="store_true")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _check(parser: argparse.ArgumentParser, args: argparse.Namespace, inline_sut: Callable[[], SutLink] | None) -> None:
+    """Refuse, through the parser (exit 2), options that cannot go together."""
     if args.serve and not args.control_port:
         parser.error("--serve needs a --control-port: the worlds to fly are named on it")
     if args.serve and args.sim_protocol != "mavlink":
@@ -210,6 +213,22 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         parser.error("--sim-protocol ardupilot-json takes its SUT over UDP on --sim-port: no --sim-socket, no SUT inside this process")
     if args.sim_shared_memory and not shared_memory.AVAILABLE:
         parser.error("--sim-shared-memory: the link through shared memory needs Linux on x86-64; leave it out to use the Unix-domain socket alone")
+
+
+def _listen_for_sut(args: argparse.Namespace) -> socket.socket:
+    """Where the SUT reaches the simulator: a Unix-domain socket, ArduPilot's UDP port, or TCP."""
+    if args.sim_socket is not None:
+        return listen_unix(args.sim_socket)
+    if args.sim_protocol == "ardupilot-json":
+        return ardupilot_link.listen_udp(args.sim_port, args.host)
+    return listen(args.sim_port, args.host)
+
+
+def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None = None) -> int:
+    """inline_sut: a SUT in this process (sut_adapter/inline.py): its link instead of the simulator port."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    _check(parser, args, inline_sut)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr, format="bridge %(levelname)s: %(message)s")
     # The harness stops us with SIGTERM; unwinding finishes the MCAP file.
     signal.signal(signal.SIGTERM, _interrupt)
@@ -229,19 +248,12 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         except OSError as error:
             print(f"--mcap {args.mcap}: cannot write the recording there: {error}", file=sys.stderr)
             return 2
-    sim_listener = None
-    if inline_sut is None:
-        try:
-            if args.sim_socket is not None:
-                sim_listener = listen_unix(args.sim_socket)
-            elif args.sim_protocol == "ardupilot-json":
-                sim_listener = ardupilot_link.listen_udp(args.sim_port, args.host)
-            else:
-                sim_listener = listen(args.sim_port, args.host)
-        except OSError as error:
-            where = f"--sim-socket {args.sim_socket}" if args.sim_socket is not None else f"--sim-port {args.sim_port}"
-            print(f"{where}: cannot listen: {error}", file=sys.stderr)
-            return 2
+    try:
+        sim_listener = None if inline_sut is not None else _listen_for_sut(args)
+    except OSError as error:
+        where = f"--sim-socket {args.sim_socket}" if args.sim_socket is not None else f"--sim-port {args.sim_port}"
+        print(f"{where}: cannot listen: {error}", file=sys.stderr)
+        return 2
     # A SUT inside this process goes when we do: there is no link to keep open for it.
     linger_s = 0.0 if inline_sut is not None else args.linger_s
 

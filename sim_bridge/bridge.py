@@ -378,6 +378,12 @@ class Bridge:
                 time.sleep(max(0.0, world.dt / config.hold_pace - (perf() - t_sent)))
         if unobserved_step is not None:
             self._observe(unobserved_step)
+        return self._finished(splitter, wall_start, wall_run_started, setup_timers)
+
+    def _finished(self, splitter: codec.FrameSplitter, wall_start: float, wall_run_started: float | None, setup_timers: dict[str, float]) -> Summary:
+        """The run's summary once its loop ended: outcome, counts and times (the step timers of
+        the run alone where it held for set-up), with the last of the link and clearance recorded."""
+        world, summary, json_steps = self.world, self.summary, self._json
         self.settle_outcome()
         summary.steps = world.steps
         summary.sim_time_s = world.steps * world.dt
