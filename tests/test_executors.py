@@ -158,3 +158,36 @@ def test_cancel_drops_what_has_not_started_and_reports_what_ran(tmp_path, profil
     assert 1 <= len(results) <= 4
     assert all(result.status == "ok" and result.fitness == FIG4_SEED1_FITNESS for result in results)
     no_leftovers()
+
+
+def test_a_dask_cluster_whose_workers_lack_the_sut_refuses_it_before_the_campaign(tmp_path):
+    from harness.errors import InfrastructureError
+    from harness.execution.dask_executor import build_missing
+    from test_sut_adapters import fake_px4_build
+
+    build = fake_px4_build(tmp_path, "exit 0\n")
+    executor = make_executor("dask", 2)
+    try:
+        # GIVEN a build every worker finds at its path, byte for byte: THEN it may fly
+        executor.check_sut(SutConfig("px4", px4_bin=str(build)))
+        # GIVEN a command SUT whose program no worker has: THEN it is refused, naming the workers
+        with pytest.raises(InfrastructureError, match=r"build is missing on 2 of the cluster's workers: .*the command /nowhere/ap is not found"):
+            executor.check_sut(SutConfig("command", command="/nowhere/ap --sim tcp:127.0.0.1:{sim_port} --api udp:127.0.0.1:{api_port}"))
+    finally:
+        executor.close()
+    # AND a worker whose build at that path is another build says so (its digest differs)
+    program = build / "bin" / "px4"
+    digest = __import__("hashlib").sha256(program.read_bytes()).hexdigest()
+    program.write_text(program.read_text() + "# rebuilt\n")
+    assert "is another build than the campaign's" in build_missing([(str(program), digest)], [], None)
+    assert "is not there" in build_missing([(str(tmp_path / "gone" / "px4"), digest)], [], None)
+
+
+def test_a_campaign_none_of_whose_flights_flew_ends_as_an_infrastructure_failure(tmp_path, capsys):
+    # GIVEN a SUT whose program is not there: every try fails before anything is recorded
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "3", "--attempts", "1",
+                 "--sut", "command", "--sut-command", f"{tmp_path}/ap --sim tcp:127.0.0.1:{{sim_port}} --api udp:127.0.0.1:{{api_port}}",
+                 "--store", str(tmp_path / "c.db"), "--workers", "2"]) == 3
+    # THEN it says that nothing was tested and why, rather than a best fitness
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said.startswith("error: none of the campaign's") and "nothing was tested" in said and f"cannot start {tmp_path}/ap" in said

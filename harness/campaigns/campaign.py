@@ -242,6 +242,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     of every run as it finishes. A differential campaign keeps its reference flights in its store
     unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
+    for sut in filter(None, (config.sut, config.reference)):
+        executor.check_sut(sut)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     documents = config.read()
     campaign_id = store.campaign(config.identity(documents), legacy=config.legacy_identities(documents), sources=config.sources())

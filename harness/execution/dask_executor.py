@@ -8,14 +8,18 @@ keeps losing its workers ends as KilledWorker and counts as a failed try here.
 
 Every worker needs stella installed (the worker image does) and the campaign's log folder at
 the same path (a shared file system on a multi-machine cluster), since that is where each
-evaluation writes its MCAP.
+evaluation writes its MCAP; and the SUT's build at the same path, the same build by its
+digest, which `check_sut` asks every worker before a campaign flies.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import hashlib
 import json
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -27,7 +31,9 @@ from typing import Any, Mapping
 from harness.flight import scratch
 from harness.execution.executor import DEFAULT_ATTEMPTS, DEFAULT_TIMEOUT_S, Executor, Job, WorkerLost, failed_try
 from harness.flight.results import EvaluationResult
+from harness.errors import InfrastructureError
 from harness.flight.fitness import Status
+from sut_adapter import SutConfig, SutError, elsewhere
 from sut_adapter.processes import dies_with_this_process
 
 
@@ -53,6 +59,30 @@ def fly_in_subprocess(document: Mapping[str, Any], timeout_s: float) -> dict[str
         return json.loads(result_file.read_text())
 
 
+def build_missing(programs: list[tuple[str, str]], folders: list[str], command: str | None) -> str | None:
+    """On a worker: why the SUT's build is not there ((program, sha256) pairs, folders, a command
+    SUT's program), or None."""
+    for path, digest in programs:
+        if not Path(path).is_file():
+            return f"{path} is not there"
+        if _sha256(Path(path)) != digest:
+            return f"{path} is another build than the campaign's (its sha256 differs)"
+    for folder in folders:
+        if not Path(folder).is_dir():
+            return f"{folder} is not there"
+    if command is not None and shutil.which(command) is None:
+        return f"the command {command} is not found"
+    return None
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 class DaskExecutor(Executor):
     name = "dask"
 
@@ -72,6 +102,21 @@ class DaskExecutor(Executor):
     @property
     def client(self):
         return self._client
+
+    def check_sut(self, sut: SutConfig) -> None:
+        """Every worker must have the SUT's build at the path the campaign names, the same by its digest."""
+        try:
+            builds = elsewhere.build_folders(sut)
+        except SutError as error:
+            raise InfrastructureError(str(error)) from None
+        programs = [(str(build.folder / build.program), _sha256(build.folder / build.program)) for build in builds if build.program]
+        folders = [str(build.folder) for build in builds if not build.program]
+        command = shlex.split(sut.command)[0] if sut.command else None
+        missing = {worker: why for worker, why in self._client.run(build_missing, programs, folders, command).items() if why}
+        if missing:
+            raise InfrastructureError(f"the {sut.name} SUT's build is missing on {len(missing)} of the cluster's workers: "
+                                      + "; ".join(f"{worker}: {why}" for worker, why in sorted(missing.items()))
+                                      + "; put the same build at the same path on every worker")
 
     def cores_per_evaluation(self) -> int:
         # A scheduler's workers run on machines whose cores this process cannot see.

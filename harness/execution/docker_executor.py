@@ -5,7 +5,9 @@ no network (the bridge, the SUT and MAVSDK talk over the container's own loopbac
 (its own core where there are enough), a memory and a process limit, and the host's user id;
 the job goes in and the result, the MCAP log and the SUT's artifacts come out through a
 folder mounted at /job, and the log is moved beside the campaign's other logs. The container
-is removed afterwards, also when it was killed or overran.
+is removed afterwards, also when it was killed or overran. A SUT's build (a PX4 or ArduPilot
+build folder, an --autopilot-dir) is mounted read-only and the job's configuration names it
+there; `check_sut` starts its programs in a container once, before a campaign flies.
 
 `build_image` makes the worker image; `make_base` makes a Debian base image with debootstrap
 where no image registry can be reached (`stella docker build --make-base`).
@@ -33,6 +35,7 @@ from harness.flight import scratch
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.paths import project_root
+from sut_adapter import SutConfig, SutError, elsewhere
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +117,13 @@ def build_image(base: str, tag: str = IMAGE) -> Iterator[str]:
             log.info("kept the previous worker image %s: %s", previous, error)
 
 
+def _build_volumes(sut: SutConfig) -> dict[str, dict[str, str]]:
+    """The SUT's build folders (a PX4 or ArduPilot build, an autopilot folder), read-only where
+    the job's relocated configuration names them."""
+    points = elsewhere.mount_points(sut)
+    return {str(build.folder): {"bind": points[build.option], "mode": "ro"} for build in elsewhere.build_folders(sut)}
+
+
 class DockerExecutor(Executor):
     name = "docker"
 
@@ -135,13 +145,33 @@ class DockerExecutor(Executor):
     def submit(self, job: Job) -> concurrent.futures.Future:
         return self._threads.submit(self._try, job)
 
+    def check_sut(self, sut: SutConfig) -> None:
+        """Start the SUT's programs in a container as evaluations will have them (its build
+        mounted read-only), or look its command up there."""
+        try:
+            volumes = _build_volumes(sut)
+            check = elsewhere.start_check(sut, elsewhere.mount_points(sut))
+        except SutError as error:
+            raise InfrastructureError(str(error)) from None
+        container = self.client.containers.run(self.image, ["sh", "-c", check], detach=True, network_mode="none", mem_limit=MEMORY_LIMIT,
+                                               user=f"{os.getuid()}:{os.getgid()}", volumes=volumes)
+        try:
+            code = container.wait(timeout=120)["StatusCode"]
+            said = container.logs().decode(errors="replace").strip()
+        finally:
+            container.remove(force=True)
+        if code != 0:
+            raise InfrastructureError(f"the {sut.name} SUT cannot start in the worker image {self.image}: {said or f'its check exited with {code}'}; "
+                                      "fly it with --executor local, or build an image that has what it needs")
+
     def _try(self, job: Job) -> EvaluationResult:
         with self._lock:
             core = self._free_cores.pop(0) if self._free_cores else None
         folder = scratch.folder(job.name)
         try:
             (folder / "out").mkdir()
-            inside = replace(job, out_dir="/job/out")
+            sut = job.options.sut
+            inside = replace(job, out_dir="/job/out", options=replace(job.options, sut=elsewhere.relocated(sut, elsewhere.mount_points(sut))))
             (folder / "job.json").write_text(json.dumps(inside.to_json()))
             return self._fly(job, folder, core)
         finally:
@@ -157,7 +187,7 @@ class DockerExecutor(Executor):
             self.image, ["python", "-m", "harness.execution.worker", "--job", "/job/job.json", "--result", "/job/result.json"],
             detach=True, network_mode="none", nano_cpus=1_000_000_000, mem_limit=MEMORY_LIMIT, pids_limit=PIDS_LIMIT,
             cpuset_cpus=str(core) if core is not None else None, user=f"{os.getuid()}:{os.getgid()}",
-            volumes={str(folder): {"bind": "/job", "mode": "rw"}}, labels={"stella.job": job.name},
+            volumes={str(folder): {"bind": "/job", "mode": "rw"}, **_build_volumes(job.options.sut)}, labels={"stella.job": job.name},
         )
         self.running[job.name] = container.id
         try:

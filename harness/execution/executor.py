@@ -145,6 +145,12 @@ class Executor:
     def recover(self) -> None:
         """Make the executor usable again after a worker died (a pool rebuilt, say)."""
 
+    def check_sut(self, sut: SutConfig) -> None:
+        """Raise InfrastructureError, with one message, where the SUT cannot start where this
+        executor flies (its build missing there, a library the build needs): asked once before a
+        campaign flies, so that it does not crash every evaluation instead. On this machine the
+        SUT's own adapter says so at its start."""
+
     def cores_per_evaluation(self) -> int:
         """Two when every concurrent evaluation can have two of this machine's cores (see
         RunOptions.cores), else one."""

@@ -6,11 +6,13 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-from harness.errors import InputError, Problem
+from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution import registry as executors
+from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
@@ -20,6 +22,7 @@ from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
     from harness.campaigns.campaign import CampaignConfig, RunSummary
+    from harness.flight.results import EvaluationResult
 
 
 def _campaign_options(p: argparse.ArgumentParser) -> None:
@@ -98,6 +101,29 @@ def checked_campaign(argv: Sequence[str]) -> CampaignConfig:
     return campaign_config(parser.parse_args(argv))
 
 
+class UnflownFlights:
+    """Counts the flights that failed before anything was recorded (a SUT that would not start, a
+    worker without the build): a campaign in which every flight did has tested nothing, and
+    ends with exit 3 saying why rather than with a best fitness."""
+
+    def __init__(self) -> None:
+        self.tries = 0
+        self.causes: Counter[str] = Counter()
+
+    def hear(self, result: EvaluationResult) -> None:
+        if result.status == Status.INFEASIBLE:
+            return
+        self.tries += 1
+        if result.log_path is None and result.status in COULD_NOT_FINISH:
+            self.causes[result.why or str(result.status)] += 1
+
+    def check(self) -> None:
+        if self.tries and sum(self.causes.values()) == self.tries:
+            cause, count = self.causes.most_common(1)[0]
+            raise InfrastructureError(f"none of the campaign's {self.tries} flights flew, nothing was tested; "
+                                      + (f"each failed so: {cause}" if count == self.tries else f"{count} failed so: {cause}"))
+
+
 @command("campaign", "search logical scenarios for worst cases; resumable from its store", _campaign_options)
 def cmd_campaign(args: argparse.Namespace) -> int:
     from harness.campaigns.campaign import run_campaign
@@ -122,9 +148,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     # A bar on stderr for people; nothing with --json, where a script reads stdout.
     bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=args.json, dynamic_ncols=True)
 
+    unflown = UnflownFlights()
+
     def progress(result: EvaluationResult) -> None:
         bar.update(1)
         bar.set_postfix_str(f"last {result.status} f={result.fitness:.2f}", refresh=False)
+        unflown.hear(result)
 
     try:
         with store:
@@ -134,6 +163,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     finally:
         bar.close()
         executor.close()
+    unflown.check()
     text = "\n".join(f"{r.scenario} {r.algorithm} run {r.run}: best {r.best_fitness:.3f}, {r.violations} violations, "
                      + (f"{r.revealing} revealing, " if r.revealing is not None else "")
                      + f"{r.flown} flown, {r.replayed} from the store"
