@@ -25,9 +25,9 @@ from test_transport import SIMULATED
 
 pytestmark = pytest.mark.slow
 
-# How far apart two PX4 flights of one concrete scenario came to the wall on this machine
-# (docs/suts.md): its threads' timing differs from run to run.
-PX4_SPREAD_M = 0.25
+# How far apart PX4 pilot flights of one concrete scenario stop before the wall on this machine:
+# 2.50-2.76 m over 8 repeats (docs/suts.md); its threads' timing differs from run to run.
+PX4_SPREAD_M = 0.3
 
 
 @pytest.fixture(scope="module")
@@ -177,8 +177,8 @@ def test_px4_flies_in_containers_as_on_this_machine(engine, tmp_path):
             flown[executor] = opened.all_evaluations()
     # THEN they fly the same candidates, every one in containers flown to its end (not a SUT that
     # could not start), and where both flew to the same outcome their clearances lie within PX4's
-    # own spread from one flight to the next (docs/suts.md: a few centimetres on this wall; PX4
-    # itself ends a flight of the same scenario now ok, now blocked, on a loaded machine)
+    # own spread from one flight to the next (PX4_SPREAD_M; PX4 itself ended a flight of the same
+    # scenario now ok, now blocked, on a loaded machine)
     assert [e.vector_key for e in flown["docker"]] == [e.vector_key for e in flown["local"]]
     assert not {e.status for e in flown["docker"]} & {"sut_crashed", "sim_crashed", "timeout"}
     assert any(e.status == "ok" for e in flown["docker"]) and all(Path(e.log_path).is_file() for e in flown["docker"] if e.status != "infeasible")
