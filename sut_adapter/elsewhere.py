@@ -14,6 +14,10 @@ from pathlib import Path
 from sut_adapter.base import SutConfig, SutError
 
 
+# The start check of a SUT with nothing of this machine's to start (the bundled autopilot).
+NOTHING_TO_CHECK = "true"
+
+
 @dataclass(frozen=True)
 class BuildFolder:
     """A folder of this machine a SUT's configuration names (its build), the option that names
@@ -72,7 +76,7 @@ def start_check(config: SutConfig, mount_points: dict[str, str]) -> str:
     if config.command:
         program = shlex.split(config.command)[0]
         checks.append(f"command -v {shlex.quote(program)} >/dev/null || {{ echo 'the command {program} is not found'; exit 1; }}")
-    return "; ".join(checks) or "true"
+    return "; ".join(checks) or NOTHING_TO_CHECK
 
 
 def mount_points(config: SutConfig, root: str = "/sut") -> dict[str, str]:

@@ -138,6 +138,8 @@ class DockerExecutor(Executor):
         self._free_cores = list(self._cores)
         self._lock = threading.Lock()
         self.running: dict[str, str] = {}  # job name -> container id, for fault tests and cancel
+        # The start checks passed so far (a mutation run checks its SUT before each of its campaigns).
+        self._started_once: set[tuple[str, tuple[str, ...]]] = set()
 
     def cores_per_evaluation(self) -> int:
         return 1  # a container gets one CPU (see _try)
@@ -153,6 +155,9 @@ class DockerExecutor(Executor):
             check = elsewhere.start_check(sut, elsewhere.mount_points(sut))
         except SutError as error:
             raise InfrastructureError(str(error)) from None
+        checked = (check, tuple(sorted(volumes)))
+        if check == elsewhere.NOTHING_TO_CHECK or checked in self._started_once:  # the bundled autopilot is the image's own
+            return
         container = self.client.containers.run(self.image, ["sh", "-c", check], detach=True, network_mode="none", mem_limit=MEMORY_LIMIT,
                                                user=f"{os.getuid()}:{os.getgid()}", volumes=volumes)
         try:
@@ -163,6 +168,7 @@ class DockerExecutor(Executor):
         if code != 0:
             raise InfrastructureError(f"the {sut.name} SUT cannot start in the worker image {self.image}: {said or f'its check exited with {code}'}; "
                                       "fly it with --executor local, or build an image that has what it needs")
+        self._started_once.add(checked)
 
     def _try(self, job: Job) -> EvaluationResult:
         with self._lock:
