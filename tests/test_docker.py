@@ -25,9 +25,10 @@ from test_transport import SIMULATED
 
 pytestmark = pytest.mark.slow
 
-# How far apart PX4 pilot flights of one concrete scenario stop before the wall on this machine:
-# 2.50-2.76 m over 8 repeats (docs/suts.md); its threads' timing differs from run to run.
-PX4_SPREAD_M = 0.3
+# How far apart pilot flights of one concrete scenario stop before the wall on this machine
+# (docs/suts.md): PX4 2.50-2.76 m over 8 repeats, its threads' timing differing from run to run;
+# ArduPilot 0.69-0.71 m over 6.
+SPREAD_M = {"px4": 0.3, "ardupilot": 0.1}
 
 
 @pytest.fixture(scope="module")
@@ -165,24 +166,29 @@ def test_a_command_sut_whose_program_is_not_in_the_image_is_refused(engine, tmp_
     assert f"the command {tmp_path}/my-autopilot is not found" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not os.environ.get("STELLA_PX4_BIN"), reason="STELLA_PX4_BIN is not set: no PX4 SITL build to fly against")
-def test_px4_flies_in_containers_as_on_this_machine(engine, tmp_path):
-    # GIVEN a PX4 pilot-drive campaign on the wall, flown on this machine and in containers
+@pytest.mark.parametrize("sut, build", [
+    pytest.param("px4", "STELLA_PX4_BIN", marks=pytest.mark.skipif(not os.environ.get("STELLA_PX4_BIN"), reason="STELLA_PX4_BIN is not set: no PX4 SITL build")),
+    pytest.param("ardupilot", "STELLA_ARDUPILOT_BIN",
+                 marks=pytest.mark.skipif(not os.environ.get("STELLA_ARDUPILOT_BIN"), reason="STELLA_ARDUPILOT_BIN is not set: no ArduCopter SITL build")),
+])
+def test_real_firmware_flies_in_containers_as_on_this_machine(engine, tmp_path, sut, build):
+    # GIVEN a pilot-drive campaign on the wall (PX4 in Position mode, ArduPilot in Loiter), flown
+    # on this machine and in containers, the build named by the environment
     argv = ["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "4", "--seed", "1",
-            "--sut", "px4", "--drive", "pilot", "--workers", "2", "--json"]
+            "--sut", sut, "--drive", "pilot", "--workers", "2", "--json"]
     flown = {}
     for executor in ("local", "docker"):
         assert main([*argv, "--executor", executor, "--store", str(tmp_path / f"{executor}.db")]) == 0
         with Store.existing(tmp_path / f"{executor}.db") as opened:
             flown[executor] = opened.all_evaluations()
     # THEN they fly the same candidates, every one in containers flown to its end (not a SUT that
-    # could not start), and where both flew to the same outcome their clearances lie within PX4's
-    # own spread from one flight to the next (PX4_SPREAD_M; PX4 itself ended a flight of the same
-    # scenario now ok, now blocked, on a loaded machine)
+    # could not start), and where both flew to the same outcome their clearances lie within the
+    # firmware's own spread from one flight to the next (SPREAD_M; PX4 itself ended a flight of
+    # the same scenario now ok, now blocked, on a loaded machine)
     assert [e.vector_key for e in flown["docker"]] == [e.vector_key for e in flown["local"]]
     assert not {e.status for e in flown["docker"]} & {"sut_crashed", "sim_crashed", "timeout"}
-    assert any(e.status == "ok" for e in flown["docker"]) and all(Path(e.log_path).is_file() for e in flown["docker"] if e.status != "infeasible")
+    assert any(e.status != "infeasible" for e in flown["docker"]) and all(Path(e.log_path).is_file() for e in flown["docker"] if e.status != "infeasible")
     same = [(local, docker) for local, docker in zip(flown["local"], flown["docker"]) if local.status == docker.status and local.min_clearance_m is not None]
     assert same
     for local, docker in same:
-        assert docker.min_clearance_m == pytest.approx(local.min_clearance_m, abs=PX4_SPREAD_M)
+        assert docker.min_clearance_m == pytest.approx(local.min_clearance_m, abs=SPREAD_M[sut])
