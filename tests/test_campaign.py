@@ -393,6 +393,17 @@ def test_an_executor_registered_by_name_is_made_by_that_name_and_listed_when_a_n
 
 
 
+def test_an_evaluation_id_is_given_once_per_store_also_to_two_writers_and_after_a_kill(tmp_path):
+    # GIVEN two writers of one store, and a campaign killed after it reserved ids it never stored
+    first, second = Store(tmp_path / "c.db"), Store(tmp_path / "c.db")
+    given = [first.new_evaluation_id(), second.new_evaluation_id(), first.new_evaluation_id()]
+    first.close()
+    second.close()
+    # THEN no id is given twice: a log named by one always belongs to that evaluation
+    with Store(tmp_path / "c.db") as resumed:
+        assert given == [1, 2, 3] and resumed.new_evaluation_id() == 4
+
+
 @pytest.mark.slow
 def test_an_evaluation_is_one_number_in_its_log_name_its_regression_case_and_shrink(tmp_path):
     # GIVEN a campaign of two runs, so that a run's third candidate is not the store's third
@@ -411,6 +422,8 @@ def test_an_evaluation_is_one_number_in_its_log_name_its_regression_case_and_shr
     assert load_case(store, Path(last.log_path).name, None).found["evaluation"] == last.id
     # AND a regression case says the same number, in its name and in what it found
     assert main(["export-regressions", str(store), "--threshold=inf", "--out", str(tmp_path / "cases")]) == 0
-    for case in (tmp_path / "cases").glob("*.regression.json"):
+    cases = list((tmp_path / "cases").glob("*.regression.json"))
+    assert len(cases) == len({e.vector_key for e in stored if e.concrete is not None})
+    for case in cases:
         found = json.loads(case.read_text())["found"]
         assert case.name.endswith(f"-eval{found['evaluation']:05d}.regression.json") and Path(found["log"]).name == f"eval{found['evaluation']:05d}.mcap"

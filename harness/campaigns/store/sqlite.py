@@ -69,6 +69,9 @@ CREATE TABLE IF NOT EXISTS evaluations (
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
+CREATE TABLE IF NOT EXISTS evaluation_ids (
+    last_given INTEGER NOT NULL
+);
 CREATE TABLE IF NOT EXISTS checkpoints (
     run_id INTEGER NOT NULL REFERENCES runs(id),
     step INTEGER NOT NULL,
@@ -136,7 +139,6 @@ class Store:
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        self._last_id_given = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(self.path, timeout=30.0)
         self.db.execute("PRAGMA journal_mode=WAL")
@@ -228,11 +230,19 @@ class Store:
 
     def new_evaluation_id(self) -> int:
         """The id an evaluation about to fly will be stored under, so that its log can be named by
-        it (`evaluation_name`). An id given out and never stored (a campaign killed in flight) is
-        given out again after a restart."""
-        stored = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM evaluations").fetchone()[0]
-        self._last_id_given = max(stored, self._last_id_given) + 1
-        return self._last_id_given
+        it (`evaluation_name`). Given out once per store, in a transaction of the file: never
+        again after a campaign killed in flight (whose log of that name may lie on disk), nor
+        to another writer of the same file."""
+        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            given = self.db.execute("SELECT MAX(COALESCE((SELECT MAX(id) FROM evaluations), 0), COALESCE((SELECT MAX(last_given) FROM evaluation_ids), 0)) + 1").fetchone()[0]
+            self.db.execute("DELETE FROM evaluation_ids")
+            self.db.execute("INSERT INTO evaluation_ids (last_given) VALUES (?)", (given,))
+            self.db.commit()
+        except BaseException:
+            self.db.rollback()
+            raise
+        return given
 
     def add_evaluation(self, run_id: int, *, ordinal: int, step: int, optimizer: str, vector: np.ndarray, result: EvaluationResult,
                        concrete: Mapping[str, Any] | None, evaluation_id: int | None = None) -> None:
