@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT, TABLE3
 from harness.errors import InputError
-from harness.scenario.logical import load_logical
+from harness.scenario.logical import load_logical, logical_from_document
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, sensor_range_m, world_spec
 from harness.tools.cli import main
@@ -91,15 +91,54 @@ def test_ten_thousand_sampled_points_keep_every_constraint(space, profile):
                 assert footprint_distance(a, (a["a"]["north_m"], a["a"]["east_m"]), other=b) >= profile.min_separation_m - 1e-6
 
 
-def centres_along(obstacle, samples: int = 40) -> list[tuple[float, float]]:
+def centres_along(obstacle, step_m: float = 0.25) -> list[tuple[float, float]]:
+    """Where an obstacle's centre passes on the ground plan, at most step_m apart."""
     points = obstacle.get("path") or [p for p in (obstacle["a"], obstacle["b"]) if p is not None]
-    if len(points) == 1:
-        return [(points[0]["north_m"], points[0]["east_m"])]
-    centres = []
+    centres = [(points[0]["north_m"], points[0]["east_m"])]
     for a, b in zip(points, points[1:]):
-        for t in np.linspace(0.0, 1.0, samples):
+        length = math.hypot(b["north_m"] - a["north_m"], b["east_m"] - a["east_m"])
+        for t in np.linspace(0.0, 1.0, max(2, math.ceil(length / step_m) + 1))[1:]:
             centres.append((a["north_m"] + t * (b["north_m"] - a["north_m"]), a["east_m"] + t * (b["east_m"] - a["east_m"])))
     return centres
+
+
+@pytest.mark.parametrize("motion", ["straight", "arc", "vertical", "waypoints"])
+@pytest.mark.parametrize("form", ["cuboid", "cylinder", "sphere"])
+def test_a_moving_obstacle_keeps_out_of_start_and_landing_all_along_its_path_exactly_when_the_space_says(profile, form, motion):
+    # GIVEN one dynamic obstacle of each form on each kind of path
+    document = json.loads((ROOT / "tests" / "data" / "scenarios" / "moving_arc.json").read_text())
+    obstacle = document["environment"]["obstacles"][0]
+    obstacle.update(form=form, motion=motion)
+    space = SearchSpace(logical_from_document(document, profile, "moving.json"), profile)
+    keep_out, landing = profile.keep_out_radius_m, space.mission.landing_point
+    X = space.sample(np.random.default_rng(11), 60)
+    margins = space.constraint_margins(X)
+    keep_outs = [name for name in margins if "keeps out of" in name]
+    feasible = space.feasible(X)
+    assert 0 < feasible.sum() < len(X)
+    for x, row in zip(X, range(len(X))):
+        if min(abs(margins[name][row]) for name in keep_outs) < 1e-3:
+            continue  # on the boundary: either answer is right
+        # WHEN its footprint's distance to the start and landing points is measured with fcl
+        # along the path the world flies it on
+        [moving] = world_spec(space, x, seed=0).obstacles
+        nearest = min(footprint_distance(moving, centre, point=point) for centre in centres_along(moving) for point in ((0.0, 0.0), landing))
+        # THEN the space calls it clear exactly where it is: a sampled path comes no nearer than
+        # the path itself, and at most half a sample's spacing (0.125 m) farther
+        said = (form, motion, nearest, {name: margins[name][row] for name in keep_outs})
+        if all(margins[name][row] >= 0.0 for name in keep_outs):
+            assert nearest >= keep_out - 1e-6, said
+        else:
+            assert nearest < keep_out + 0.125, said
+
+
+def test_a_point_with_a_value_that_is_not_a_number_is_infeasible_not_an_error(profile):
+    for scenario in ("scenario_12.json", "scenario_07.json"):  # static cuboids; movers
+        space = space_for(ROOT / "scenarios" / "table3" / scenario, profile)
+        X = space.sample_feasible(np.random.default_rng(0), 3)
+        X[1, space._index["obstacle_1.north_m"]] = np.nan
+        assert space.feasible(X).tolist() == [True, False, True]
+        assert all(margin[1] == -np.inf for margin in space.constraint_margins(X).values())
 
 
 def prism(obstacle, north: float, east: float) -> fcl.CollisionObject:

@@ -8,8 +8,9 @@ footprint slid along its centre's path; the distance from a point P to it is tha
 footprint at the origin to the polyline P - path (a Minkowski difference), one shapely call
 for the whole population.
 
-Each distance is signed: where the shapes overlap it is minus a depth, so that a search that
-placed two obstacles on each other is led apart, not left on a flat zero.
+Each distance is signed: where the shapes overlap it is minus a depth (how deep a point or a
+path lies inside a rectangle, the square root of two rectangles' common area), so that a search
+that placed two obstacles on each other is led apart, not left on a flat zero.
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from functools import cached_property
 
 import numpy as np
 import shapely
+
+# A path inside a rectangle is sampled this finely for its depth there.
+DEPTH_STEP_M = 0.25
 
 
 @dataclass(frozen=True)
@@ -32,7 +36,7 @@ class Footprints:
     path_east_m: np.ndarray  # (n, samples)
 
     @classmethod
-    def rectangles(cls, length_m, width_m, yaw_deg, path_north_m, path_east_m) -> "Footprints":
+    def rectangles(cls, *, length_m, width_m, yaw_deg, path_north_m, path_east_m) -> "Footprints":
         """Cuboids: length along the heading yaw_deg (clockwise from north), width across it."""
         yaw = np.radians(np.asarray(yaw_deg, dtype=float))
         half_l, half_w = 0.5 * np.asarray(length_m, dtype=float), 0.5 * np.asarray(width_m, dtype=float)
@@ -44,7 +48,7 @@ class Footprints:
         return cls(shapely.polygons(_xy(corners[..., 0], corners[..., 1])), np.zeros_like(half_l), *_paths(path_north_m, path_east_m))
 
     @classmethod
-    def discs(cls, diameter_m, path_north_m, path_east_m) -> "Footprints":
+    def discs(cls, *, diameter_m, path_north_m, path_east_m) -> "Footprints":
         radius = 0.5 * np.asarray(diameter_m, dtype=float)
         return cls(shapely.points(np.zeros((len(radius), 2))), radius, *_paths(path_north_m, path_east_m))
 
@@ -62,11 +66,7 @@ class Footprints:
         distance = shapely.distance(self.core, relative)
         touching = distance == 0.0
         if touching.any():
-            core, inside = self.core[touching], relative[touching]
-            # A path through a rectangle is as deep as half its stretch inside it; a point, as its
-            # distance to the rectangle's edge.
-            distance[touching] = -(0.5 * shapely.length(shapely.intersection(core, inside)) if self.moving
-                                   else np.nan_to_num(shapely.distance(shapely.get_exterior_ring(core), inside), nan=0.0))
+            distance[touching] = -_deepest_inside(self.core[touching], relative[touching])
         return distance - self.radius_m
 
     @cached_property
@@ -103,6 +103,19 @@ def _translated(geometries: np.ndarray, offset_xy: np.ndarray) -> np.ndarray:
     counts = shapely.get_num_coordinates(geometries)
     repeated = np.repeat(offset_xy, counts, axis=0)
     return shapely.transform(geometries, lambda xy: xy + repeated)
+
+
+def _deepest_inside(polygons: np.ndarray, shapes: np.ndarray) -> np.ndarray:
+    """How far inside each polygon the deepest point of its shape (a point, or a path made dense
+    to DEPTH_STEP_M) lies, from the polygon's edge; 0 for a round footprint's core (a point)."""
+    dense = shapely.segmentize(shapes, DEPTH_STEP_M)
+    coordinates, row = shapely.get_coordinates(dense, return_index=True)
+    points = shapely.points(coordinates)
+    inside = shapely.contains(polygons[row], points)
+    depth = np.where(inside, np.nan_to_num(shapely.distance(shapely.get_exterior_ring(polygons[row]), points), nan=0.0), 0.0)
+    deepest = np.zeros(len(polygons))
+    np.maximum.at(deepest, row, depth)
+    return deepest
 
 
 def _depth_of_point(a: np.ndarray, b: np.ndarray) -> np.ndarray:

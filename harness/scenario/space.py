@@ -337,9 +337,9 @@ class SearchSpace:
             vias = [(self.column(X, f"{prefix}.{via}.north_m"), self.column(X, f"{prefix}.{via}.east_m")) for via in ("via_1", "via_2")]
             path_n, path_e = smooth_points([(north, east), *vias], PATH_SAMPLES // 2)
         if obstacle.form == "cuboid":
-            return Footprints.rectangles(self.column(X, f"{prefix}.length_m"), self.column(X, f"{prefix}.width_m"),
-                                         self.column(X, f"{prefix}.yaw_deg"), path_n, path_e)
-        return Footprints.discs(self.column(X, f"{prefix}.diameter_m"), path_n, path_e)
+            return Footprints.rectangles(length_m=self.column(X, f"{prefix}.length_m"), width_m=self.column(X, f"{prefix}.width_m"),
+                                         yaw_deg=self.column(X, f"{prefix}.yaw_deg"), path_north_m=path_n, path_east_m=path_e)
+        return Footprints.discs(diameter_m=self.column(X, f"{prefix}.diameter_m"), path_north_m=path_n, path_east_m=path_e)
 
     def intruder_speeds(self, X: np.ndarray, index: int) -> np.ndarray:
         """The ground speed of intruder `index` in each row (NaN where its closing speed cannot be had)."""
@@ -347,8 +347,19 @@ class SearchSpace:
         return intruder_speed(self.mission.cruise_speed_m_s, self.column(X, f"{prefix}.crossing_deg"), self.column(X, f"{prefix}.closing_speed_m_s"))
 
     def constraint_margins(self, X: np.ndarray) -> dict[str, np.ndarray]:
-        """Each realism constraint's margin per row; a row is feasible where all are >= 0."""
+        """Each realism constraint's margin per row; a row is feasible where all are >= 0, and a
+        row with a value that is not a number breaks every one (-inf)."""
         X = np.atleast_2d(X)
+        finite = np.isfinite(X).all(axis=1)
+        if finite.all():
+            return self._margins(X)
+        margins = {}
+        for name, margin in self._margins(X[finite]).items():
+            margins[name] = np.full(len(X), -np.inf)
+            margins[name][finite] = margin
+        return margins
+
+    def _margins(self, X: np.ndarray) -> dict[str, np.ndarray]:
         margins: dict[str, np.ndarray] = {}
         keep_out = self.profile.keep_out_radius_m
         landing = self.mission.landing_point
