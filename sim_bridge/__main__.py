@@ -31,7 +31,7 @@ from sim_bridge.bridge import Bridge
 from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPRESSIONS, Recorder
-from sim_bridge.control import EXIT_SUT_LOST, EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
+from sim_bridge.control import EXIT_CUT_SHORT, EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
 from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SocketLink, SutLink
@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
         try:
             summary = fly(world, config, Path(args.mcap), control, connect_sut(control), args.mcap_compression, linger_s)
         except KeyboardInterrupt:  # stopped as its recording was being finished: the file is complete, the harness gone
-            return EXIT_SUT_LOST
+            return EXIT_CUT_SHORT
         finally:
             control.close()
     finally:
@@ -276,7 +276,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
             if args.sim_socket is not None and not args.sim_socket.startswith("@"):
                 os.unlink(args.sim_socket)  # a path's socket file outlives its listener
     print(json.dumps(summary), flush=True)
-    return 0 if summary["end_reason"].normal else EXIT_SUT_LOST
+    return 0 if summary["end_reason"].normal else EXIT_CUT_SHORT
 
 
 def load_world(path: str) -> WorldSpec:
@@ -367,7 +367,7 @@ def _serve(listener: socket.socket, config: BridgeConfig, connect_sut: Callable[
                 print(f"flying {request.world}", file=sys.stderr, flush=True)
                 summary = fly(world, config, Path(request.mcap), control, connect_sut(control), compression, linger_s)
                 if not summary["end_reason"].normal:
-                    return EXIT_SUT_LOST
+                    return EXIT_CUT_SHORT
             finally:
                 control.close()
     except KeyboardInterrupt:

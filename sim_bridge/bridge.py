@@ -378,9 +378,9 @@ class Bridge:
                 time.sleep(max(0.0, world.dt / config.hold_pace - (perf() - t_sent)))
         if unobserved_step is not None:
             self._observe(unobserved_step)
-        return self._finished(splitter, wall_start, wall_run_started, setup_timers)
+        return self._finished(splitter, started_s=wall_start, run_started_s=wall_run_started, setup_timers=setup_timers)
 
-    def _finished(self, splitter: codec.FrameSplitter, wall_start: float, wall_run_started: float | None, setup_timers: dict[str, float]) -> Summary:
+    def _finished(self, splitter: codec.FrameSplitter, *, started_s: float, run_started_s: float | None, setup_timers: dict[str, float]) -> Summary:
         """The run's summary once its loop ended: outcome, counts and times (the step timers of
         the run alone where it held for set-up), with the last of the link and clearance recorded."""
         world, summary, json_steps = self.world, self.summary, self._json
@@ -390,9 +390,9 @@ class Bridge:
         summary.run_time_s = world.run_time(summary.sim_time_s)
         summary.bad_frames = splitter.bad_frames + (json_steps.bad_frames if json_steps is not None else 0)
         summary.skipped_bytes = splitter.skipped_bytes + (json_steps.skipped_bytes if json_steps is not None else 0)
-        summary.wall_time_s = time.perf_counter() - wall_start
-        if wall_run_started is not None:
-            summary.wall_in_run_s = time.perf_counter() - wall_run_started
+        summary.wall_time_s = time.perf_counter() - started_s
+        if run_started_s is not None:
+            summary.wall_in_run_s = time.perf_counter() - run_started_s
             for name, before in setup_timers.items():
                 setattr(summary, name, getattr(summary, name) - before)
         self._flush_link(int(summary.sim_time_s * 1e9))

@@ -43,9 +43,10 @@ from enum import StrEnum
 from typing import Any, ClassVar, Mapping
 
 
-# The simulator's exit code when its SUT never connected, stalled or went away (or when SIGTERM
-# came as its recording was being finished): the harness tells a SUT's crash from its own by it.
-EXIT_SUT_LOST = 3
+# The simulator's exit code when a flight ended otherwise than normally: its SUT never connected,
+# stalled or went away, the hold timed out, the harness went, or SIGTERM came as the recording
+# was being finished. A simulator that failed itself exits otherwise (a Python error: 1).
+EXIT_CUT_SHORT = 3
 
 
 class EndReason(StrEnum):

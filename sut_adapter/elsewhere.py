@@ -16,6 +16,8 @@ from sut_adapter.base import SutConfig, SutError
 
 # The start check of a SUT with nothing of this machine's to start (the bundled autopilot).
 NOTHING_TO_CHECK = "true"
+# How long a program's help may take in a start check before it counts as started.
+HELP_TIMEOUT_S = 30
 
 
 @dataclass(frozen=True)
@@ -71,7 +73,7 @@ def start_check(config: SutConfig, mount_points: dict[str, str]) -> str:
         # A program that cannot be loaded exits 126 or 127 with the loader's complaint; any other
         # end of its help (or timeout's 124 for one that ignores -h) means it started.
         checks.append(f"test -x {program} || {{ echo '{build.program} is not there or not executable'; exit 1; }}; "
-                      f"out=$(timeout 30 {program} -h 2>&1 </dev/null); code=$?; "
+                      f"out=$(timeout {HELP_TIMEOUT_S} {program} -h 2>&1 </dev/null); code=$?; "
                       f"if [ $code -eq 126 ] || [ $code -eq 127 ]; then echo \"{build.program} cannot start: $out\" | head -c 600; exit 1; fi")
     if config.command:
         program = shlex.split(config.command)[0]

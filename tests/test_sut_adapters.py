@@ -374,20 +374,24 @@ def test_a_sut_dead_of_a_signal_crashed_the_flight_whoever_is_found_gone_first(t
     # gives when its SUT's link went, or any other): both gone before the harness looks, as
     # happens with every core busy
     sut = start_process("px4", ManagedProcess("px4", [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"], log_dir=tmp_path))
-    with ManagedProcess("bridge", [sys.executable, "-c", f"import time; time.sleep(0.2); raise SystemExit({simulator_exit})"], log_dir=tmp_path) as bridge:
-        assert bridge.wait(10.0) == simulator_exit and sut.settled_exit_status() is not None
-        # WHEN the harness says why set-up failed, THEN it is the SUT's crash, named by its signal
-        failure = _crash(bridge, sut, "setup: no heartbeat")
+    try:
+        with ManagedProcess("bridge", [sys.executable, "-c", f"import time; time.sleep(0.2); raise SystemExit({simulator_exit})"], log_dir=tmp_path) as bridge:
+            assert bridge.wait(10.0) == simulator_exit and sut.settled_exit_status() is not None
+            # WHEN the harness says why set-up failed, THEN it is the SUT's crash, named by its signal
+            failure = _crash(bridge, sut, "setup: no heartbeat")
+    finally:
+        sut.stop()
     assert failure.status == "sut_crashed" and "px4 died of SIGSEGV" in failure.why
-    sut.stop()
 
 
 def test_a_simulator_that_failed_while_its_sut_ran_crashed_the_flight(tmp_path):
     sut = start_process("px4", ManagedProcess("px4", [sys.executable, "-c", "import time; time.sleep(30)"], log_dir=tmp_path))
-    with ManagedProcess("bridge", [sys.executable, "-c", "raise SystemExit(1)"], log_dir=tmp_path) as bridge:
-        bridge.wait(10.0)
-        failure = _crash(bridge, sut, "setup: no heartbeat")
-    sut.stop()
+    try:
+        with ManagedProcess("bridge", [sys.executable, "-c", "raise SystemExit(1)"], log_dir=tmp_path) as bridge:
+            bridge.wait(10.0)
+            failure = _crash(bridge, sut, "setup: no heartbeat")
+    finally:
+        sut.stop()
     assert failure.status == "sim_crashed" and "simulator exited with 1" in failure.why
 
 

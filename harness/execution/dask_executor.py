@@ -25,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import uuid
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -126,6 +127,10 @@ class DaskExecutor(Executor):
         from distributed import KilledWorker
 
         outer: concurrent.futures.Future = concurrent.futures.Future()
+        # The build as check_sut found it here, by its absolute path: not what a worker's own
+        # environment (STELLA_PX4_BIN) or working directory would make of the job's.
+        sut = job.options.sut
+        job = replace(job, options=replace(job.options, sut=elsewhere.relocated(sut, {b.option: str(b.folder) for b in elsewhere.build_folders(sut)})))
         task = self._client.submit(fly_in_subprocess, job.to_json(), self.timeout_s, key=f"{job.name}-{uuid.uuid4().hex[:8]}", pure=False)
 
         def relay(done) -> None:

@@ -46,6 +46,8 @@ DEBIAN_MIRROR = "http://deb.debian.org/debian"
 HOST_CA = Path("/etc/ssl/certs/ca-certificates.crt")
 MEMORY_LIMIT = "2g"
 PIDS_LIMIT = 512
+# A start check runs the SUT's programs' help (sut_adapter.elsewhere, 30 s each at most).
+START_CHECK_TIMEOUT_S = 120.0
 
 
 def engine():
@@ -158,13 +160,19 @@ class DockerExecutor(Executor):
         checked = (check, tuple(sorted(volumes)))
         if check == elsewhere.NOTHING_TO_CHECK or checked in self._started_once:  # the bundled autopilot is the image's own
             return
-        container = self.client.containers.run(self.image, ["sh", "-c", check], detach=True, network_mode="none", mem_limit=MEMORY_LIMIT,
-                                               user=f"{os.getuid()}:{os.getgid()}", volumes=volumes)
+        import docker
+        import requests
+
         try:
-            code = container.wait(timeout=120)["StatusCode"]
-            said = container.logs().decode(errors="replace").strip()
-        finally:
-            container.remove(force=True)
+            container = self.client.containers.run(self.image, ["sh", "-c", check], detach=True, network_mode="none", mem_limit=MEMORY_LIMIT,
+                                                   user=f"{os.getuid()}:{os.getgid()}", volumes=volumes, labels={"stella.job": "start-check"})
+            try:
+                code = container.wait(timeout=START_CHECK_TIMEOUT_S)["StatusCode"]
+                said = container.logs().decode(errors="replace").strip()
+            finally:
+                container.remove(force=True)
+        except (docker.errors.DockerException, requests.exceptions.RequestException) as error:
+            raise InfrastructureError(f"could not check that the {sut.name} SUT starts in {self.image}: {error}") from None
         if code != 0:
             raise InfrastructureError(f"the {sut.name} SUT cannot start in the worker image {self.image}: {said or f'its check exited with {code}'}; "
                                       "fly it with --executor local, or build an image that has what it needs")

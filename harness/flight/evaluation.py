@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import signal
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
@@ -28,7 +29,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
-from sim_bridge.control import EXIT_SUT_LOST, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
+from sim_bridge.control import EXIT_CUT_SHORT, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
@@ -353,7 +354,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         if finished is None:
             if control.closed:
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
-            crashed = _crash(bridge, sut, "in flight", control.heard(Finished), session.last_request)
+            crashed = _crash(bridge, sut, "in flight", finished=control.heard(Finished), last_request=session.last_request)
             if crashed is not None:
                 return FlightOutcome(crashed, control_summary(control), info)
             control.send(Stop())
@@ -391,19 +392,20 @@ def _unanswered(error: Exception) -> bool:
 
 
 def _setup_failure(stack: Stack, control: BridgeControl, what: str) -> Failure:
-    return _crash(stack.bridge, stack.sut, what, control.heard(Finished), stack.session.last_request) or Failure(Status.TIMEOUT, what)
+    return _crash(stack.bridge, stack.sut, what, finished=control.heard(Finished), last_request=stack.session.last_request) or Failure(Status.TIMEOUT, what)
 
 
-def _crash(bridge: ManagedProcess, sut: SutHandle, what: str, finished: Finished | None = None, last_request: str | None = None) -> Failure | None:
+def _crash(bridge: ManagedProcess, sut: SutHandle, what: str, *, finished: Finished | None = None, last_request: str | None = None) -> Failure | None:
     """Which of the two died or stopped, if one did. A SUT that dies closes its simulator link,
-    and the simulator then ends its flight and exits (EXIT_SUT_LOST): by the time the harness
+    and the simulator then ends its flight and exits (EXIT_CUT_SHORT): by the time the harness
     looks, both may be gone. So a SUT that died of a signal crashed the flight whatever the
-    simulator did afterwards, as does one that exited where the simulator says it lost its SUT,
-    or one the simulator saw stop answering (`finished`, its summary); otherwise a simulator that
-    exited crashed it."""
+    simulator did afterwards (but SIGPIPE, which a simulator that went first sends), as does one
+    that exited where the simulator cut the flight short, or one the simulator saw stop
+    answering (`finished`, its summary); otherwise a simulator that exited crashed it."""
     sut_status = sut.settled_exit_status()
     simulator_status = bridge.poll()
-    if sut_status is not None and (sut_status < 0 or simulator_status in (None, EXIT_SUT_LOST)):
+    died_of_its_own = sut_status is not None and sut_status < 0 and -sut_status != signal.SIGPIPE
+    if sut_status is not None and (died_of_its_own or simulator_status in (None, EXIT_CUT_SHORT)):
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
     if finished is not None and (finished.summary["end_reason"].sut_lost or finished.summary["end_reason"] == EndReason.SUT_NEVER_CONNECTED):
         return Failure(Status.SUT_CRASHED, _sut_lost(sut, finished.summary, last_request))

@@ -120,7 +120,7 @@ class UnflownFlights:
     def check(self) -> None:
         if self.tries and sum(self.causes.values()) == self.tries:
             cause, count = self.causes.most_common(1)[0]
-            raise InfrastructureError(f"none of the campaign's {self.tries} flights flew, nothing was tested; "
+            raise InfrastructureError(f"none of the {self.tries} flights this campaign made now flew, they tested nothing; "
                                       + (f"each failed so: {cause}" if count == self.tries else f"{count} failed so: {cause}"))
 
 

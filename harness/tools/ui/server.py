@@ -251,7 +251,7 @@ def details(name: str = Depends(known), campaigns: Campaigns = Depends(campaigns
         comparison = compare(store, _baseline(campaigns, name))
         lowest = store.lowest(200)
     return {"name": name, "comparison": comparison, "console": console, "command": command,
-            "evaluations": [{"id": e.id, "scenario": e.scenario, "algorithm": e.algorithm, "run": e.run_index, "ordinal": e.ordinal,
+            "evaluations": [{"id": e.id, "scenario": e.scenario, "algorithm": e.algorithm, "run": e.run_index,
                              "status": str(e.status), "fitness": e.fitness, "min_clearance_m": e.min_clearance_m, "concrete": e.concrete,
                              "has_log": e.log_path is not None} for e in lowest]}
 
