@@ -12,19 +12,20 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from harness.campaigns.store import Store, StoredEvaluation, evaluation_name
 from harness.errors import InputError, Problem
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare, flight_times
+from harness.flight.evaluation import infeasible
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
-from harness.scenario.world import space_from_concrete, with_drive_recorded
+from harness.scenario.world import load_concrete, space_from_concrete, with_drive_recorded
 from sut_adapter import SutConfig
 
 FORMAT = "stella.regression/1"
@@ -71,6 +72,37 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
     return Regression(path, document["name"], document["expect"], document["seed"],
                       SutConfig(document["sut"]["name"], dict(document["sut"].get("params", {})), document["sut"].get("fault")), concrete, document.get("found", {}), space, x,
                       document.get("reference"))
+
+
+def suite_cases(paths: Sequence[str], drive: str | None) -> list[tuple[str, Any, Any, int]]:
+    """(name, space, vector, seed) of each case: regression cases (their seed) and concrete
+    scenarios (seed 0), a folder standing for the cases in it."""
+    files: list[Path] = []
+    for given in map(Path, paths):
+        if given.is_dir():
+            inside = sorted([*given.glob(f"*{SUFFIX}"), *(p for p in given.glob("*.json") if not p.name.endswith(SUFFIX))])
+            if not inside:
+                raise InputError([Problem(str(given), "", f"no regression cases (*{SUFFIX}) or concrete scenarios (*.json) in this folder")])
+            files += inside
+        else:
+            files.append(given)
+    cases = []
+    for path in files:
+        if path.name.endswith(SUFFIX):
+            regression = load_regression(path, drive)
+            space, x, seed = regression.space, regression.x, regression.seed
+        else:
+            space, x = load_concrete(path, drive)
+            seed = 0
+        refused = infeasible(space, x, seed=seed, sut="suite")
+        if refused is not None:
+            raise InputError([Problem(str(path), "", f"the case is infeasible ({refused.why}): it can tell no two builds apart; drop it")])
+        cases.append((slug(path.name.removesuffix(SUFFIX).removesuffix(".json")), space, x, seed))
+    names = [name for name, *_ in cases]
+    doubled = sorted({name for name in names if names.count(name) > 1})
+    if doubled:
+        raise InputError([Problem("--suite", "", f"two cases are named {doubled[0]}: rename one, a case's name is its test's")])
+    return cases
 
 
 def describe(result: EvaluationResult, safety_distance_m: float) -> str:
@@ -145,13 +177,14 @@ def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: 
     return None
 
 
-def revealing_case(case: StoredEvaluation) -> dict[str, Any]:
-    """The `reference` entry of a revealing case (expect as_reference) from its stored pair."""
-    flights = case.differential["reference"]
-    subject, reference = [Outcome.from_dict(f) for f in case.differential["subject"]], [Outcome.from_dict(f) for f in flights]
+def reference_entry(differential: Mapping[str, Any], level: str) -> dict[str, Any]:
+    """The `reference` entry of a revealing case (expect as_reference) from its pair's flights
+    (pairs.record), revealing at `level`."""
+    flights = differential["reference"]
+    subject, reference = [Outcome.from_dict(f) for f in differential["subject"]], [Outcome.from_dict(f) for f in flights]
     clearances = [f["min_clearance_m"] for f in flights]
     timed_by, _, times = flight_times(subject, reference)
-    entry = {"level": str(case.reveals), "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
+    entry = {"level": level, "min_clearance_m": min(clearances), "max_clearance_m": max(clearances),
              "tolerance_m": max(CLEARANCE_RESOLUTION_M, max(clearances) - min(clearances)), "statuses": sorted({f["status"] for f in flights}),
              "first_touchdown_s" if timed_by == "touchdown" else "sim_time_s": [min(times), max(times)],
              "time_tolerance_s": max(TIME_RESOLUTION_S, max(times) - min(times))}
@@ -246,5 +279,5 @@ def case_document(name: str, case: StoredEvaluation, sut: Mapping[str, Any], sto
         "concrete_scenario": case.concrete,
     }
     if revealing:
-        document["reference"] = revealing_case(case)
+        document["reference"] = reference_entry(case.differential, str(case.reveals))
     return document

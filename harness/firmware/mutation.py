@@ -35,17 +35,15 @@ from scipy.stats import fisher_exact
 from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
 from harness.campaigns.rejudge import Rejudgement, complete_references, rejudge as rejudge_store
-from harness.campaigns.regression import SUFFIX, load_regression
+from harness.campaigns.regression import suite_cases
 from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.firmware.mutants import BUILT, load_index, write_json_atomically
-from harness.flight.evaluation import infeasible
 from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
-from harness.scenario.world import load_concrete
 from sut_adapter import SutConfig
 
 RUN = "run.json"
@@ -83,19 +81,7 @@ def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
 
 
 def _suite_cases(plan: MutationPlan) -> list[tuple[str, Any, Any, int]]:
-    """(name, space, vector, seed) of each suite case."""
-    cases = []
-    for path in map(Path, plan.suite):
-        if path.name.endswith(SUFFIX):
-            regression = load_regression(path, plan.drive)
-            space, x, seed = regression.space, regression.x, regression.seed
-        else:
-            space, x = load_concrete(path, plan.drive)
-            seed = 0
-        refused = infeasible(space, x, seed=seed, sut="suite")
-        if refused is not None:
-            raise InputError([Problem(str(path), "", f"the suite case is infeasible ({refused.why}): it can kill nothing; drop it")])
-        cases.append((slug(path.name.removesuffix(SUFFIX).removesuffix(".json")), space, x, seed))
+    cases = suite_cases(plan.suite, plan.drive)
     if not cases:
         raise InputError([Problem("--suite", "", "no suite cases: give regression cases or concrete scenarios to screen every mutant with")])
     return cases

@@ -121,11 +121,12 @@ def flight_times(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> tu
     return "flight time", [o.sim_time_s for o in subject], [o.sim_time_s for o in reference]
 
 
-def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict:
-    """The verdict on all flights of a pair (each side at least one)."""
+def compare(subject: Sequence[Outcome], reference: Sequence[Outcome], names: tuple[str, str] = ("subject", "reference")) -> Verdict:
+    """The verdict on all flights of a pair (each side at least one); `names` call the sides in its words."""
+    mine, theirs = names
     if not subject or not reference:
         raise ValueError("a pair needs at least one flight of each side")
-    for side, outcomes in (("subject", subject), ("reference", reference)):
+    for side, outcomes in ((mine, subject), (theirs, reference)):
         unfinished = [o for o in outcomes if o.status in COULD_NOT_FINISH or o.min_clearance_m is None]
         if unfinished:
             return Verdict(None, f"the {side} could not finish a flight ({unfinished[0].status}: {unfinished[0].why})", False)
@@ -134,16 +135,16 @@ def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict
     if all(subject_violates) and not any(reference_violates):
         worst = min(o.min_clearance_m for o in subject)
         kept = min(o.min_clearance_m for o in reference)
-        return Verdict(Reveal.UNSAFE, f"the subject violates (min clearance {worst:.2f} m) where the reference keeps {kept:.2f} m", True)
+        return Verdict(Reveal.UNSAFE, f"the {mine} violates (min clearance {worst:.2f} m) where the {theirs} keeps {kept:.2f} m", True)
     subject_statuses = {o.status for o in subject}
     reference_statuses = {o.status for o in reference}
     if not subject_statuses & reference_statuses:
-        return Verdict(Reveal.BEHAVIOUR, f"the subject ends {'/'.join(sorted(subject_statuses))} where the reference ends "
+        return Verdict(Reveal.BEHAVIOUR, f"the {mine} ends {'/'.join(sorted(subject_statuses))} where the {theirs} ends "
                                          f"{'/'.join(sorted(reference_statuses))}", True, Difference.STATUS)
     apart = _apart([o.min_clearance_m for o in subject], [o.min_clearance_m for o in reference], CLEARANCE_RESOLUTION_M)
     if apart is not None:
         gap, farther = apart
-        return Verdict(Reveal.BEHAVIOUR, f"min clearance {_interval([o.min_clearance_m for o in subject])[0]:.2f} m against the reference's "
+        return Verdict(Reveal.BEHAVIOUR, f"min clearance {_interval([o.min_clearance_m for o in subject])[0]:.2f} m against the {theirs}'s "
                                          f"{_interval([o.min_clearance_m for o in reference])[0]:.2f} m ({gap:.2f} m beyond its spread)", True,
                        Difference.FARTHER if farther else Difference.CLOSER)
     if subject_statuses <= FLOWN_TO_THE_END and reference_statuses <= FLOWN_TO_THE_END:
@@ -151,9 +152,9 @@ def compare(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> Verdict
         apart = _apart(subject_times, reference_times, TIME_RESOLUTION_S)
         if apart is not None:
             gap, longer = apart
-            return Verdict(Reveal.BEHAVIOUR, f"{timed_by} {subject_times[0]:.1f} s against the reference's {reference_times[0]:.1f} s "
+            return Verdict(Reveal.BEHAVIOUR, f"{timed_by} {subject_times[0]:.1f} s against the {theirs}'s {reference_times[0]:.1f} s "
                                              f"({gap:.1f} s beyond its spread)", True, Difference.LONGER if longer else Difference.SHORTER)
-    return Verdict(None, "no difference beyond the reference's spread", True)
+    return Verdict(None, f"no difference beyond the {theirs}'s spread", True)
 
 
 def objective_value(objective: str, subject: Outcome, reference: Outcome) -> float:

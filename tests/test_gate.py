@@ -1,0 +1,145 @@
+"""`stella gate`: the verdict on each pair, the configuration file, and the whole gate against the
+bundled autopilot built from this checkout (base: HEAD; head: HEAD with a real-looking fault,
+collision prevention's sensor delay dropped from its stopping distance)."""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import json
+import sqlite3
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from harness.campaigns.gate import CHANGE, REGRESSION, SAME, UNJUDGED, judge
+from harness.campaigns.gate_config import load_config
+from harness.errors import InputError
+from harness.flight.differential import Outcome
+from harness.flight.fitness import Status
+from harness.tools.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "scenarios" / "examples"
+DELAY_LINE = '    delay = 0.0 if fault == "cp_ignores_delay" else params["CP_DELAY"]\n'
+
+
+def flight(status: Status, clearance: float | None, time_s: float = 60.0) -> Outcome:
+    return Outcome(status, 0.0 if clearance is None else clearance - 1.0, clearance, time_s, first_touchdown_s=time_s if clearance is not None else None)
+
+
+OK, BLOCKED, VIOLATION, CRASHED = Status.OK, Status.MISSION_FAILED, Status.VIOLATION, Status.SUT_CRASHED
+
+
+@pytest.mark.parametrize("head, base, closer_m, verdict, kind", [
+    ([flight(VIOLATION, 0.3)], [flight(OK, 1.6)], 0.0, REGRESSION, "unsafe"),
+    ([flight(OK, 2.0)], [flight(OK, 2.6)], 0.0, REGRESSION, "closer"),
+    # closer by 0.6 m, but the team allows 1 m
+    ([flight(OK, 2.0)], [flight(OK, 2.6)], 1.0, CHANGE, "closer"),
+    # closer by 0.3 m, where the base's own flights spread by 0.4 m
+    ([flight(OK, 2.0), flight(OK, 2.05)], [flight(OK, 2.35), flight(OK, 2.75)], 0.0, SAME, None),
+    ([flight(OK, 3.0)], [flight(OK, 2.0)], 0.0, CHANGE, "farther"),
+    # held back for good where the base flies its mission to the end, and the other way round
+    ([flight(BLOCKED, 2.0)], [flight(OK, 2.0)], 0.0, REGRESSION, "status"),
+    ([flight(OK, 2.0)], [flight(BLOCKED, 2.0)], 0.0, CHANGE, "status"),
+    ([flight(OK, 2.0, 70.0)], [flight(OK, 2.0, 60.0)], 0.0, CHANGE, "longer"),
+    ([flight(CRASHED, None)], [flight(OK, 2.0)], 0.0, REGRESSION, "crash"),
+    ([flight(OK, 2.0)], [flight(CRASHED, None)], 0.0, UNJUDGED, None),
+    ([flight(OK, 2.0)], [flight(OK, 2.02)], 0.0, SAME, None),
+])
+def test_a_pair_fails_the_gate_only_where_the_head_is_worse_beyond_the_bases_spread(head, base, closer_m, verdict, kind):
+    judgement = judge(head, base, closer_m)
+    assert (judgement.verdict, judgement.kind) == (verdict, kind), judgement.why
+    assert "subject" not in judgement.why and "reference" not in judgement.why  # in the gate's words: head and base
+
+
+def test_the_configuration_file_is_read_relative_to_itself_and_every_bad_key_is_named(tmp_path):
+    config = tmp_path / "stella.toml"
+    config.write_text('[gate]\nsut = "px4"\nsuite = ["cases"]\ndrive = "pilot"\nbudget_minutes = 20\n[gate.sut_params]\nCP_DIST = 1.5\n')
+    read = load_config(config)
+    assert read["suite"] == [str(tmp_path / "cases")] and read["sut_params"] == {"CP_DIST": 1.5} and read["budget_minutes"] == 20
+    config.write_text('[gate]\nsut = "inav"\nbudget_flights = 0\nrig = "sf45"\nsuite = "cases"\n')
+    with pytest.raises(InputError) as refused:
+        load_config(config)
+    said = str(refused.value)
+    assert f"{config}: /gate/sut: 'inav' is not one of px4, ardupilot, bundled" in said
+    assert f"{config}: /gate/budget_flights: 0 is not a whole number of search candidates, 1 or more" in said
+    assert f"{config}: /gate/rig: unknown key; the gate reads sut, suite" in said
+    assert f"{config}: /gate/suite: 'cases' is not a list" in said
+    config.write_text('[gate\nsut = "px4"\n')
+    with pytest.raises(InputError, match="not TOML"):
+        load_config(config)
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["--sut", "bundled", "--base-build", "."], "--head-build: give both sides' builds"),
+    (["--sut", "bundled", "--source", "."], "--source: give the tree and the base commit"),
+    (["--sut", "ardupilot", "--source", ".", "--base", "HEAD"], "build ArduCopter's two commits with waf"),
+    (["--source", ".", "--base", "HEAD"], "--sut: say what the firmware is"),
+    (["--sut", "bundled", "--source", ".", "--base", "no-such-commit", "--suite", str(EXAMPLES / "wall_concrete.json")], "is not a commit of"),
+])
+def test_a_gate_asked_wrongly_says_what_to_give_and_exits_2(argv, said, tmp_path, capsys):
+    assert main(["gate", *argv, "--out", str(tmp_path / "out"), "--cache", str(tmp_path / "cache")]) == 2
+    assert said in capsys.readouterr().err
+
+
+def fault_patch(folder: Path) -> Path:
+    """A diff of this checkout's collision prevention that leaves the sensor delay out of its stopping distance."""
+    source = (ROOT / "autopilot" / "collision.py").read_text().splitlines(keepends=True)
+    assert DELAY_LINE in source
+    faulty = ["    delay = 0.0  # the estimator compensates the sensor delay already\n" if line == DELAY_LINE else line for line in source]
+    patch = folder / "ignores_delay.patch"
+    patch.write_text("".join(difflib.unified_diff(source, faulty, "a/autopilot/collision.py", "b/autopilot/collision.py")))
+    return patch
+
+
+def junit_cases(path: Path) -> dict[str, str]:
+    """Each test case of a JUnit file and how it ended."""
+    ended = {}
+    for case in ET.parse(path).getroot().iter("testcase"):
+        kinds = [child.tag for child in case if child.tag in ("failure", "error", "skipped")]
+        ended[f"{case.get('classname')}::{case.get('name')}"] = kinds[0] if kinds else "passed"
+    return ended
+
+
+@pytest.mark.slow
+def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself(tmp_path, capsys, pytester):
+    cache = tmp_path / "cache"
+    gate = ["gate", "--sut", "bundled", "--source", str(ROOT), "--base", "HEAD", "--suite", str(EXAMPLES / "wall_concrete.json"),
+            "--scenario", str(EXAMPLES / "wall.json"), "--budget-flights", "6", "--workers", "2", "--cache", str(cache)]
+    # WHEN the head is the base with the fault
+    out = tmp_path / "faulty"
+    assert main([*gate, "--patch", str(fault_patch(tmp_path)), "--out", str(out)]) == 1
+    # THEN the summary leads with the verdict, and names the suite case the head violates in
+    summary = (out / "summary.md").read_text()
+    assert summary.startswith("## stella gate: FAILED. The head is less safe than its base")
+    assert "### 1. wall_concrete (suite case): the head unsafe" in summary and "the head violates" in summary
+    ended = junit_cases(out / "junit.xml")
+    assert ended["stella.gate.suite::wall_concrete"] == "failure" and ended["stella.gate.search::wall.json"] in ("passed", "failure")
+    result = json.loads((out / "gate.json").read_text())
+    assert result["passed"] is False and result["regressions"][0]["kind"] == "unsafe"
+    assert result["searches"][0]["evaluated"] == 6
+    # and its bundle holds the case, both flights and the explanation of the head's
+    bundle = Path(result["regressions"][0]["bundle"])
+    assert {"case.regression.json", "concrete.json", "head.mcap", "base.mcap", "flight.png", "explanation.txt", "FINDING.md"} <= {
+        p.name for p in bundle.iterdir()}
+    # whose case fails on the head's build and passes on the base's
+    head_dir, base_dir = result["head"]["folder"], result["base"]["folder"]
+    for folder, outcome in ((head_dir, {"failed": 1}), (base_dir, {"passed": 1})):
+        flown = pytester.runpytest_subprocess(str(bundle / "case.regression.json"), "-p", "no:cacheprovider", "--stella-autopilot-dir", folder,
+                                              "--stella-out", str(tmp_path / "case-logs"))
+        flown.assert_outcomes(**outcome)
+
+    # WHEN the base is gated against itself, twice
+    with contextlib.closing(sqlite3.connect(cache / "base_flights.db")) as flights:
+        cached = flights.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0]
+    for run in ("same", "same-again"):
+        capsys.readouterr()
+        assert main([*gate, "--out", str(tmp_path / run)]) == 0
+        assert (tmp_path / run / "summary.md").read_text().startswith("## stella gate: passed")
+        assert set(junit_cases(tmp_path / run / "junit.xml").values()) == {"passed"}
+    # THEN the base's flights came from the cache: the searches asked for the same candidates
+    with contextlib.closing(sqlite3.connect(cache / "base_flights.db")) as flights:
+        assert flights.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0] == cached
+    assert "from the cache" in json.loads((tmp_path / "same-again" / "gate.json").read_text())["base"]["described"]
