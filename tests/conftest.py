@@ -3,6 +3,7 @@ from __future__ import annotations
 import os
 import socket
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -198,3 +199,22 @@ def chunk_compressions(stream) -> set[str]:
     from mcap.stream_reader import StreamReader
 
     return {record.compression for record in StreamReader(stream, emit_chunks=True).records if isinstance(record, Chunk)}
+
+
+# A realistic fault for the gate's tests: collision prevention's stopping distance without the
+# distance flown during the sensor's delay (the seeded fault cp_ignores_delay, written as a change).
+DELAY_LINE = '    delay = 0.0 if fault == "cp_ignores_delay" else params["CP_DELAY"]\n'
+
+
+def without_sensor_delay(collision_source: str) -> str:
+    assert DELAY_LINE in collision_source, "autopilot/collision.py changed: make the gate's fault again"
+    return collision_source.replace(DELAY_LINE, "    delay = 0.0  # the estimator compensates the sensor delay already\n")
+
+
+def junit_cases(path: Path) -> dict[str, str]:
+    """Each test case of a JUnit file, CLASS::NAME, and how it ended."""
+    ended = {}
+    for case in ET.parse(path).getroot().iter("testcase"):
+        kinds = [child.tag for child in case if child.tag in ("failure", "error", "skipped")]
+        ended[f"{case.get('classname')}::{case.get('name')}"] = kinds[0] if kinds else "passed"
+    return ended

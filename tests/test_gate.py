@@ -8,7 +8,6 @@ import contextlib
 import difflib
 import json
 import sqlite3
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -20,9 +19,9 @@ from harness.flight.differential import Outcome
 from harness.flight.fitness import Status
 from harness.tools.cli import main
 
-ROOT = Path(__file__).resolve().parent.parent
+from conftest import ROOT, junit_cases, without_sensor_delay
+
 EXAMPLES = ROOT / "scenarios" / "examples"
-DELAY_LINE = '    delay = 0.0 if fault == "cp_ignores_delay" else params["CP_DELAY"]\n'
 
 
 def flight(status: Status, clearance: float | None, time_s: float = 60.0) -> Outcome:
@@ -86,21 +85,11 @@ def test_a_gate_asked_wrongly_says_what_to_give_and_exits_2(argv, said, tmp_path
 
 def fault_patch(folder: Path) -> Path:
     """A diff of this checkout's collision prevention that leaves the sensor delay out of its stopping distance."""
-    source = (ROOT / "autopilot" / "collision.py").read_text().splitlines(keepends=True)
-    assert DELAY_LINE in source
-    faulty = ["    delay = 0.0  # the estimator compensates the sensor delay already\n" if line == DELAY_LINE else line for line in source]
+    source = (ROOT / "autopilot" / "collision.py").read_text()
     patch = folder / "ignores_delay.patch"
-    patch.write_text("".join(difflib.unified_diff(source, faulty, "a/autopilot/collision.py", "b/autopilot/collision.py")))
+    patch.write_text("".join(difflib.unified_diff(source.splitlines(keepends=True), without_sensor_delay(source).splitlines(keepends=True),
+                                                  "a/autopilot/collision.py", "b/autopilot/collision.py")))
     return patch
-
-
-def junit_cases(path: Path) -> dict[str, str]:
-    """Each test case of a JUnit file and how it ended."""
-    ended = {}
-    for case in ET.parse(path).getroot().iter("testcase"):
-        kinds = [child.tag for child in case if child.tag in ("failure", "error", "skipped")]
-        ended[f"{case.get('classname')}::{case.get('name')}"] = kinds[0] if kinds else "passed"
-    return ended
 
 
 @pytest.mark.slow
