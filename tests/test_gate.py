@@ -113,6 +113,11 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
     bundle = Path(result["regressions"][0]["bundle"])
     assert {"case.regression.json", "concrete.json", "head.mcap", "base.mcap", "flight.png", "explanation.txt", "FINDING.md"} <= {
         p.name for p in bundle.iterdir()}
+    # and the worst regression shrunk, as unsafe as it was found
+    shrunk = result["shrunk"]
+    assert shrunk["of"] == "wall_concrete" and shrunk["pair"]["kind"] == "unsafe" and shrunk["tried"] >= 1
+    assert {"case.regression.json", "concrete.json", "head.mcap", "base.mcap"} <= {p.name for p in (bundle / "shrunk").iterdir()}
+    assert "shrunk/case.regression.json" in summary
     # whose case fails on the head's build and passes on the base's
     head_dir, base_dir = result["head"]["folder"], result["base"]["folder"]
     for folder, outcome in ((head_dir, {"failed": 1}), (base_dir, {"passed": 1})):

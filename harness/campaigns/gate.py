@@ -50,6 +50,8 @@ BASE_FLIGHTS = "base_flights.db"
 STATUS_RANK = {Status.OK: 0, Status.MISSION_FAILED: 1, Status.VIOLATION: 2}
 # A regression's kind, most severe first: the order findings are written and listed in.
 SEVERITY = ("unsafe", "crash", "status", "closer")
+# Of the time left when a search starts, the share kept for shrinking the worst regression.
+SHRINK_SHARE = 0.2
 SIDES = ("head", "base")  # the subject and the reference of the pairs, in the gate's words
 
 
@@ -78,6 +80,7 @@ class GatePlan:
     closer_m: float = 0.0  # a head closer than the base by less than this (beyond the base's spread) passes
     max_findings: int = 5
     profile: str = "default"
+    shrink_candidates: int = 30  # candidates the worst regression's shrink may fly (each a pair); 0: not shrunk
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,18 @@ class SearchCoverage:
     store: str | None
 
 
+@dataclass(frozen=True)
+class Shrunk:
+    """The worst regression made as small and simple as it goes while it still regresses."""
+
+    of: str  # the regression's name
+    pair: JudgedPair | None  # the smallest pair that still regresses; None: the regression did not come back when flown as given
+    kept: tuple[str, ...]  # the steps kept, in words
+    tried: int
+    flown: int
+    stopped: str | None  # why it ended before it was done
+
+
 @dataclass
 class GateResult:
     base: Side
@@ -137,6 +152,7 @@ class GateResult:
     suite: list[JudgedPair] = field(default_factory=list)
     searches: list[SearchCoverage] = field(default_factory=list)
     searched: list[JudgedPair] = field(default_factory=list)  # every pair the searches flew
+    shrunk: Shrunk | None = None  # the worst regression, shrunk
     wall_s: float = 0.0
 
     @property
@@ -219,7 +235,7 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
     for index, scenario in enumerate(plan.scenarios):
         scenarios_left = len(plan.scenarios) - index
         budget = flights_left // scenarios_left if flights_left is not None else None
-        wall_s = (deadline - time.monotonic()) / scenarios_left if deadline is not None else None
+        wall_s = (deadline - time.monotonic()) * (1 - SHRINK_SHARE * bool(plan.shrink_candidates)) / scenarios_left if deadline is not None else None
         if budget == 0 or (wall_s is not None and wall_s <= 0):
             coverage.append(SearchCoverage(scenario, budget or 0, 0, 0, 0.0, "not searched: the budget was spent", None))
             progress(f"search {Path(scenario).name}: not searched, the budget was spent")
@@ -248,6 +264,48 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
     return coverage, pairs
 
 
+def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: Executor, cache: ReferenceCache, out_dir: Path,
+           deadline: float | None, progress: Callable[[str], None]) -> Shrunk:
+    """The regression shrunk (harness/campaigns/shrink.py) while the pair still regresses: each
+    candidate flown on both sides, confirmed as the suite's pairs are. Its journal resumes a
+    gate run again into the same folder."""
+    from harness.campaigns import shrink as shrinking
+    from harness.campaigns.shrink_steps import space_of
+
+    pairs = PairedFlights(executor, base.sut, objective="difference", confirm=plan.confirm, cache=cache)
+    options = RunOptions(sut=head.sut, warm=executor.keeps_stacks)
+    flown: dict[str, JudgedPair] = {}
+
+    def fly(document: Mapping[str, Any], name: str) -> shrinking.Flight:
+        space = space_of(document)
+        job = Job.of(0, space, space.from_concrete(document), seed=pair.seed, out_dir=out_dir / "flights", name=f"{pair.name}-{name}", options=options)
+        [(_job, result)] = list(pairs.run([job]))
+        judgement = judged(result.differential, plan.closer_m)
+        flown[result.log_path or name] = JudgedPair(f"{pair.name}-shrunk", pair.origin, judgement, job.concrete, pair.seed, result.differential)
+        return shrinking.Flight(str(result.status), result.fitness, result.min_clearance_m, result.min_clearance_obstacle, result.log_path,
+                                judgement.why, judgement.kind if judgement.verdict == REGRESSION else judgement.verdict)
+
+    start = shrinking.start_document(shrinking.Case(dict(pair.concrete), pair.seed, head.sut.identity(), pair.name, pair.name), plan.drive)
+    header = {"format": shrinking.JOURNAL_FORMAT, "start": shrinking.key_of(start), "seed": pair.seed, "head": head.folder, "base": base.folder,
+              "confirm": plan.confirm, "closer_m": plan.closer_m}
+    # Each gate shrinks afresh: its findings hold the pairs this run flew, not a journal's verdicts.
+    (out_dir / f"{pair.name}.journal.jsonl").unlink(missing_ok=True)
+    journal = shrinking.Journal(out_dir / f"{pair.name}.journal.jsonl", header)
+    wall_s = deadline - time.monotonic() if deadline is not None else None
+    # A step is kept while the head is as bad as it was found or worse: an unsafe regression does
+    # not shrink into one that only comes closer.
+    as_bad = set(SEVERITY[:SEVERITY.index(pair.judgement.kind) + 1])
+    shrinker = shrinking.Shrinker(fly, journal, budget=shrinking.Budget(plan.shrink_candidates, wall_s), keeps=lambda f: f.verdict in as_bad,
+                                  on_step=lambda step, _s: progress(f"shrink {pair.name}: {shrinking.step_line(step)}"))
+    try:
+        report = shrinker.shrink(start, pair.name)
+    except InputError:  # flown as given, it did not regress again (a firmware's spread)
+        return Shrunk(pair.name, None, (), 0, shrinker.flown, "the regression did not come back when flown again as found")
+    final = report.result_flights[0]
+    return Shrunk(pair.name, flown.get(final.log or "") if report.kept else None, tuple(step.description for step in report.kept), len(report.steps),
+                  report.flown, report.stopped)
+
+
 def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_dir: Path, cache_dir: Path,
              started: float | None = None, progress: Callable[[str], None] = lambda _line: None) -> GateResult:
     """The suite, then the searches, judged. `started` (time.monotonic()) is when the gate began,
@@ -267,6 +325,9 @@ def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_
             result.suite = fly_suite(plan, base, head, executor, cache, out_dir / "suite", progress)
         if plan.scenarios:
             result.searches, result.searched = search(plan, base, head, executor, cache, out_dir / "search", deadline, progress)
+        shrinkable = [pair for pair in result.regressions if pair.judgement.kind != "crash"]
+        if shrinkable and plan.shrink_candidates:
+            result.shrunk = shrink(shrinkable[0], plan, base, head, executor, cache, out_dir / "shrink", deadline, progress)
     finally:
         cache.close()
     result.wall_s = time.monotonic() - started

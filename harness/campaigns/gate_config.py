@@ -78,6 +78,7 @@ KEYS: dict[str, Key] = {
     "seed": Key(lambda v: _whole(0)(v) and v < 2**32, "a whole number from 0 to 4294967295"),
     "closer_m": Key(_number(0), "a distance in metres, 0 or more"),
     "max_findings": Key(_whole(1), "a whole number, 1 or more"),
+    "shrink_candidates": Key(_whole(0), "a whole number of candidates, 0 or more (0: the worst regression is not shrunk)"),
     "workers": Key(_whole(1), "a whole number, 1 or more"),
     "profile": Key(lambda v: isinstance(v, str) and bool(v), "a vehicle profile's name or file"),
     "sut_params": Key(_params, "a table of parameter names and numbers, e.g. CP_DIST = 1.5"),

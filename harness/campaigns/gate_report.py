@@ -22,7 +22,7 @@ from typing import Any, Mapping
 
 from harness.campaigns.campaign import content_key
 from harness.campaigns.explain import explain, explain_text
-from harness.campaigns.gate import CHANGE, REGRESSION, UNJUDGED, GateResult, JudgedPair, Side
+from harness.campaigns.gate import CHANGE, REGRESSION, UNJUDGED, GateResult, JudgedPair, Shrunk, Side
 from harness.campaigns.regression import EXPECTATIONS, FORMAT, SUFFIX, reference_entry
 from harness.errors import InputError
 from harness.flight.inspect_log import plot
@@ -116,17 +116,24 @@ def case_document(pair: JudgedPair, result: GateResult) -> dict[str, Any]:
     }
 
 
-def _bundle(pair: JudgedPair, result: GateResult, folder: Path) -> None:
+def _case_files(pair: JudgedPair, result: GateResult, folder: Path) -> tuple[Path, Path]:
+    """The pair's regression case, concrete scenario and both sides' logs into folder."""
+    folder.mkdir(parents=True, exist_ok=True)
     case = folder / f"case{SUFFIX}"
     case.write_text(json.dumps(case_document(pair, result), indent=2) + "\n")
     concrete = folder / "concrete.json"
     concrete.write_text(json.dumps(pair.concrete, indent=2) + "\n")
-    lines = [f"# {pair.name}: the head {pair.judgement.kind}", "", pair.judgement.why, "",
-             f"* base ({result.base.described}): {_flights(pair.differential['reference'])}",
-             f"* head ({result.head.described}): {_flights(pair.differential['subject'])}", ""]
     for side, log in (("head", pair.head_log), ("base", pair.base_log)):
         if log and Path(log).is_file():
             shutil.copyfile(log, folder / f"{side}.mcap")
+    return case, concrete
+
+
+def _bundle(pair: JudgedPair, result: GateResult, folder: Path) -> None:
+    case, concrete = _case_files(pair, result, folder)
+    lines = [f"# {pair.name}: the head {pair.judgement.kind}", "", pair.judgement.why, "",
+             f"* base ({result.base.described}): {_flights(pair.differential['reference'])}",
+             f"* head ({result.head.described}): {_flights(pair.differential['subject'])}", ""]
     if (folder / "head.mcap").is_file():
         plot(folder / "head.mcap", folder / "flight.png")
         try:
@@ -139,7 +146,27 @@ def _bundle(pair: JudgedPair, result: GateResult, folder: Path) -> None:
                 lines += [f"Mechanism of the head's closest approach: {explanation['mechanism']}", ""]
     lines += ["Fly it again (both sides), or as a test (fails on the head, passes on the base):", "", "```",
               *fly_again_commands(pair, result, concrete, case), "```", ""]
+    shrunk = result.shrunk
+    if shrunk is not None and shrunk.of == pair.name:
+        lines += shrunk_lines(shrunk, result, folder, folder)
     (folder / "FINDING.md").write_text("\n".join(lines))
+
+
+def shrunk_lines(shrunk: Shrunk, result: GateResult, bundle: Path, relative_to: Path) -> list[str]:
+    """The shrink's outcome in words; its case written into the bundle's shrunk/ (once)."""
+    if shrunk.pair is None:
+        why = shrunk.stopped or "no step kept it regressing"
+        return [f"Not shrunk: {why} ({shrunk.flown} pairs flown).", ""]
+    folder = bundle / "shrunk"
+    if not folder.is_dir():
+        _case_files(shrunk.pair, result, folder)
+    where = folder.relative_to(relative_to) if folder.is_relative_to(relative_to) else folder
+    lines = [f"Shrunk in {len(shrunk.kept)} step{'s' * (len(shrunk.kept) != 1)} of {shrunk.tried} tried ({shrunk.flown} pairs flown"
+             + (f"; stopped early: {shrunk.stopped}" if shrunk.stopped else "") + f"), still the head {shrunk.pair.judgement.kind}: "
+             f"{shrunk.pair.judgement.why}:", ""]
+    lines += [f"{number}. {step}" for number, step in enumerate(shrunk.kept, start=1)]
+    lines += ["", "```", *fly_again_commands(shrunk.pair, result, where / "concrete.json", where / f"case{SUFFIX}"), "```", ""]
+    return lines
 
 
 # -- summary -----------------------------------------------------------------------------------
@@ -171,6 +198,8 @@ def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: P
         relative = bundle.relative_to(out_dir)
         lines += ["```", *fly_again_commands(pair, result, relative / "concrete.json", relative / f"case{SUFFIX}"), "```", "",
                   f"Bundle: `{relative}/` (case, both logs, plot, explanation)", ""]
+        if result.shrunk is not None and result.shrunk.of == pair.name:
+            lines += shrunk_lines(result.shrunk, result, bundle, out_dir)
     lines += ["### Covered", ""] + coverage_lines(result)
     return "\n".join(lines) + "\n"
 
@@ -262,4 +291,7 @@ def as_dict(result: GateResult, bundles: Mapping[str, Path]) -> dict[str, Any]:
             "head": result.head.__dict__ | {"sut": result.head.sut.identity()}, "wall_s": result.wall_s,
             "regressions": [pair_dict(p) for p in result.regressions], "suite": [pair_dict(p) for p in result.suite],
             "searches": [c.__dict__ for c in result.searches],
-            "search_pairs": {"flown": len(result.searched), "by_verdict": _counts(result.searched)}}
+            "search_pairs": {"flown": len(result.searched), "by_verdict": _counts(result.searched)},
+            "shrunk": None if result.shrunk is None else {"of": result.shrunk.of, "kept": list(result.shrunk.kept), "tried": result.shrunk.tried,
+                                                          "flown": result.shrunk.flown, "stopped": result.shrunk.stopped,
+                                                          "pair": pair_dict(result.shrunk.pair) if result.shrunk.pair else None}}

@@ -46,6 +46,12 @@ class Flight:
     obstacle: str | None
     log: str | None
     why: str | None = None
+    verdict: str | None = None  # a differential shrink's: the gate's judgement of the pair this flight is the head of (a regression's kind)
+
+
+def violating(flight: Flight) -> bool:
+    """What a shrink keeps by default: a flight that violated the safety distance."""
+    return flight.status == Status.VIOLATION
 
 
 @dataclass(frozen=True)
@@ -253,9 +259,12 @@ Fly = Callable[[Document, str], Flight]
 
 
 class Shrinker:
+    """`keeps` says whether a candidate's flight still fails (by default: it violates), `confirm`
+    flights of it in a row must."""
+
     def __init__(self, fly: Fly, journal: Journal, *, confirm: int = 1, budget: Budget = Budget(),
-                 on_step: Callable[[StepRecord, "Shrinker"], None] | None = None):
-        self.fly, self.journal, self.confirm, self.budget, self.on_step = fly, journal, confirm, budget, on_step
+                 on_step: Callable[[StepRecord, "Shrinker"], None] | None = None, keeps: Callable[[Flight], bool] = violating):
+        self.fly, self.journal, self.confirm, self.budget, self.on_step, self.keeps = fly, journal, confirm, budget, on_step, keeps
         self.flown = self.replayed = 0
         self.started = time.monotonic()
 
@@ -270,7 +279,7 @@ class Shrinker:
             self.replayed += 1
             return recorded, True
         flights: list[Flight] = []
-        while len(flights) < self.confirm and (not flights or flights[-1].status == Status.VIOLATION):
+        while len(flights) < self.confirm and (not flights or self.keeps(flights[-1])):
             if self.budget.flights is not None and self.flown >= self.budget.flights:
                 raise BudgetSpent(f"the evaluation budget of {self.budget.flights} flights is spent")
             if self.budget.wall_s is not None and self.elapsed_s >= self.budget.wall_s:
@@ -290,8 +299,8 @@ class Shrinker:
         raise FlightUnfinished(f"a flight could not finish in {ATTEMPTS} attempts ({flight.status}"
                                + (f": {flight.why}" if flight.why else "") + ")")
 
-    def violates(self, flights: list[Flight]) -> bool:
-        return len(flights) == self.confirm and all(f.status == Status.VIOLATION for f in flights)
+    def fails(self, flights: list[Flight]) -> bool:
+        return len(flights) == self.confirm and all(self.keeps(f) for f in flights)
 
     def start(self, document: Document, label: str) -> State:
         """The case flown as given: it must violate to be shrunk."""
@@ -300,7 +309,7 @@ class Shrinker:
         except FlightUnfinished as unfinished:
             self._forget_journal()
             raise InfrastructureError(f"{label}: the case as given: {unfinished}") from None
-        if self.violates(flights):
+        if self.fails(flights):
             return State(document, flights)
         self._forget_journal()
         seen = ", ".join(f"{f.status} with fitness {f.fitness:.3f}" for f in flights)
@@ -327,7 +336,7 @@ class Shrinker:
                     for candidate in family(state):
                         before = worst_case_fitness(state.flights)
                         flights, replayed = self._flights(candidate.document, candidate.description)
-                        kept = self.violates(flights)
+                        kept = self.fails(flights)
                         record = StepRecord(candidate.kind, candidate.description, before, worst_case_fitness(flights), kept, replayed, len(flights))
                         steps.append(record)
                         if kept:

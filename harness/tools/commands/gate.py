@@ -45,6 +45,7 @@ def _gate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--closer-m", type=non_negative_float, help="a head closer than the base by less than this, beyond the base's spread, passes (default 0)")
     p.add_argument("--seed", type=seed_int, help="the searches' seed (default 0)")
     p.add_argument("--max-findings", type=positive_int, help="bundles written for the worst regressions (default 5)")
+    p.add_argument("--shrink-candidates", type=non_negative_int, help="candidates (pairs) the worst regression's shrink may fly (default 30; 0: no shrink)")
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--cache", metavar="DIR", help="builds and the base's flights, kept between gates (default: $XDG_CACHE_HOME/stella or ~/.cache/stella)")
     p.add_argument("--out", required=True, metavar="DIR", help="summary.md, junit.xml, gate.json, findings/, and the flights")
@@ -65,7 +66,7 @@ def _settings(args: argparse.Namespace) -> dict:
     given = {"sut": args.sut, "suite": [str(Path(s).resolve()) for s in args.suite] if args.suite else None,
              "scenarios": [str(Path(s).resolve()) for s in args.scenario] if args.scenario else None, "drive": args.drive,
              "budget_flights": args.budget_flights, "budget_minutes": args.budget_minutes, "algorithm": args.algorithm, "population": args.population,
-             "confirm": args.confirm, "seed": args.seed, "closer_m": args.closer_m, "max_findings": args.max_findings, "workers": args.workers,
+             "confirm": args.confirm, "seed": args.seed, "closer_m": args.closer_m, "max_findings": args.max_findings, "shrink_candidates": args.shrink_candidates, "workers": args.workers,
              "worktree_command": args.worktree_command, "cache": args.cache}
     settings = merged(config, given)
     settings["sut_params"] = {**config.get("sut_params", {}), **sut_param_values(args.sut_param)}
@@ -138,7 +139,8 @@ def cmd_gate(args: argparse.Namespace) -> int:
         budget_flights = DEFAULT_BUDGET_FLIGHTS * len(scenarios)
     plan = gate.GatePlan(tuple(settings.get("suite", ())), scenarios, budget_flights, settings.get("budget_minutes"), settings.get("drive"),
                          settings.get("algorithm", "NSGAII").upper(), settings.get("population", 10), settings.get("confirm", DEFAULT_CONFIRM[kind]),
-                         settings.get("seed", 0), settings.get("closer_m", 0.0), settings.get("max_findings", 5), settings.get("profile", "default"))
+                         settings.get("seed", 0), settings.get("closer_m", 0.0), settings.get("max_findings", 5), settings.get("profile", "default"),
+                         settings.get("shrink_candidates", 30))
     base, head = _sides(args, settings)
     progress = (lambda line: None) if args.json else (lambda line: print(line, file=sys.stderr))
     progress(f"base: {base.described}\nhead: {head.described}")
@@ -151,7 +153,7 @@ def cmd_gate(args: argparse.Namespace) -> int:
     written = gate_report.write(result, Path(args.out))
     regressions = result.regressions
     lines = [f"{'FAILED' if regressions else 'passed'}: {len(regressions)} regression{'s' * (len(regressions) != 1)} "
-             f"({len(result.suite)} suite cases, {len(result.searched)} search pairs, {result.wall_s / 60:.1f} min)"]
+             f"({len(result.suite)} suite case{'s' * (len(result.suite) != 1)}, {len(result.searched)} search pairs, {result.wall_s / 60:.1f} min)"]
     lines += [f"  {pair.name}: the head {pair.judgement.kind}: {pair.judgement.why}" for pair in regressions]
     lines.append(f"wrote {written['summary']}, {written['junit']}, {written['result']}")
     emit(args, {"passed": result.passed, "regressions": len(regressions), **written}, "\n".join(lines))
