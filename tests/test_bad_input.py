@@ -11,6 +11,7 @@ from conftest import ROOT
 from harness.tools.cli import main
 
 FIG4 = str(ROOT / "scenarios" / "examples" / "fig4.json")
+WALL = str(ROOT / "scenarios" / "examples" / "wall_concrete.json")
 
 
 @pytest.fixture
@@ -99,6 +100,15 @@ CORPUS = [
     (["sut", "check", "--sut", "px4", "--px4-bin", "TEXT"], "is not an executable px4 binary"),
     (["sut", "check", "--sut", "command", "--sut-command", "true"], "must use {sim_port}, {api_port}"),
     (["bench", "--runs", "0"], "--runs: 0 is not a positive whole number"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--config", "MISSING", "--out", "OUT"], "no such configuration file"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--config", "BROKEN_JSON", "--out", "OUT"], "not TOML"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--suite", "MISSING", "--out", "OUT"], "no such file"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--scenario", "BROKEN_JSON", "--out", "OUT"], "invalid JSON"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--out", "OUT"], "nothing to fly"),
+    (["gate", "--sut", "px4", "--base-build", "TEXT", "--head-build", "TEXT", "--suite", WALL, "--out", "OUT"], "is not an executable px4 binary"),
+    (["gate", "--sut", "bundled", "--base-build", "EMPTY_FOLDER", "--head-build", "EMPTY_FOLDER", "--suite", WALL, "--out", "OUT"], "holds no autopilot package"),
+    (["gate", "--sut", "bundled", "--source", ".", "--base", "HEAD", "--suite", WALL, "--budget-flights", "0", "--out", "OUT"],
+     "--budget-flights: 0 is not a positive whole number"),
 ]
 
 

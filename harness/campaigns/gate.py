@@ -41,6 +41,8 @@ from harness.flight.differential import CLEARANCE_RESOLUTION_M, Difference, Outc
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.logs import slug
 from harness.flight.results import RunOptions
+from harness.scenario.logical import load_logical
+from harness.scenario.profile import load_profile
 from sut_adapter import SutConfig
 
 REGRESSION, CHANGE, SAME, UNJUDGED = "regression", "change", "same", "unjudged"
@@ -306,14 +308,24 @@ def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: E
                   report.flown, report.stopped)
 
 
+def check(plan: GatePlan) -> None:
+    """InputError for a plan that cannot fly, before anything is built: nothing to fly, a suite
+    case or scenario that does not load or is infeasible."""
+    if not plan.suite and not plan.scenarios:
+        raise InputError([Problem("--suite", "", "nothing to fly: give the suite's cases (--suite) or scenarios to search (--scenario), "
+                                                 "here or in the configuration file")])
+    suite_cases(plan.suite, plan.drive)
+    profile = load_profile(plan.profile)
+    for scenario in plan.scenarios:
+        load_logical(Path(scenario), profile, plan.drive)
+
+
 def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_dir: Path, cache_dir: Path,
              started: float | None = None, progress: Callable[[str], None] = lambda _line: None) -> GateResult:
     """The suite, then the searches, judged. `started` (time.monotonic()) is when the gate began,
     builds included, for the time budget."""
     started = time.monotonic() if started is None else started
-    if not plan.suite and not plan.scenarios:
-        raise InputError([Problem("--suite", "", "nothing to fly: give the suite's cases (--suite) or scenarios to search (--scenario), "
-                                                 "here or in the configuration file")])
+    check(plan)
     for side in (base, head):
         executor.check_sut(side.sut)
     deadline = started + plan.budget_minutes * 60 if plan.budget_minutes is not None else None

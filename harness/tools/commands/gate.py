@@ -141,6 +141,7 @@ def cmd_gate(args: argparse.Namespace) -> int:
                          settings.get("algorithm", "NSGAII").upper(), settings.get("population", 10), settings.get("confirm", DEFAULT_CONFIRM[kind]),
                          settings.get("seed", 0), settings.get("closer_m", 0.0), settings.get("max_findings", 5), settings.get("profile", "default"),
                          settings.get("shrink_candidates", 30))
+    gate.check(plan)
     base, head = _sides(args, settings)
     progress = (lambda line: None) if args.json else (lambda line: print(line, file=sys.stderr))
     progress(f"base: {base.described}\nhead: {head.described}")
