@@ -12,7 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from harness.campaigns.gate import CHANGE, REGRESSION, SAME, UNJUDGED, judge
+from harness.campaigns.gate import CHANGE, REGRESSION, SAME, UNJUDGED, GatePlan, JudgedPair, Side, judge, judged, verify
+from harness.campaigns.shrink_steps import space_of
+from harness.execution.executor import Job
+from harness.execution.local import SequentialExecutor
+from harness.flight.results import RunOptions
+from sut_adapter import SutConfig
 from harness.campaigns.gate_config import load_config
 from harness.errors import InputError
 from harness.flight.differential import Outcome
@@ -100,7 +105,7 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
             "--scenario", str(EXAMPLES / "wall.json"), "--budget-flights", "6", "--workers", "2", "--cache", str(cache)]
     # WHEN the head is the base with the fault
     out = tmp_path / "faulty"
-    assert main([*gate, "--patch", str(fault_patch(tmp_path)), "--out", str(out)]) == 1
+    assert main([*gate, "--patch", str(fault_patch(tmp_path)), "--verify-flights", "2", "--out", str(out)]) == 1
     # THEN the summary leads with the verdict, and names the suite case the head violates in
     summary = (out / "summary.md").read_text()
     assert summary.startswith("## stella gate: FAILED. The head is less safe than its base")
@@ -109,6 +114,8 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
     assert ended["stella.gate.suite::wall_concrete"] == "failure" and ended["stella.gate.search::wall.json"] in ("passed", "failure")
     result = json.loads((out / "gate.json").read_text())
     assert result["passed"] is False and result["regressions"][0]["kind"] == "unsafe"
+    # verified: flown once more on each side, where it held (the bundled stack repeats itself)
+    assert len(result["regressions"][0]["head"]) == len(result["regressions"][0]["base"]) == 2 and not result["not_held"]
     assert result["searches"][0]["evaluated"] == 6
     # and its bundle holds the case, both flights and the explanation of the head's
     bundle = Path(result["regressions"][0]["bundle"])
@@ -138,3 +145,28 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
     with contextlib.closing(sqlite3.connect(cache / "base_flights.db")) as flights:
         assert flights.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0] == cached
     assert "from the cache" in json.loads((tmp_path / "same-again" / "gate.json").read_text())["base"]["described"]
+
+
+@pytest.mark.slow
+def test_a_regression_judged_on_a_noisy_first_flight_does_not_fail_the_gate_unless_it_holds(tmp_path):
+    # GIVEN the wall flown on the bundled autopilot, and a pair of it whose head flight (as a
+    # noisy first sitting gave it) came 0.4 m closer than the base's: judged a regression
+    concrete = json.loads((EXAMPLES / "wall_concrete.json").read_text())
+    executor = SequentialExecutor()
+    side = Side(SutConfig(), "this checkout", str(ROOT))
+    space = space_of(concrete)
+    try:
+        [(_job, flown)] = list(executor.run([Job.of(0, space, space.from_concrete(concrete), seed=0, out_dir=tmp_path, name="wall", options=RunOptions())]))
+        base = Outcome.of(flown)
+        head = Outcome(base.status, base.fitness - 0.4, base.min_clearance_m - 0.4, base.sim_time_s, first_touchdown_s=base.first_touchdown_s)
+        differential = {"subject": [head.as_dict()], "reference": [base.as_dict()]}
+        pair = JudgedPair("wall", "suite", judged(differential, 0.0), concrete, 0, differential)
+        assert pair.judgement.verdict == REGRESSION
+        # WHEN it is verified over three flights a side
+        held, not_held, unverified = verify([pair], GatePlan(verify_flights=3), side, side, executor, tmp_path / "verify", None, lambda _l: None)
+    finally:
+        executor.close()
+    # THEN the two flights more of each side show the same build: it does not hold, and is not counted
+    assert not held and not unverified and len(not_held) == 1
+    assert not_held[0].judgement.verdict == SAME
+    assert len(not_held[0].differential["subject"]) == len(not_held[0].differential["reference"]) == 3

@@ -16,7 +16,13 @@ builds. Then, the head the subject and the base the reference of differential fl
    its mission to the end), or cannot finish its flight where the base can; a *change* where it
    differs otherwise (farther away, sooner, later), which passes; *unjudged* where the base
    itself could not finish;
-4. the worst regressions written as finding bundles (harness/campaigns/gate_report.py).
+4. each regression, worst first, **verified**: both sides flown until each has `verify_flights`
+   flights, and judged again on all of them. Where two builds are one program, the chance that
+   all k head flights land worse than all k base flights is 1 / C(2k, k) for a clearance (1/20
+   at k = 3, 1/3432 at k = 7), and at most 4^-k for an end such as a violation, so a gate that
+   judges tens of pairs still raises no false alarm on a firmware whose flights spread. Only
+   a regression that holds counts; the worst one is shrunk and every one written as a finding
+   bundle (harness/campaigns/gate_report.py).
 
 Base flights are cached by (concrete scenario, seed, base build) in the cache folder beside the
 builds, so a gate on the same base again flies the head only.
@@ -27,13 +33,14 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from harness.campaigns.campaign import CampaignConfig, content_key, run_campaign
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
 from harness.campaigns.regression import suite_cases
+from harness.campaigns.shrink_steps import space_of
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution.executor import Executor, Job
@@ -52,8 +59,8 @@ BASE_FLIGHTS = "base_flights.db"
 STATUS_RANK = {Status.OK: 0, Status.MISSION_FAILED: 1, Status.VIOLATION: 2}
 # A regression's kind, most severe first: the order findings are written and listed in.
 SEVERITY = ("unsafe", "crash", "status", "closer")
-# Of the time left when a search starts, the share kept for shrinking the worst regression.
-SHRINK_SHARE = 0.2
+# Of the time left when a search starts, the share kept for verifying and shrinking the regressions.
+FINISH_SHARE = 0.25
 SIDES = ("head", "base")  # the subject and the reference of the pairs, in the gate's words
 
 
@@ -83,6 +90,7 @@ class GatePlan:
     max_findings: int = 5
     profile: str = "default"
     shrink_candidates: int = 30  # candidates the worst regression's shrink may fly (each a pair); 0: not shrunk
+    verify_flights: int = 1  # flights a side a regression must hold over (1: the first flights, for a SUT that repeats bit for bit)
 
 
 @dataclass(frozen=True)
@@ -154,13 +162,16 @@ class GateResult:
     suite: list[JudgedPair] = field(default_factory=list)
     searches: list[SearchCoverage] = field(default_factory=list)
     searched: list[JudgedPair] = field(default_factory=list)  # every pair the searches flew
+    regressions: list[JudgedPair] = field(default_factory=list)  # verified, worst first
+    not_held: list[JudgedPair] = field(default_factory=list)  # judged regressions that did not hold when verified
+    unverified: list[JudgedPair] = field(default_factory=list)  # judged regressions the verification's budget left
     shrunk: Shrunk | None = None  # the worst regression, shrunk
     wall_s: float = 0.0
 
     @property
-    def regressions(self) -> list[JudgedPair]:
-        """Every regression, the most severe and then the largest gap first; a concrete scenario
-        found twice (the suite and a search) counted once."""
+    def candidates(self) -> list[JudgedPair]:
+        """Every pair judged a regression, the most severe and then the largest gap first; a
+        concrete scenario found twice (the suite and a search) counted once."""
         found, seen = [], set()
         for pair in sorted(self.suite + self.searched, key=_severity):
             key = content_key(pair.concrete)
@@ -237,7 +248,7 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
     for index, scenario in enumerate(plan.scenarios):
         scenarios_left = len(plan.scenarios) - index
         budget = flights_left // scenarios_left if flights_left is not None else None
-        wall_s = (deadline - time.monotonic()) * (1 - SHRINK_SHARE * bool(plan.shrink_candidates)) / scenarios_left if deadline is not None else None
+        wall_s = (deadline - time.monotonic()) * (1 - FINISH_SHARE) / scenarios_left if deadline is not None else None
         if budget == 0 or (wall_s is not None and wall_s <= 0):
             coverage.append(SearchCoverage(scenario, budget or 0, 0, 0, 0.0, "not searched: the budget was spent", None))
             progress(f"search {Path(scenario).name}: not searched, the budget was spent")
@@ -272,7 +283,6 @@ def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: E
     candidate flown on both sides, confirmed as the suite's pairs are. Its journal resumes a
     gate run again into the same folder."""
     from harness.campaigns import shrink as shrinking
-    from harness.campaigns.shrink_steps import space_of
 
     pairs = PairedFlights(executor, base.sut, objective="difference", confirm=plan.confirm, cache=cache)
     options = RunOptions(sut=head.sut, warm=executor.keeps_stacks)
@@ -308,6 +318,40 @@ def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: E
                   report.flown, report.stopped)
 
 
+def verify(candidates: list[JudgedPair], plan: GatePlan, base: Side, head: Side, executor: Executor, out_dir: Path, deadline: float | None,
+           progress: Callable[[str], None]) -> tuple[list[JudgedPair], list[JudgedPair], list[JudgedPair]]:
+    """(held, not held, not verified): the candidates, worst first, each flown on both sides until
+    it has `verify_flights` a side and judged again on all, until `max_findings` held or the time
+    budget is spent."""
+    held: list[JudgedPair] = []
+    not_held: list[JudgedPair] = []
+    unverified: list[JudgedPair] = []
+    for pair in candidates:
+        if len(held) >= plan.max_findings or (deadline is not None and time.monotonic() >= deadline):
+            unverified.append(pair)
+            continue
+        more = {side: max(0, plan.verify_flights - len(pair.differential[side])) for side in ("subject", "reference")}
+        if not any(more.values()):
+            held.append(pair)
+            continue
+        space = space_of(pair.concrete)
+        x = space.from_concrete(pair.concrete)
+        jobs = [Job.of(0, space, x, seed=pair.seed, out_dir=out_dir, name=f"{pair.name}-{SIDES[side == 'reference']}-verify{number}",
+                       options=RunOptions(sut=(head if side == "subject" else base).sut, warm=executor.keeps_stacks))
+                for side, count in more.items() for number in range(1, count + 1)]
+        flown = {job.name: result for job, result in executor.run([replace(job, key=key) for key, job in enumerate(jobs)])}
+        differential = dict(pair.differential)
+        for side in more:
+            differential[side] = [*pair.differential[side], *(Outcome.of(result).as_dict() for name, result in sorted(flown.items())
+                                                               if name.startswith(f"{pair.name}-{SIDES[side == 'reference']}-verify"))]
+        judgement = judged(differential, plan.closer_m)
+        verified = replace(pair, judgement=judgement, differential=differential)
+        (held if judgement.verdict == REGRESSION else not_held).append(verified)
+        progress(f"verify {pair.name} over {plan.verify_flights} flights a side: {'holds' if judgement.verdict == REGRESSION else 'does not hold'}: "
+                 f"{judgement.why}")
+    return held, not_held, unverified
+
+
 def check(plan: GatePlan) -> None:
     """InputError for a plan that cannot fly, before anything is built: nothing to fly, a suite
     case or scenario that does not load or is infeasible."""
@@ -337,6 +381,8 @@ def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_
             result.suite = fly_suite(plan, base, head, executor, cache, out_dir / "suite", progress)
         if plan.scenarios:
             result.searches, result.searched = search(plan, base, head, executor, cache, out_dir / "search", deadline, progress)
+        result.regressions, result.not_held, result.unverified = verify(result.candidates, plan, base, head, executor, out_dir / "verify", deadline,
+                                                                         progress)
         shrinkable = [pair for pair in result.regressions if pair.judgement.kind != "crash"]
         if shrinkable and plan.shrink_candidates:
             result.shrunk = shrink(shrinkable[0], plan, base, head, executor, cache, out_dir / "shrink", deadline, progress)

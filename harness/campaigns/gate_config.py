@@ -11,6 +11,7 @@ file's folder. Every key is checked, and a wrong one named with its file and key
     budget_flights = 60                      # search candidates, split across the scenarios
     budget_minutes = 20                      # the whole gate, builds included
     confirm = 2                              # flights more of each side for a pair that differs
+    verify_flights = 7                       # flights a side a regression must hold over before it fails the gate
     closer_m = 0.0                           # a head closer by less than this (beyond the base's spread) passes
 
     [gate.sut_params]
@@ -75,6 +76,7 @@ KEYS: dict[str, Key] = {
     "algorithm": Key(_algorithm, "NSGAII, SMPSO, BO, RANDOM or a combination such as NPB"),
     "population": Key(_whole(2), "a whole number, 2 or more"),
     "confirm": Key(_whole(0), "a whole number of flights, 0 or more"),
+    "verify_flights": Key(_whole(1), "a whole number of flights a side, 1 or more"),
     "seed": Key(lambda v: _whole(0)(v) and v < 2**32, "a whole number from 0 to 4294967295"),
     "closer_m": Key(_number(0), "a distance in metres, 0 or more"),
     "max_findings": Key(_whole(1), "a whole number, 1 or more"),

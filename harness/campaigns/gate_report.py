@@ -224,7 +224,13 @@ def coverage_lines(result: GateResult) -> list[str]:
     budget += [f"{plan.budget_minutes:g} minutes"] if plan.budget_minutes is not None else []
     lines.append(f"* took {result.wall_s / 60:.1f} minutes" + (f" of a budget of {' and '.join(budget)}" if budget else "")
                  + (f"; pairs that differed flown {plan.confirm} more times on each side" if plan.confirm else "; pairs that differed not flown again (confirm 0)")
+                 + (f", regressions verified over {plan.verify_flights} flights a side" if plan.verify_flights > 1 else "")
                  + f"; drive {plan.drive or 'as each scenario says'}")
+    for pair in result.not_held:
+        lines.append(f"* did not hold over {plan.verify_flights} flights a side, so not counted: {pair.name} ({pair.judgement.why})")
+    if result.unverified:
+        lines.append(f"* judged regressions on their first flights but not verified (the budget, or {plan.max_findings} held already): "
+                     + ", ".join(pair.name for pair in result.unverified))
     lines.append("* a regression: the head violates where the base keeps the safety distance, comes closer than the base beyond the base's "
                  f"spread{f' and {plan.closer_m:g} m' if plan.closer_m else ''}, ends worse (e.g. blocked where the base completes), "
                  "or cannot finish its flight where the base can")
@@ -289,7 +295,8 @@ def as_dict(result: GateResult, bundles: Mapping[str, Path]) -> dict[str, Any]:
 
     return {"passed": result.passed, "base": result.base.__dict__ | {"sut": result.base.sut.identity()},
             "head": result.head.__dict__ | {"sut": result.head.sut.identity()}, "wall_s": result.wall_s,
-            "regressions": [pair_dict(p) for p in result.regressions], "suite": [pair_dict(p) for p in result.suite],
+            "regressions": [pair_dict(p) for p in result.regressions], "not_held": [pair_dict(p) for p in result.not_held],
+            "unverified": [pair_dict(p) for p in result.unverified], "suite": [pair_dict(p) for p in result.suite],
             "searches": [c.__dict__ for c in result.searches],
             "search_pairs": {"flown": len(result.searched), "by_verdict": _counts(result.searched)},
             "shrunk": None if result.shrunk is None else {"of": result.shrunk.of, "kept": list(result.shrunk.kept), "tried": result.shrunk.tried,

@@ -17,7 +17,11 @@ from harness.tools.commands.sut_options import checked_sut, sut_param_values
 from harness.tools.commands.sut import worktree_option
 
 DEFAULT_BUDGET_FLIGHTS = 30  # per scenario, where neither the command line nor the file gives a budget
-DEFAULT_CONFIRM = {"bundled": 0, "px4": 2, "ardupilot": 2}  # the bundled stack repeats itself bit for bit; firmware does not
+# The bundled stack repeats itself bit for bit; a firmware's flights spread (PX4's pilot flights
+# by up to 0.4 m on one wall), so a pair that differs is flown again, and a regression must hold
+# over 7 flights a side (harness/campaigns/gate.py: verify).
+DEFAULT_CONFIRM = {"bundled": 0, "px4": 2, "ardupilot": 2}
+DEFAULT_VERIFY_FLIGHTS = {"bundled": 1, "px4": 7, "ardupilot": 7}
 
 
 def _gate_options(p: argparse.ArgumentParser) -> None:
@@ -42,6 +46,7 @@ def _gate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algorithm", help="the search algorithm (default NSGAII)")
     p.add_argument("--population", type=positive_int, help="its population (default 10, at most the scenario's budget)")
     p.add_argument("--confirm", type=non_negative_int, help="flights more of each side for a pair that differs (default: 2 for firmware, 0 bundled)")
+    p.add_argument("--verify-flights", type=positive_int, help="flights a side a regression must hold over before it fails the gate (default: 7 for firmware, 1 bundled)")
     p.add_argument("--closer-m", type=non_negative_float, help="a head closer than the base by less than this, beyond the base's spread, passes (default 0)")
     p.add_argument("--seed", type=seed_int, help="the searches' seed (default 0)")
     p.add_argument("--max-findings", type=positive_int, help="bundles written for the worst regressions (default 5)")
@@ -66,7 +71,7 @@ def _settings(args: argparse.Namespace) -> dict:
     given = {"sut": args.sut, "suite": [str(Path(s).resolve()) for s in args.suite] if args.suite else None,
              "scenarios": [str(Path(s).resolve()) for s in args.scenario] if args.scenario else None, "drive": args.drive,
              "budget_flights": args.budget_flights, "budget_minutes": args.budget_minutes, "algorithm": args.algorithm, "population": args.population,
-             "confirm": args.confirm, "seed": args.seed, "closer_m": args.closer_m, "max_findings": args.max_findings, "shrink_candidates": args.shrink_candidates, "workers": args.workers,
+             "confirm": args.confirm, "verify_flights": args.verify_flights, "seed": args.seed, "closer_m": args.closer_m, "max_findings": args.max_findings, "shrink_candidates": args.shrink_candidates, "workers": args.workers,
              "worktree_command": args.worktree_command, "cache": args.cache}
     settings = merged(config, given)
     settings["sut_params"] = {**config.get("sut_params", {}), **sut_param_values(args.sut_param)}
@@ -140,7 +145,7 @@ def cmd_gate(args: argparse.Namespace) -> int:
     plan = gate.GatePlan(tuple(settings.get("suite", ())), scenarios, budget_flights, settings.get("budget_minutes"), settings.get("drive"),
                          settings.get("algorithm", "NSGAII").upper(), settings.get("population", 10), settings.get("confirm", DEFAULT_CONFIRM[kind]),
                          settings.get("seed", 0), settings.get("closer_m", 0.0), settings.get("max_findings", 5), settings.get("profile", "default"),
-                         settings.get("shrink_candidates", 30))
+                         settings.get("shrink_candidates", 30), settings.get("verify_flights", DEFAULT_VERIFY_FLIGHTS[kind]))
     gate.check(plan)
     base, head = _sides(args, settings)
     progress = (lambda line: None) if args.json else (lambda line: print(line, file=sys.stderr))
