@@ -322,17 +322,17 @@ def verify(candidates: list[JudgedPair], plan: GatePlan, base: Side, head: Side,
            progress: Callable[[str], None]) -> tuple[list[JudgedPair], list[JudgedPair], list[JudgedPair]]:
     """(held, not held, not verified): the candidates, worst first, each flown on both sides until
     it has `verify_flights` a side and judged again on all, until `max_findings` held or the time
-    budget is spent."""
+    budget is spent; one flown so often already holds as it is."""
     held: list[JudgedPair] = []
     not_held: list[JudgedPair] = []
     unverified: list[JudgedPair] = []
     for pair in candidates:
-        if len(held) >= plan.max_findings or (deadline is not None and time.monotonic() >= deadline):
-            unverified.append(pair)
-            continue
         more = {side: max(0, plan.verify_flights - len(pair.differential[side])) for side in ("subject", "reference")}
         if not any(more.values()):
             held.append(pair)
+            continue
+        if len(held) >= plan.max_findings or (deadline is not None and time.monotonic() >= deadline):
+            unverified.append(pair)
             continue
         space = space_of(pair.concrete)
         x = space.from_concrete(pair.concrete)
