@@ -73,6 +73,7 @@ class Side:
     folder: str  # the build's folder (or binary) as given to the SUT options
     build_s: float | None = None  # None: given as a build, or found in the cache
     cached: bool = False
+    built_by: str | None = None  # the command that builds it anywhere (`stella sut build ...`); None: given as a build
 
 
 @dataclass(frozen=True)

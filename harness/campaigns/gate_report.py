@@ -182,6 +182,9 @@ def _verdict_line(result: GateResult) -> str:
 def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: Path) -> str:
     lines = [_verdict_line(result), "",
              "| | build |", "| --- | --- |", f"| base | {result.base.described} |", f"| head | {result.head.described} |", ""]
+    if result.base.built_by and result.head.built_by:
+        lines += ["The commands below fly the builds in this gate's cache; elsewhere, build each side first (each prints the folder to "
+                  "give in their place):", "", "```", f"{result.base.built_by}   # base", f"{result.head.built_by}   # head", "```", ""]
     for number, pair in enumerate(result.regressions, start=1):
         lines.append(f"### {number}. {pair.name} ({'suite case' if pair.origin == 'suite' else 'found searching ' + pair.origin}): the head {pair.judgement.kind}")
         lines += ["", pair.judgement.why, "", "| side | outcome |", "| --- | --- |",

@@ -117,8 +117,10 @@ def _sides(args: argparse.Namespace, settings: dict):
                                    worktree_command=settings.get("worktree_command"))
             described = f"commit {variant.commit[:10] if variant.commit else commit}" + (f" with {len(patches)} patch{'es' * (len(patches) > 1)}" if patches else "")
             described += ", from the cache" if variant.cached else f", built in {variant.build_s:.0f} s"
+            built_by = " ".join(["stella sut build", kind, "--source TREE", f"--commit {variant.commit or commit}", *(f"--patch {p}" for p in patches),
+                                 "--out BUILDS"])
             sides.append(Side(SutConfig(kind, params, **{option: variant.folder}), described, variant.folder,
-                              None if variant.cached else variant.build_s, variant.cached))
+                              None if variant.cached else variant.build_s, variant.cached, built_by))
     base, head = sides
     for side, name in ((base, "--base-build"), (head, "--head-build")):
         checked_sut(side.sut, name, "--sut-param")
