@@ -153,6 +153,15 @@ def test_termination_objects_combine():
     assert FirstViolation().done(Progress(1, 0.0, 1))
 
 
+def test_a_time_budget_takes_no_candidate_into_a_batch_that_it_could_not_fly_in_time():
+    # 2 s a candidate so far, 5 s of 12 spent: three more fit (the third done at 11 s), a fourth does not
+    assert not WallTimeBudget(12.0).done(Progress(10, 5.0, 0, pending=0, seconds_per_candidate=2.0))
+    assert not WallTimeBudget(12.0).done(Progress(10, 5.0, 0, pending=2, seconds_per_candidate=2.0))
+    assert WallTimeBudget(12.0).done(Progress(10, 5.0, 0, pending=3, seconds_per_candidate=2.0))
+    # before any batch has flown, the time spent alone decides
+    assert not WallTimeBudget(12.0).done(Progress(0, 5.0, 0, pending=40))
+
+
 def test_stop_at_first_violation_ends_the_run(space, tmp_path):
     with Store(tmp_path / "v.db") as store:
         run_id, _ = store.run(store.campaign({"v": 1}), str(SCENARIO), "s", "R", 0, 0)

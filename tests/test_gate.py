@@ -186,3 +186,14 @@ def test_a_firmware_build_gated_against_itself_passes(sut, variable, tmp_path):
                  "--drive", "pilot", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
     assert (out / "summary.md").read_text().startswith("## stella gate: passed")
     assert set(junit_cases(out / "junit.xml").values()) == {"passed"}
+
+
+@pytest.mark.slow
+def test_a_gate_given_minutes_stops_its_search_at_them_and_says_how_far_it_went(tmp_path):
+    out = tmp_path / "out"
+    assert main(["gate", "--sut", "bundled", "--base-build", str(ROOT), "--head-build", str(ROOT), "--scenario", str(EXAMPLES / "wall.json"),
+                 "--budget-minutes", "0.4", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+    result = json.loads((out / "gate.json").read_text())
+    [search] = result["searches"]
+    assert search["budget"] is None and search["evaluated"] >= 1 and search["stopped"].startswith("stopped at the time budget after")
+    assert "stopped at the time budget" in (out / "summary.md").read_text()

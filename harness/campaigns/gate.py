@@ -59,6 +59,7 @@ BASE_FLIGHTS = "base_flights.db"
 STATUS_RANK = {Status.OK: 0, Status.MISSION_FAILED: 1, Status.VIOLATION: 2}
 # A regression's kind, most severe first: the order findings are written and listed in.
 SEVERITY = ("unsafe", "crash", "status", "closer")
+UNBOUNDED_CANDIDATES = 1_000_000
 # Of the time left when a search starts, the share kept for verifying and shrinking the regressions.
 FINISH_SHARE = 0.25
 SIDES = ("head", "base")  # the subject and the reference of the pairs, in the gate's words
@@ -135,7 +136,7 @@ class SearchCoverage:
     """What one scenario's search covered."""
 
     scenario: str
-    budget: int  # candidates it was given
+    budget: int | None  # candidates it was given (None: as many as its time allowed)
     evaluated: int  # candidates it asked (infeasible ones included)
     flown: int  # of which flown (the rest infeasible or from its store)
     wall_s: float
@@ -254,7 +255,9 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
             coverage.append(SearchCoverage(scenario, budget or 0, 0, 0, 0.0, "not searched: the budget was spent", None))
             progress(f"search {Path(scenario).name}: not searched, the budget was spent")
             continue
-        config = CampaignConfig((scenario,), (plan.algorithm,), budget, 1, plan.seed, min(plan.population, budget), plan.profile,
+        # With a budget in minutes only, the time ends the search, long before this many candidates.
+        candidates = budget if budget is not None else UNBOUNDED_CANDIDATES
+        config = CampaignConfig((scenario,), (plan.algorithm,), candidates, 1, plan.seed, min(plan.population, candidates), plan.profile,
                                 wall_time_s=wall_s, sut=head.sut, drive=plan.drive, confirm=plan.confirm, reference=base.sut, objective="difference")
         identity = hashlib.sha256(json.dumps(config.identity(), sort_keys=True).encode()).hexdigest()[:12]
         store_path = out_dir / f"{slug(Path(scenario).stem)}-{plan.algorithm}-{identity}.db"
@@ -267,7 +270,7 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
             evaluated = len(store.all_evaluations())
         wall = time.monotonic() - started
         flown = sum(run.flown for run in summary.runs)
-        stopped = None if evaluated >= budget else f"stopped at the time budget after {evaluated} of {budget} candidates"
+        stopped = None if evaluated >= candidates else f"stopped at the time budget after {evaluated}" + (f" of {budget}" if budget else "") + " candidates"
         coverage.append(SearchCoverage(scenario, budget, evaluated, flown, wall, stopped, str(store_path)))
         pairs += found
         if flights_left is not None:
@@ -280,9 +283,8 @@ def search(plan: GatePlan, base: Side, head: Side, executor: Executor, cache: Re
 
 def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: Executor, cache: ReferenceCache, out_dir: Path,
            deadline: float | None, progress: Callable[[str], None]) -> Shrunk:
-    """The regression shrunk (harness/campaigns/shrink.py) while the pair still regresses: each
-    candidate flown on both sides, confirmed as the suite's pairs are. Its journal resumes a
-    gate run again into the same folder."""
+    """The regression shrunk (harness/campaigns/shrink.py) while the pair still regresses at least
+    as badly: each candidate flown on both sides, confirmed as the suite's pairs are."""
     from harness.campaigns import shrink as shrinking
 
     pairs = PairedFlights(executor, base.sut, objective="difference", confirm=plan.confirm, cache=cache)

@@ -220,7 +220,7 @@ def coverage_lines(result: GateResult) -> list[str]:
             lines.append(f"* search {name}: {covered.stopped}")
             continue
         found = [p for p in result.searched if p.store == covered.store]
-        lines.append(f"* search {name}: {covered.evaluated} of {covered.budget} candidates, {len(found)} flown on both sides "
+        lines.append(f"* search {name}: {covered.evaluated}" + (f" of {covered.budget}" if covered.budget else "") + f" candidates, {len(found)} flown on both sides "
                      f"({_counts(found)}), {covered.wall_s:.0f} s" + (f"; {covered.stopped}" if covered.stopped else ""))
     plan = result.plan
     budget = [f"{plan.budget_flights} search candidates"] if plan.budget_flights is not None else []

@@ -96,10 +96,14 @@ class CampaignProblem:
         self.replayed = 0
         self.revealing = 0
         self._started = time.monotonic()
+        self._pending = 0
+        self._batches_s = 0.0  # wall time spent flying batches
+        self._batched = 0  # candidates those batches flew
 
     @property
     def progress(self) -> Progress:
-        return Progress(self.spent, time.monotonic() - self._started, self.violations, self.revealing)
+        return Progress(self.spent, time.monotonic() - self._started, self.violations, self.revealing, self._pending,
+                        self._batches_s / self._batched if self._batched else 0.0)
 
     @property
     def history(self) -> list[Trial]:
@@ -149,6 +153,7 @@ class CampaignProblem:
         to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
         ids: dict[int, int] = {}  # the store's evaluation id by ordinal
         stop: StopSearch | None = None
+        self._pending = 0
         for candidate in candidates:
             # Known already, or a duplicate inside this batch: answered from its first one's outcome.
             if candidate.key in self._trials or any(candidate.key == flying.key for flying, _job in to_fly.values()):
@@ -174,9 +179,11 @@ class CampaignProblem:
                 continue
             to_fly[ordinal] = (candidate, Job.of(ordinal, self.space, candidate.vector, seed=self.seed, out_dir=self.out_dir,
                                                  name=evaluation_name(ids[ordinal]), options=self.options))
+            self._pending += 1
         to_confirm: list[tuple[Job, EvaluationResult]] = []
         # A pair is confirmed on both sides where it reveals a difference (PairedFlights), not here.
         flights = self.pairs or self.executor
+        flying_since = time.monotonic()
         for job, result in flights.run([job for _candidate, job in to_fly.values()]):
             if result.status == Status.VIOLATION and self.confirm and self.pairs is None:
                 to_confirm.append((job, result))
@@ -184,6 +191,10 @@ class CampaignProblem:
                 self._finish(job.key, ids[job.key], to_fly[job.key][0], result, job.concrete)
         for job, result in self._confirmed(to_confirm):
             self._finish(job.key, ids[job.key], to_fly[job.key][0], result, job.concrete)
+        if to_fly:
+            self._batches_s += time.monotonic() - flying_since
+            self._batched += len(to_fly)
+        self._pending = 0
         if stop is not None or any(c.key not in self._trials for c in candidates):
             raise stop or StopSearch(campaign_done=True)
         return [self._told(self._trials[c.key]) for c in candidates]

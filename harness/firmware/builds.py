@@ -288,9 +288,10 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
             if shown.returncode == 0 and shown.stdout != module.read_text():
                 module.write_text(shown.stdout)
                 changed.append(f"autopilot/{module.name}")
-    if changed:
-        # Another commit's sources or static types: every compiled module is compiled again, as
-        # a .pxd changed under one changes what the modules that cimport it compile to.
+    if any(name.endswith(".pxd") for name in changed):
+        # Another commit's static types: every compiled module is compiled again, as a .pxd
+        # changed under one changes what the modules that cimport it compile to. Another
+        # commit's sources alone change only their own modules.
         changed = [f"autopilot/{so.name.split('.', 1)[0]}.py" for so in package.glob("*.so")]
     touched = apply_patches(folder, patches)
     objects = {}

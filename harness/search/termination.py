@@ -13,6 +13,8 @@ class Progress:
     elapsed_s: float
     violations: int
     revealing: int = 0  # differential campaigns: candidates that reveal a difference, confirmed
+    pending: int = 0  # candidates taken into the batch under way, not yet flown
+    seconds_per_candidate: float = 0.0  # the wall time a batch has cost per candidate flown so far (0 before the first)
 
 
 class Termination(Protocol):
@@ -32,7 +34,10 @@ class WallTimeBudget:
     seconds: float
 
     def done(self, progress: Progress) -> bool:
-        return progress.elapsed_s >= self.seconds
+        """Done once one more candidate in the batch under way would not fly before the time is up,
+        as long as candidates have cost so far: a batch flies all its candidates, so a budget
+        checked only by the time already spent would run over by a whole batch."""
+        return progress.elapsed_s + (progress.pending + 1) * progress.seconds_per_candidate >= self.seconds
 
 
 @dataclass(frozen=True)
