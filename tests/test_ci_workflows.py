@@ -136,7 +136,7 @@ def test_the_px4_workflows_steps_fail_a_pull_request_whose_head_brakes_late(tmp_
                    env={**os.environ, "STELLA_COMPILE_ONLY": "autopilot/collision.py"})
     # and the team's settings at its root
     (workspace / "stella.toml").write_text('[gate]\nsut = "bundled"\nsuite = ["scenarios/examples/wall_concrete.json"]\n'
-                                           'scenarios = ["scenarios/examples/wall.json"]\nbudget_flights = 4\nworkers = 2\n')
+                                           'scenarios = ["scenarios/examples/wall.json"]\nbudget_flights = 2\nshrink_candidates = 0\nworkers = 2\n')
     workflow = yaml.safe_load((CI / "github-px4.yml").read_text())
     runner = Runner(workspace, {"github.event.pull_request.base.sha": base, "github.event.pull_request.head.sha": head,
                                 "github.workspace": str(workspace)},
