@@ -200,7 +200,7 @@ def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: P
                 lines += [f"Mechanism (head): {mechanism.removeprefix('mechanism: ')}", ""]
         relative = bundle.relative_to(out_dir)
         lines += ["```", *fly_again_commands(pair, result, relative / "concrete.json", relative / f"case{SUFFIX}"), "```", "",
-                  f"Bundle: `{relative}/` (case, both logs, plot, explanation)", ""]
+                  f"Bundle: [{relative}/]({relative}/FINDING.md) in the gate's output (the CI job's artifact): case, both logs, plot, explanation", ""]
         if result.shrunk is not None and result.shrunk.of == pair.name:
             lines += shrunk_lines(result.shrunk, result, bundle, out_dir)
     lines += ["### Covered", ""] + coverage_lines(result)
