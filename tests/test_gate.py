@@ -9,11 +9,13 @@ import difflib
 import json
 import os
 import sqlite3
+import time
 from pathlib import Path
 
 import pytest
 
-from harness.campaigns.gate import CHANGE, REGRESSION, SAME, UNJUDGED, GatePlan, JudgedPair, Side, judge, judged, verify
+from harness.campaigns.gate import CHANGE, REGRESSION, SAME, UNJUDGED, GatePlan, JudgedPair, Side, judge, judged, shrink, verify
+from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.shrink_steps import space_of
 from harness.execution.executor import Job
 from harness.execution.local import SequentialExecutor
@@ -197,3 +199,17 @@ def test_a_gate_given_minutes_stops_its_search_at_them_and_says_how_far_it_went(
     [search] = result["searches"]
     assert search["budget"] is None and search["evaluated"] >= 1 and search["stopped"].startswith("stopped at the time budget after")
     assert "stopped at the time budget" in (out / "summary.md").read_text()
+
+
+def test_a_shrink_left_no_time_says_so_and_flies_nothing(tmp_path):
+    concrete = json.loads((EXAMPLES / "wall_concrete.json").read_text())
+    differential = {"subject": [flight(VIOLATION, 0.3).as_dict()], "reference": [flight(OK, 1.6).as_dict()]}
+    pair = JudgedPair("wall", "suite", judged(differential, 0.0), concrete, 0, differential)
+    side = Side(SutConfig(), "this checkout", str(ROOT))
+    executor = SequentialExecutor()
+    try:
+        shrunk = shrink(pair, GatePlan(), side, side, executor, ReferenceCache(tmp_path / "base_flights.db"), tmp_path / "shrink",
+                        time.monotonic() - 1.0, lambda _line: None)
+    finally:
+        executor.close()
+    assert shrunk.pair is None and shrunk.flown == 0 and shrunk.stopped == "the time budget was spent before it"

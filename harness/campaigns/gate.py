@@ -312,10 +312,14 @@ def shrink(pair: JudgedPair, plan: GatePlan, base: Side, head: Side, executor: E
     as_bad = set(SEVERITY[:SEVERITY.index(pair.judgement.kind) + 1])
     shrinker = shrinking.Shrinker(fly, journal, budget=shrinking.Budget(plan.shrink_candidates, wall_s), keeps=lambda f: f.verdict in as_bad,
                                   on_step=lambda step, _s: progress(f"shrink {pair.name}: {shrinking.step_line(step)}"))
+    if wall_s is not None and wall_s <= 0:
+        return Shrunk(pair.name, None, (), 0, 0, "the time budget was spent before it")
     try:
         report = shrinker.shrink(start, pair.name)
     except InputError:  # flown as given, it did not regress again (a firmware's spread)
         return Shrunk(pair.name, None, (), 0, shrinker.flown, "the regression did not come back when flown again as found")
+    except (shrinking.Stopped, InfrastructureError) as stopped:  # the budget, or flights that could not finish, before the case flew as given
+        return Shrunk(pair.name, None, (), 0, shrinker.flown, str(stopped))
     final = report.result_flights[0]
     return Shrunk(pair.name, flown.get(final.log or "") if report.kept else None, tuple(step.description for step in report.kept), len(report.steps),
                   report.flown, report.stopped)
