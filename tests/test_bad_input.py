@@ -141,3 +141,17 @@ def test_a_reader_that_goes_away_ends_the_command_without_a_traceback():
     stderr = command.communicate(timeout=60)[1].decode()
     assert command.returncode == 141
     assert stderr == ""
+
+
+def test_a_defect_of_stella_exits_3_with_its_traceback_not_1(monkeypatch, capsys):
+    """Exit 1 means a violation (or, for `stella gate`, a regression) to a script: a defect of the
+    harness must not read as one."""
+    from harness.tools.commands.common import COMMANDS
+
+    def broken(_args):
+        raise RuntimeError("a defect")
+
+    monkeypatch.setattr(COMMANDS["space"], "run", broken)
+    assert main(["space", FIG4]) == 3
+    said = capsys.readouterr().err
+    assert "RuntimeError: a defect" in said and "a defect of stella" in said

@@ -17,6 +17,7 @@ import os
 import signal
 import sqlite3
 import sys
+import traceback
 from typing import Sequence
 
 from harness.errors import InputError, StellaError
@@ -62,19 +63,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 141
     except sqlite3.OperationalError as error:
         if "full" not in str(error):
-            raise
+            return _internal_error()
         # SQLite rolled the transaction back: the store holds every evaluation finished before.
         print(f"{getattr(args, 'store', 'the campaign store')}: {error}: make room and run the same command again to resume", file=sys.stderr)
         return 2
     except OSError as error:
         if error.filename is None and error.errno != errno.ENOSPC:
-            raise
+            return _internal_error()
         # An output that cannot be written (no such folder, no permission, a full disk): the
         # user's to mend, so one line naming the path rather than a traceback.
         resume = "; the store keeps every finished evaluation: run the same command again to resume" if args.command == "campaign" else ""
         fewer = "; --sut-logs failures keeps the SUT's own logs of failing flights only" if getattr(args, "sut_logs", None) == "all" else ""
         print(f"{error.filename or 'writing the campaign store or logs'}: {error.strerror}: give a path in a writable folder with room{resume}{fewer}", file=sys.stderr)
         return 2
+    except Exception:
+        return _internal_error()
+
+
+def _internal_error() -> int:
+    """A defect of stella's own: the traceback, and exit 3 rather than Python's 1, which a script
+    or CI job would read as "a violation" or "a regression" (`stella gate`)."""
+    traceback.print_exc()
+    print("error: the above is a defect of stella, not of the SUT or the input; please report it with the traceback", file=sys.stderr)
+    return 3
 
 
 if __name__ == "__main__":
