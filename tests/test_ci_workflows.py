@@ -152,6 +152,6 @@ def test_the_px4_workflows_steps_fail_a_pull_request_whose_head_brakes_late(tmp_
     # are where the upload and the comment take them from
     assert ran["Job summary"] == 0 and ran["Upload the findings"] == 0 and ran["Comment on the pull request"] == 0
     summary = runner.files["GITHUB_STEP_SUMMARY"].read_text()
-    assert summary.startswith("## stella gate: FAILED") and "wall_concrete (suite case): the head unsafe" in summary
+    assert summary.startswith("## stella gate: FAILED") and "wall_concrete (suite case): the head violates the safety distance" in summary
     assert junit_cases(workspace / "stella-gate" / "junit.xml")["stella.gate.suite::wall_concrete"] == "failure"
     assert f"commit {head[:10]}" in summary and f"commit {base[:10]}" in summary

@@ -112,7 +112,7 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
     # THEN the summary leads with the verdict, and names the suite case the head violates in
     summary = (out / "summary.md").read_text()
     assert summary.startswith("## stella gate: FAILED. The head is less safe than its base")
-    assert "### 1. wall_concrete (suite case): the head unsafe" in summary and "the head violates" in summary
+    assert "### 1. wall_concrete (suite case): the head violates the safety distance" in summary and "the head violates" in summary
     ended = junit_cases(out / "junit.xml")
     assert ended["stella.gate.suite::wall_concrete"] == "failure" and ended["stella.gate.search::wall.json"] in ("passed", "failure")
     result = json.loads((out / "gate.json").read_text())

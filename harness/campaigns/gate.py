@@ -187,9 +187,10 @@ class GateResult:
         return not self.regressions
 
 
-def _severity(pair: JudgedPair) -> tuple[int, float]:
+def _severity(pair: JudgedPair) -> tuple[int, bool, float]:
+    """Most severe first; of one kind, the team's own suite cases before what a search found."""
     kind = pair.judgement.kind
-    return (SEVERITY.index(kind) if kind in SEVERITY else len(SEVERITY), -pair.gap_m)
+    return (SEVERITY.index(kind) if kind in SEVERITY else len(SEVERITY), pair.origin != "suite", -pair.gap_m)
 
 
 def judge(head: Sequence[Outcome], base: Sequence[Outcome], closer_m: float = 0.0) -> Judgement:

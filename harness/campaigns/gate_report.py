@@ -28,6 +28,9 @@ from harness.errors import InputError
 from harness.flight.inspect_log import plot
 
 SUMMARY = "summary.md"
+# A regression's kind (gate.SEVERITY), as its heading says it.
+KIND_WORDS = {"unsafe": "the head violates the safety distance", "crash": "the head cannot finish its flight", "status": "the head ends worse",
+              "closer": "the head comes closer"}
 JUNIT = "junit.xml"
 RESULT = "gate.json"
 FINDINGS = "findings"
@@ -110,7 +113,7 @@ def case_document(pair: JudgedPair, result: GateResult) -> dict[str, Any]:
         "found": {"by": "stella gate", "origin": pair.origin, "status": head["status"], "fitness": head["fitness"], "min_clearance_m": head["min_clearance_m"],
                   "log": head.get("log_path"), "base": result.base.described, "head": result.head.described,
                   **({"store": pair.store, "evaluation": pair.evaluation.id} if pair.evaluation is not None else {})},
-        "note": f"{EXPECTATIONS['as_reference']}; the head {pair.judgement.kind}: {pair.judgement.why}",
+        "note": f"{EXPECTATIONS['as_reference']}; {pair.judgement.kind}: {pair.judgement.why}",
         "concrete_scenario": pair.concrete,
         "reference": reference_entry(pair.differential, "unsafe" if pair.judgement.kind == "unsafe" else "behaviour"),
     }
@@ -131,7 +134,7 @@ def _case_files(pair: JudgedPair, result: GateResult, folder: Path) -> tuple[Pat
 
 def _bundle(pair: JudgedPair, result: GateResult, folder: Path) -> None:
     case, concrete = _case_files(pair, result, folder)
-    lines = [f"# {pair.name}: the head {pair.judgement.kind}", "", pair.judgement.why, "",
+    lines = [f"# {pair.name}: {KIND_WORDS[pair.judgement.kind]}", "", pair.judgement.why, "",
              f"* base ({result.base.described}): {_flights(pair.differential['reference'])}",
              f"* head ({result.head.described}): {_flights(pair.differential['subject'])}", ""]
     if (folder / "head.mcap").is_file():
@@ -162,7 +165,7 @@ def shrunk_lines(shrunk: Shrunk, result: GateResult, bundle: Path, relative_to: 
         _case_files(shrunk.pair, result, folder)
     where = folder.relative_to(relative_to) if folder.is_relative_to(relative_to) else folder
     lines = [f"Shrunk in {len(shrunk.kept)} step{'s' * (len(shrunk.kept) != 1)} of {shrunk.tried} tried ({shrunk.flown} pairs flown"
-             + (f"; stopped early: {shrunk.stopped}" if shrunk.stopped else "") + f"), still the head {shrunk.pair.judgement.kind}: "
+             + (f"; stopped early: {shrunk.stopped}" if shrunk.stopped else "") + f"), still: {KIND_WORDS[shrunk.pair.judgement.kind]}: "
              f"{shrunk.pair.judgement.why}:", ""]
     lines += [f"{number}. {step}" for number, step in enumerate(shrunk.kept, start=1)]
     lines += ["", "```", *fly_again_commands(shrunk.pair, result, where / "concrete.json", where / f"case{SUFFIX}"), "```", ""]
@@ -186,7 +189,8 @@ def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: P
         lines += ["The commands below fly the builds in this gate's cache; elsewhere, build each side first (each prints the folder to "
                   "give in their place):", "", "```", f"{result.base.built_by}   # base", f"{result.head.built_by}   # head", "```", ""]
     for number, pair in enumerate(result.regressions, start=1):
-        lines.append(f"### {number}. {pair.name} ({'suite case' if pair.origin == 'suite' else 'found searching ' + pair.origin}): the head {pair.judgement.kind}")
+        lines.append(f"### {number}. {pair.name} ({'suite case' if pair.origin == 'suite' else 'found searching ' + pair.origin}): "
+                     f"{KIND_WORDS[pair.judgement.kind]}")
         lines += ["", pair.judgement.why, "", "| side | outcome |", "| --- | --- |",
                   f"| base | {_flights(pair.differential['reference'])} |", f"| head | {_flights(pair.differential['subject'])} |", ""]
         bundle = bundles.get(pair.name)
@@ -267,7 +271,7 @@ def junit(result: GateResult) -> ET.Element:
         test = case("stella.gate.suite", pair.name)
         if pair.judgement.verdict == REGRESSION and content_key(pair.concrete) in regressions:
             counted["failures"] += 1
-            failure = ET.SubElement(test, "failure", message=f"the head {pair.judgement.kind}: {pair.judgement.why}")
+            failure = ET.SubElement(test, "failure", message=f"{pair.judgement.kind}: {pair.judgement.why}")
             failure.text = f"base: {_flights(pair.differential['reference'])}\nhead: {_flights(pair.differential['subject'])}"
         elif pair.judgement.verdict == UNJUDGED:
             counted["errors"] += 1
@@ -281,9 +285,9 @@ def junit(result: GateResult) -> ET.Element:
         found = [p for p in result.regressions if p.store == covered.store]
         if found:
             counted["failures"] += 1
-            failure = ET.SubElement(test, "failure", message=f"{len(found)} regression{'s' * (len(found) > 1)} found: the worst, the head "
+            failure = ET.SubElement(test, "failure", message=f"{len(found)} regression{'s' * (len(found) > 1)} found; the worst, "
                                                              f"{found[0].judgement.kind}: {found[0].judgement.why}")
-            failure.text = "\n".join(f"{p.name}: the head {p.judgement.kind}: {p.judgement.why}" for p in found)
+            failure.text = "\n".join(f"{p.name}: {p.judgement.kind}: {p.judgement.why}" for p in found)
     for element in (suites, suite):
         element.attrib.update({key: str(value) for key, value in counted.items()})
     return suites

@@ -162,7 +162,7 @@ def cmd_gate(args: argparse.Namespace) -> int:
     regressions = result.regressions
     lines = [f"{'FAILED' if regressions else 'passed'}: {len(regressions)} regression{'s' * (len(regressions) != 1)} "
              f"({len(result.suite)} suite case{'s' * (len(result.suite) != 1)}, {len(result.searched)} search pairs, {result.wall_s / 60:.1f} min)"]
-    lines += [f"  {pair.name}: the head {pair.judgement.kind}: {pair.judgement.why}" for pair in regressions]
+    lines += [f"  {pair.name}: {pair.judgement.kind}: {pair.judgement.why}" for pair in regressions]
     lines.append(f"wrote {written['summary']}, {written['junit']}, {written['result']}")
     emit(args, {"passed": result.passed, "regressions": len(regressions), **written}, "\n".join(lines))
     return 0 if result.passed else 1
