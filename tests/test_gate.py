@@ -136,18 +136,37 @@ def test_a_gate_fails_a_head_that_brakes_late_and_passes_its_base_against_itself
                                               "--stella-out", str(tmp_path / "case-logs"))
         flown.assert_outcomes(**outcome)
 
-    # WHEN the base is gated against itself, twice
+    # WHEN the base is gated against itself, twice, flown although it is one program
     with contextlib.closing(sqlite3.connect(cache / "base_flights.db")) as flights:
         cached = flights.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0]
     for run in ("same", "same-again"):
         capsys.readouterr()
-        assert main([*gate, "--out", str(tmp_path / run)]) == 0
+        assert main([*gate, "--fly-identical", "--out", str(tmp_path / run)]) == 0
         assert (tmp_path / run / "summary.md").read_text().startswith("## stella gate: passed")
         assert set(junit_cases(tmp_path / run / "junit.xml").values()) == {"passed"}
     # THEN the base's flights came from the cache: the searches asked for the same candidates
     with contextlib.closing(sqlite3.connect(cache / "base_flights.db")) as flights:
         assert flights.execute("SELECT COUNT(*) FROM reference_flights").fetchone()[0] == cached
     assert "from the cache" in json.loads((tmp_path / "same-again" / "gate.json").read_text())["base"]["described"]
+
+
+def test_a_head_that_changes_only_comments_builds_to_the_base_program_and_passes_unflown(tmp_path, capsys):
+    source = (ROOT / "autopilot" / "faults.py").read_text()
+    commented = source.replace("# collision prevention, sensing", "# one of: collision prevention, sensing", 1)
+    assert commented != source
+    patch = tmp_path / "comment.patch"
+    patch.write_text("".join(difflib.unified_diff(source.splitlines(keepends=True), commented.splitlines(keepends=True),
+                                                  "a/autopilot/faults.py", "b/autopilot/faults.py")))
+    out = tmp_path / "out"
+    assert main(["gate", "--sut", "bundled", "--source", str(ROOT), "--base", "HEAD", "--patch", str(patch), "--suite", str(EXAMPLES / "wall_concrete.json"),
+                 "--scenario", str(EXAMPLES / "wall.json"), "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+    assert "the head builds to the same program as the base; nothing flown" in capsys.readouterr().out
+    summary = (out / "summary.md").read_text()
+    assert summary.startswith("## stella gate: passed. The head builds to the same program as its base") and "nothing was flown" in summary
+    assert junit_cases(out / "junit.xml") == {"stella.gate::the head builds to the same program as its base": "passed"}
+    result = json.loads((out / "gate.json").read_text())
+    assert result["identical"] is True and not result["suite"] and not result["searches"]
+    assert not (tmp_path / "cache" / "base_flights.db").exists()
 
 
 @pytest.mark.slow
@@ -185,7 +204,7 @@ def test_a_firmware_build_gated_against_itself_passes(sut, variable, tmp_path):
         pytest.skip(f"{variable} is not set: no {sut} SITL build to gate")
     out = tmp_path / "out"
     assert main(["gate", "--sut", sut, "--base-build", build, "--head-build", build, "--suite", str(EXAMPLES / "wall_concrete.json"),
-                 "--drive", "pilot", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+                 "--drive", "pilot", "--fly-identical", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
     assert (out / "summary.md").read_text().startswith("## stella gate: passed")
     assert set(junit_cases(out / "junit.xml").values()) == {"passed"}
 
@@ -194,7 +213,7 @@ def test_a_firmware_build_gated_against_itself_passes(sut, variable, tmp_path):
 def test_a_gate_given_minutes_stops_its_search_at_them_and_says_how_far_it_went(tmp_path):
     out = tmp_path / "out"
     assert main(["gate", "--sut", "bundled", "--base-build", str(ROOT), "--head-build", str(ROOT), "--scenario", str(EXAMPLES / "wall.json"),
-                 "--budget-minutes", "0.4", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+                 "--budget-minutes", "0.4", "--fly-identical", "--workers", "2", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
     result = json.loads((out / "gate.json").read_text())
     [search] = result["searches"]
     assert search["budget"] is None and search["evaluated"] >= 1 and search["stopped"].startswith("stopped at the time budget after")

@@ -24,6 +24,11 @@ builds. Then, the head the subject and the base the reference of differential fl
    a regression that holds counts; the worst one is shrunk and every one written as a finding
    bundle (harness/campaigns/gate_report.py).
 
+Before any of that, a head that builds to the same program as its base (the same machine code and
+data, start-up scripts and modules: harness/firmware/programs.py), as a refactoring, a comment or a
+change of code the build leaves out does, passes at once: no flight could tell them apart.
+`fly_identical` flies them all the same, to see the gate's own false alarms.
+
 Base flights are cached by (concrete scenario, seed, base build) in the cache folder beside the
 builds, so a gate on the same base again flies the head only.
 """
@@ -44,6 +49,7 @@ from harness.campaigns.shrink_steps import space_of
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution.executor import Executor, Job
+from harness.firmware.programs import fingerprint
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, Difference, Outcome, Reveal, compare
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.logs import slug
@@ -93,6 +99,7 @@ class GatePlan:
     profile: str = "default"
     shrink_candidates: int = 30  # candidates the worst regression's shrink may fly (each a pair); 0: not shrunk
     verify_flights: int = 1  # flights a side a regression must hold over (1: the first flights, for a SUT that repeats bit for bit)
+    fly_identical: bool = False  # fly a head that builds to the base's very program too (else it passes unflown)
 
 
 @dataclass(frozen=True)
@@ -168,6 +175,7 @@ class GateResult:
     not_held: list[JudgedPair] = field(default_factory=list)  # judged regressions that did not hold when verified
     unverified: list[JudgedPair] = field(default_factory=list)  # judged regressions the verification's budget left
     shrunk: Shrunk | None = None  # the worst regression, shrunk
+    identical: bool = False  # the head builds to the base's program: nothing flown
     wall_s: float = 0.0
 
     @property
@@ -381,9 +389,14 @@ def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_
     for side in (base, head):
         executor.check_sut(side.sut)
     deadline = started + plan.budget_minutes * 60 if plan.budget_minutes is not None else None
+    result = GateResult(base, head, plan)
+    if not plan.fly_identical and fingerprint(base.sut) == fingerprint(head.sut):
+        progress("the head builds to the same program as the base: nothing to fly")
+        result.identical = True
+        result.wall_s = time.monotonic() - started
+        return result
     cache_dir.mkdir(parents=True, exist_ok=True)
     cache = ReferenceCache(cache_dir / BASE_FLIGHTS)
-    result = GateResult(base, head, plan)
     try:
         if plan.suite:
             result.suite = fly_suite(plan, base, head, executor, cache, out_dir / "suite", progress)

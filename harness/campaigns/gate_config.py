@@ -82,6 +82,7 @@ KEYS: dict[str, Key] = {
     "max_findings": Key(_whole(1), "a whole number, 1 or more"),
     "shrink_candidates": Key(_whole(0), "a whole number of candidates, 0 or more (0: the worst regression is not shrunk)"),
     "workers": Key(_whole(1), "a whole number, 1 or more"),
+    "fly_identical": Key(lambda v: isinstance(v, bool), "true or false"),
     "profile": Key(lambda v: isinstance(v, str) and bool(v), "a vehicle profile's name or file"),
     "sut_params": Key(_params, "a table of parameter names and numbers, e.g. CP_DIST = 1.5"),
     "sut_params_file": Key(lambda v: isinstance(v, str) and bool(v), "a parameter file (.params, .parm or NAME,VALUE CSV)", path=True),

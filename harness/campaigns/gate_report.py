@@ -179,7 +179,14 @@ def _verdict_line(result: GateResult) -> str:
     regressions = result.regressions
     if regressions:
         return f"## stella gate: FAILED. The head is less safe than its base: {len(regressions)} confirmed regression{'s' * (len(regressions) > 1)}"
+    if result.identical:
+        return "## stella gate: passed. The head builds to the same program as its base"
     return "## stella gate: passed. No regression found in what was covered (below)"
+
+
+IDENTICAL = ("The two builds load the same machine code and data, and read the same start-up scripts and modules (debug information, "
+             "build IDs, time stamps and line numbers aside), so no flight can tell them apart: nothing was flown. "
+             "`--fly-identical` flies them all the same.")
 
 
 def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: Path) -> str:
@@ -207,7 +214,10 @@ def summary_markdown(result: GateResult, bundles: Mapping[str, Path], out_dir: P
                   f"Bundle: [{relative}/]({relative}/FINDING.md) in the gate's output (the CI job's artifact): case, both logs, plot, explanation", ""]
         if result.shrunk is not None and result.shrunk.of == pair.name:
             lines += shrunk_lines(result.shrunk, result, bundle, out_dir)
-    lines += ["### Covered", ""] + coverage_lines(result)
+    if result.identical:
+        lines += [IDENTICAL, ""]
+    else:
+        lines += ["### Covered", ""] + coverage_lines(result)
     return "\n".join(lines) + "\n"
 
 
@@ -267,6 +277,8 @@ def junit(result: GateResult) -> ET.Element:
         counted["tests"] += 1
         return ET.SubElement(suite, "testcase", classname=classname, name=name)
 
+    if result.identical:
+        case("stella.gate", "the head builds to the same program as its base")
     for pair in result.suite:
         test = case("stella.gate.suite", pair.name)
         if pair.judgement.verdict == REGRESSION and content_key(pair.concrete) in regressions:
@@ -300,7 +312,7 @@ def as_dict(result: GateResult, bundles: Mapping[str, Path]) -> dict[str, Any]:
                 **({"bundle": str(bundles[pair.name])} if pair.name in bundles else {}),
                 **({"store": pair.store, "evaluation": pair.evaluation.id} if pair.evaluation is not None else {})}
 
-    return {"passed": result.passed, "base": result.base.__dict__ | {"sut": result.base.sut.identity()},
+    return {"passed": result.passed, "identical": result.identical, "base": result.base.__dict__ | {"sut": result.base.sut.identity()},
             "head": result.head.__dict__ | {"sut": result.head.sut.identity()}, "wall_s": result.wall_s,
             "regressions": [pair_dict(p) for p in result.regressions], "not_held": [pair_dict(p) for p in result.not_held],
             "unverified": [pair_dict(p) for p in result.unverified], "suite": [pair_dict(p) for p in result.suite],

@@ -51,6 +51,8 @@ def _gate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=seed_int, help="the searches' seed (default 0)")
     p.add_argument("--max-findings", type=positive_int, help="bundles written for the worst regressions (default 5)")
     p.add_argument("--shrink-candidates", type=non_negative_int, help="candidates (pairs) the worst regression's shrink may fly (default 30; 0: no shrink)")
+    p.add_argument("--fly-identical", action="store_true", default=None,
+                   help="fly a head that builds to the same program as its base too (by default it passes unflown: no flight can tell them apart)")
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--cache", metavar="DIR", help="builds and the base's flights, kept between gates (default: $XDG_CACHE_HOME/stella or ~/.cache/stella)")
     p.add_argument("--out", required=True, metavar="DIR", help="summary.md, junit.xml, gate.json, findings/, and the flights")
@@ -72,6 +74,7 @@ def _settings(args: argparse.Namespace) -> dict:
              "scenarios": [str(Path(s).resolve()) for s in args.scenario] if args.scenario else None, "drive": args.drive,
              "budget_flights": args.budget_flights, "budget_minutes": args.budget_minutes, "algorithm": args.algorithm, "population": args.population,
              "confirm": args.confirm, "verify_flights": args.verify_flights, "seed": args.seed, "closer_m": args.closer_m, "max_findings": args.max_findings, "shrink_candidates": args.shrink_candidates, "workers": args.workers,
+             "fly_identical": args.fly_identical,
              "worktree_command": args.worktree_command, "cache": args.cache}
     settings = merged(config, given)
     settings["sut_params"] = {**config.get("sut_params", {}), **sut_param_values(args.sut_param)}
@@ -147,7 +150,8 @@ def cmd_gate(args: argparse.Namespace) -> int:
     plan = gate.GatePlan(tuple(settings.get("suite", ())), scenarios, budget_flights, settings.get("budget_minutes"), settings.get("drive"),
                          settings.get("algorithm", "NSGAII").upper(), settings.get("population", 10), settings.get("confirm", DEFAULT_CONFIRM[kind]),
                          settings.get("seed", 0), settings.get("closer_m", 0.0), settings.get("max_findings", 5), settings.get("profile", "default"),
-                         settings.get("shrink_candidates", 30), settings.get("verify_flights", DEFAULT_VERIFY_FLIGHTS[kind]))
+                         settings.get("shrink_candidates", 30), settings.get("verify_flights", DEFAULT_VERIFY_FLIGHTS[kind]),
+                         settings.get("fly_identical", False))
     gate.check(plan)
     base, head = _sides(args, settings)
     progress = (lambda line: None) if args.json else (lambda line: print(line, file=sys.stderr))
@@ -160,8 +164,11 @@ def cmd_gate(args: argparse.Namespace) -> int:
         executor.close()
     written = gate_report.write(result, Path(args.out))
     regressions = result.regressions
-    lines = [f"{'FAILED' if regressions else 'passed'}: {len(regressions)} regression{'s' * (len(regressions) != 1)} "
-             f"({len(result.suite)} suite case{'s' * (len(result.suite) != 1)}, {len(result.searched)} search pairs, {result.wall_s / 60:.1f} min)"]
+    if result.identical:
+        lines = ["passed: the head builds to the same program as the base; nothing flown (--fly-identical flies it)"]
+    else:
+        lines = [f"{'FAILED' if regressions else 'passed'}: {len(regressions)} regression{'s' * (len(regressions) != 1)} "
+                 f"({len(result.suite)} suite case{'s' * (len(result.suite) != 1)}, {len(result.searched)} search pairs, {result.wall_s / 60:.1f} min)"]
     lines += [f"  {pair.name}: {pair.judgement.kind}: {pair.judgement.why}" for pair in regressions]
     lines.append(f"wrote {written['summary']}, {written['junit']}, {written['result']}")
     emit(args, {"passed": result.passed, "regressions": len(regressions), **written}, "\n".join(lines))
