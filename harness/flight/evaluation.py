@@ -13,7 +13,7 @@ import shutil
 import signal
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -34,6 +34,9 @@ from sim_bridge.spec import WorldSpec
 import sut_adapter
 from sut_adapter import SutHandle, SystemUnderTest
 from sut_adapter.processes import ManagedProcess
+
+if TYPE_CHECKING:
+    from harness.properties.spec import Property
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +122,17 @@ def _score(recorded: Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]], 
     return Score(status, value, why, clearance)
 
 
+def scored_properties(properties: Sequence["Property"], recorded, api_records: Sequence[tuple[int, str, bytes]], world: WorldSpec) -> dict[str, dict[str, Any]]:
+    """Each property's verdict and robustness over the flight's recording (as `stella inspect
+    --property` scores its log)."""
+    if not properties:
+        return {}
+    from harness.properties.monitor import verdicts
+    from harness.properties.signals import extract
+
+    return verdicts(properties, extract(recorded, ((ns, datagram) for ns, direction, datagram in api_records if direction == "from_sut"), world))
+
+
 def rescore(log_path: Path) -> dict[str, Any]:
     """Recompute status and fitness from a log alone (what `stella inspect` does); a truncated log
     is scored on what precedes the damage, and says where that is."""
@@ -174,7 +188,8 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     artifacts: list[str] = []
     flight_logs: list[Path] = []
 
-    def finish(score: Score, log_path: Path | None, failures_refused: list[dict[str, Any]] | None = None) -> EvaluationResult:
+    def finish(score: Score, log_path: Path | None, failures_refused: list[dict[str, Any]] | None = None,
+               properties: dict[str, dict[str, Any]] | None = None) -> EvaluationResult:
         summary = outcome.summary
         in_run = summary.get("wall_in_run_s") or 0.0
         run_time = summary.get("run_time_s") or 0.0
@@ -199,6 +214,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             mavsdk=dict(outcome.mavsdk),
             failures_refused=failures_refused or [],
             first_touchdown_s=summary.get("first_touchdown_s"),
+            properties=properties or {},
         )
 
     try:
@@ -230,10 +246,11 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         recording = logs.Recording(stack.bridge_log)
         api_from_sut = (datagram for _ns, direction, datagram in api_records if direction == "from_sut")
         score = _score(recording.messages, world, outcome.summary, failure, api_from_sut)
+        properties = scored_properties(options.properties, recording.messages, api_records, world)
         timings["score_s"] = time.monotonic() - t0
         if options.keeps_sut_log(score.status, outcome.end_reason):
             artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
-        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])))
+        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])), properties)
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(), "placement": stack.placement,

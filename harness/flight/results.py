@@ -6,12 +6,15 @@ of it. Light to import: no MAVSDK, no processes.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping, NamedTuple
+from typing import TYPE_CHECKING, Any, Mapping, NamedTuple
 
 from harness.flight.fitness import COULD_NOT_FINISH, Clearance, Status
 from sim_bridge.control import EndReason
 from sim_bridge.sut_link import TRANSPORTS
 from sut_adapter import SutConfig
+
+if TYPE_CHECKING:
+    from harness.properties.spec import Property
 
 SUT_LOGS = ("all", "failures", "violations")
 
@@ -53,6 +56,8 @@ class RunOptions:
     # ArduPilot's dataflash .BIN): which flights keep them (keeps_sut_log), so that a campaign of
     # thousands of real-firmware flights fits on a disk. Consoles are kept either way.
     sut_logs: str = "all"
+    # Safety properties (harness/properties) scored on each flight beside its fitness.
+    properties: tuple["Property", ...] = ()
 
     def __post_init__(self) -> None:
         if self.transport not in TRANSPORTS:
@@ -108,6 +113,8 @@ class EvaluationResult:
     # Simulated time of the first touchdown once airborne (None: it never came down): where a
     # landing hops, sim_time_s ends at the last hop.
     first_touchdown_s: float | None = None
+    # Each property asked for (RunOptions.properties): {name: {"verdict", "robustness", "unit"}}.
+    properties: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -22,7 +22,7 @@ from typing import Sequence
 
 from harness.errors import InputError, StellaError
 # Importing a command module declares its commands, in the order `stella --help` lists them.
-from harness.tools.commands import scenarios, flights, explain, campaigns, shrink, sut, gate, mutants, faults, machinery  # noqa: F401
+from harness.tools.commands import scenarios, flights, properties, explain, campaigns, shrink, sut, gate, mutants, faults, machinery  # noqa: F401
 from harness.tools.commands.common import COMMANDS, add_command
 
 log = logging.getLogger("stella")

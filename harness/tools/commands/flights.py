@@ -43,6 +43,8 @@ def _run_options(p: argparse.ArgumentParser) -> None:
                    help="fly the same concrete scenario N times with the same seed and report the spread of fitness and clearance and how many "
                         "repeats violated (a real SUT's timing differs run to run)")
     p.add_argument("--confirm", type=non_negative_int, default=0, help="with a reference: fly a revealing pair N more times on both sides and judge all flights")
+    p.add_argument("--property", action="append", metavar="NAME|FILE",
+                   help="also score this safety property (`stella properties` names them; or a JSON property file); repeatable")
     add_reference_options(p)
 
 
@@ -51,6 +53,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from harness.flight.evaluation import evaluate
     from harness.flight.results import RunOptions
     from harness.flight.fitness import COULD_NOT_FINISH, Status
+    from harness.properties.spec import load_property
     from harness.scenario.world import load_concrete
 
     sut = sut_spec(args)
@@ -62,7 +65,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
     check_transport(args.transport, sut)
-    options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport)
+    options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport,
+                         properties=tuple(load_property(given) for given in args.property or []))
     reference = reference_spec(args, sut)
     if reference is not None:
         if args.repeat != 1:
@@ -85,6 +89,7 @@ def _result_text(result: EvaluationResult) -> str:
     if result.min_clearance_at_s is not None:
         lines.append(f"min clearance: {result.min_clearance_m:.3f} m at t={result.min_clearance_at_s:.3f} s to {result.min_clearance_obstacle}")
     lines.append(f"simulated {result.sim_time_s:.1f} s in {result.wall_time_s:.1f} s wall" + (f" (flight at {result.real_time_factor:.1f}x real time)" if result.real_time_factor else ""))
+    lines += property_lines(result.properties)
     if result.log_path:
         lines.append(f"log: {result.log_path}")
     for refused in result.failures_refused or []:
@@ -153,11 +158,15 @@ def _inspect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--export", choices=["csv"], help="also write one CSV per topic (nested fields as dotted columns, /clearance one row per step)")
     p.add_argument("--topic", action="append", help="with --export: only this topic; repeatable (default: every topic)")
     p.add_argument("--out", help="with --export: folder for the CSV files (default: LOG-csv/ beside the log)")
+    p.add_argument("--property", action="append", metavar="NAME|FILE", help="also score this property from the log alone (`stella properties` names them); repeatable")
 
 
 @command("inspect", "summarize an evaluation log and recompute the fitness from it alone", _inspect_options)
 def cmd_inspect(args: argparse.Namespace) -> int:
     from harness.flight.inspect_log import export_csv, plot, summarize, topics
+    from harness.properties.monitor import verdicts
+    from harness.properties.signals import from_log
+    from harness.properties.spec import load_property
 
     path = Path(args.log)
     if not path.is_file():
@@ -170,7 +179,10 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         lines += [f"{r['topic']:<28} {r['schema'] or '-':<26} {r['messages']:>8} {_seconds(r['first_s']):>10} {_seconds(r['last_s']):>10}" for r in rows]
         emit(args, {"log": str(path), "topics": rows}, "\n".join(lines))
         return 0
+    properties = [load_property(given) for given in args.property or []]
     summary = summarize(path)
+    if properties:
+        summary["properties"] = verdicts(properties, from_log(path))
     if args.competition:
         from harness.interop.competition_score import competition_score
 
@@ -187,6 +199,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if summary["min_clearance_at_s"] is not None:
         lines.append(f"min clearance: {summary['min_clearance_m']:.3f} m at t={summary['min_clearance_at_s']:.3f} s to {summary['min_clearance_obstacle']}")
     lines.append(f"fitness (recomputed from the log): {summary['fitness']:.6f}; recorded: {summary['recorded_fitness']}; reproduced: {'not checked (partial log)' if summary['partial'] else summary['fitness_reproduced']}")
+    lines += property_lines(summary.get("properties", {}))
     if args.competition:
         score = summary["competition"]
         per_box = ", ".join(f"{name} {d:.3f} m" for name, d in score["distances_m"].items())
@@ -198,6 +211,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         lines.append(f"exported {len(written)} CSV file(s) to {out}")
     emit(args, summary, "\n".join(lines))
     return 0
+
+
+def property_lines(properties: dict) -> list[str]:
+    return [f"property {name}: {scored['verdict']}, robustness "
+            + ("-" if scored["robustness"] is None else f"{scored['robustness']:.3f} {scored['unit']}") for name, scored in properties.items()]
 
 
 def _seconds(value: float | None) -> str:

@@ -1,0 +1,138 @@
+"""Safety properties: Signal Temporal Logic formulas over the signals a flight records
+(harness/properties/signals.py), named in a library or written in a property file, checked
+before anything flies and monitored with rtamt (harness/properties/monitor.py).
+
+A property file is JSON:
+
+    {"name": "gentle",
+     "formula": "always(tilt_deg <= max_tilt_deg)",
+     "parameters": {"max_tilt_deg": 20},
+     "unit": "deg",
+     "description": "never tilts more than 20 degrees"}
+
+The formula is rtamt's discrete-time STL: `always`, `eventually`, `historically`, `once`,
+`since`, `until`, each with an optional bound in seconds (`eventually[0:5]`), `and`, `or`, `not`,
+`->`, comparisons and arithmetic over signals, parameters and numbers. A property is kept where
+its robustness (rtamt's quantitative semantics at the flight's first sample) is 0 or more.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from harness.errors import InputError, Problem
+from harness.properties.signals import SIGNALS
+
+# rtamt's words, which are not signals.
+KEYWORDS = frozenset({"always", "eventually", "historically", "once", "since", "until", "and", "or", "not", "implies", "iff", "xor",
+                      "next", "prev", "rise", "fall", "abs", "sqrt", "exp", "pow", "G", "F", "H", "O", "S", "U", "X", "Y", "true", "false"})
+IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+@dataclass(frozen=True)
+class Property:
+    name: str
+    formula: str
+    unit: str
+    description: str
+    parameters: Mapping[str, float] = field(default_factory=dict)
+    source: str = ""  # the documentation the property comes from
+
+    @property
+    def stated(self) -> str:
+        """The formula with its parameters' values in place, as the monitor reads it."""
+        def value(match: re.Match) -> str:
+            word = match.group(0)
+            return repr(float(self.parameters[word])) if word in self.parameters else word
+
+        return IDENTIFIER.sub(value, self.formula)
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(word for word, _column in _identifiers(self.stated) if word in SIGNALS))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "formula": self.formula, "parameters": dict(self.parameters), "unit": self.unit,
+                "description": self.description, "source": self.source}
+
+
+def _identifiers(formula: str) -> list[tuple[str, int]]:
+    """(identifier, column from 1) of each name in the formula, numbers' exponents left out."""
+    found = []
+    for match in IDENTIFIER.finditer(formula):
+        if match.start() and (formula[match.start() - 1].isdigit() or formula[match.start() - 1] == "."):
+            continue
+        found.append((match.group(0), match.start() + 1))
+    return found
+
+
+def check(prop: Property, where: str) -> None:
+    """InputError naming `where` and the column of each name in the formula that is neither a
+    signal, a parameter nor a word of STL, and the position of a syntax error."""
+    from harness.properties.monitor import parse
+
+    problems = []
+    for word, column in _identifiers(prop.formula):
+        if word not in SIGNALS and word not in prop.parameters and word not in KEYWORDS:
+            close = difflib.get_close_matches(word, [*SIGNALS, *prop.parameters], n=3, cutoff=0.5)
+            problems.append(Problem(where, "/formula", f"1:{column}: {word!r} is neither a signal nor a parameter"
+                                                       + (f"; did you mean {', '.join(close)}?" if close else "; `stella properties` lists the signals")))
+    if problems:
+        raise InputError(problems)
+    parse(prop, where)
+
+
+LIBRARY: dict[str, Property] = {p.name: p for p in (
+    Property("clearance", "always(margin_m >= 0)", "m",
+             "keeps the safety distance from every obstacle; its robustness is the fitness f"),
+    Property("geofence", "always(distance_from_home_m <= max_distance_m and altitude_m <= max_altitude_m)", "m",
+             "stays inside a cylinder around the take-off point", {"max_distance_m": 150.0, "max_altitude_m": 120.0},
+             "PX4 geofence: GF_MAX_HOR_DIST, GF_MAX_VER_DIST (https://docs.px4.io/main/en/config/safety.html#geofence-failsafe)"),
+    Property("max_tilt", "always(tilt_deg <= max_tilt_deg)", "deg",
+             "never tilts beyond the multicopter's tilt limit", {"max_tilt_deg": 45.0},
+             "PX4 MPC_TILTMAX_AIR (default 45 degrees)"),
+    Property("max_speed", "always(horizontal_speed_m_s <= max_speed_m_s)", "m/s",
+             "never flies faster horizontally than the speed limit", {"max_speed_m_s": 12.0},
+             "PX4 MPC_XY_VEL_MAX (default 12 m/s)"),
+    Property("lands_in_area", "eventually(always(agl_m <= landed_agl_m and distance_to_goal_m <= radius_m))", "m",
+             "ends the flight on the ground within the landing area around the goal", {"landed_agl_m": 0.3, "radius_m": 3.0}),
+    Property("no_flyaway", "always(distance_from_route_m <= corridor_m)", "m",
+             "stays within a corridor around its route, failures or not", {"corridor_m": 20.0}),
+)}
+
+
+def load_property(given: str) -> Property:
+    """A named property, or the property in a JSON file, checked."""
+    if given in LIBRARY:
+        return LIBRARY[given]
+    path = Path(given)
+    if not path.is_file():
+        raise InputError([Problem(given, "", f"neither a property's name ({', '.join(LIBRARY)}) nor a property file")])
+    try:
+        document = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise InputError([Problem(str(path), "", f"invalid JSON: {error}")]) from None
+    if not isinstance(document, dict):
+        raise InputError([Problem(str(path), "", "a property file is a JSON object with name, formula, unit and description")])
+    problems = []
+    for key in ("name", "formula", "unit"):
+        if not isinstance(document.get(key), str) or not document[key].strip():
+            problems.append(Problem(str(path), f"/{key}", "missing or not a non-empty string"))
+    parameters = document.get("parameters", {})
+    if not isinstance(parameters, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in parameters.values()):
+        problems.append(Problem(str(path), "/parameters", "an object of names and numbers, e.g. {\"max_tilt_deg\": 20}"))
+    clashing = [name for name in parameters if name in SIGNALS or name in KEYWORDS] if isinstance(parameters, dict) else []
+    problems += [Problem(str(path), f"/parameters/{name}", "is a signal's or STL's own name: name the parameter otherwise") for name in clashing]
+    unknown = sorted(set(document) - {"name", "formula", "unit", "description", "parameters", "source"})
+    problems += [Problem(str(path), f"/{key}", "unknown key; a property has name, formula, unit, description, parameters, source") for key in unknown]
+    if problems:
+        raise InputError(problems)
+    prop = Property(document["name"], document["formula"], document["unit"], document.get("description", ""),
+                    {k: float(v) for k, v in parameters.items()}, document.get("source", ""))
+    check(prop, str(path))
+    return prop

@@ -1,0 +1,103 @@
+"""Safety properties beyond clearance (harness/properties): the named ones' meaning on traces
+made by hand, property files checked with the formula's positions, and real flights scored,
+then scored again from their logs alone."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.properties.monitor import verdicts
+from harness.properties.signals import SIGNALS, Series
+from harness.properties.spec import LIBRARY
+from harness.tools.cli import main
+
+from conftest import ROOT
+
+PERIOD_S = 0.04
+
+
+def trace(**given: list[float]) -> Series:
+    """A flight of len(given lists) samples; every signal not given stays 0 (lands_in_area's
+    goal distance and height: on the ground at the goal)."""
+    length = len(next(iter(given.values())))
+    values = {name: np.zeros(length) for name in SIGNALS}
+    values.update({name: np.array(series, dtype=float) for name, series in given.items()})
+    return Series(np.arange(length) * PERIOD_S, values)
+
+
+CASES = {
+    # name: (a trace that keeps it, its robustness; a trace that violates it, its robustness)
+    "clearance": (trace(margin_m=[5.0, 1.5, 0.25, 2.0]), 0.25, trace(margin_m=[5.0, -0.5, 0.1]), -0.5),
+    "geofence": (trace(distance_from_home_m=[0.0, 140.0, 20.0], altitude_m=[0.0, 8.0, 100.0]), 10.0,
+                 trace(distance_from_home_m=[0.0, 50.0, 80.0], altitude_m=[0.0, 125.0, 8.0]), -5.0),
+    "max_tilt": (trace(tilt_deg=[0.0, 30.0, 5.0]), 15.0, trace(tilt_deg=[0.0, 50.0, 5.0]), -5.0),
+    "max_speed": (trace(horizontal_speed_m_s=[0.0, 11.0, 2.0]), 1.0, trace(horizontal_speed_m_s=[0.0, 14.5, 2.0]), -2.5),
+    "lands_in_area": (trace(agl_m=[0.0, 8.0, 8.0, 0.1, 0.05], distance_to_goal_m=[30.0, 20.0, 2.0, 1.0, 1.0]), 0.25,
+                      trace(agl_m=[0.0, 8.0, 8.0, 0.1, 0.05], distance_to_goal_m=[30.0, 20.0, 9.0, 7.0, 7.0]), -4.0),
+    "no_flyaway": (trace(distance_from_route_m=[0.0, 12.0, 3.0]), 8.0, trace(distance_from_route_m=[0.0, 35.0, 3.0]), -15.0),
+}
+
+
+def test_every_named_property_has_a_case():
+    assert set(CASES) == set(LIBRARY)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_a_named_property_is_kept_and_violated_as_its_documentation_says_with_robustness_in_its_unit(name):
+    kept, kept_by, violated, violated_by = CASES[name]
+    prop = LIBRARY[name]
+    assert verdicts([prop], kept)[name] == {"verdict": "kept", "robustness": pytest.approx(kept_by), "unit": prop.unit}
+    assert verdicts([prop], violated)[name] == {"verdict": "violated", "robustness": pytest.approx(violated_by), "unit": prop.unit}
+
+
+@pytest.mark.parametrize("document, said", [
+    ({"name": "x", "formula": "always(tilt <= 20)", "unit": "deg"}, "/formula: 1:8: 'tilt' is neither a signal nor a parameter; did you mean tilt_deg"),
+    ({"name": "x", "formula": "always(tilt_deg <= 20", "unit": "deg"}, "/formula: 1:21"),
+    ({"name": "x", "formula": "always(tilt_deg <= limit)", "unit": "deg", "parameters": {"limit": "high"}}, "/parameters: an object of names and numbers"),
+    ({"name": "x", "formula": "always(tilt_deg <= agl_m)", "unit": "deg", "parameters": {"agl_m": 3}}, "/parameters/agl_m: is a signal's or STL's own name"),
+    ({"formula": "always(tilt_deg <= 20)", "unit": "deg"}, "/name: missing"),
+    ({"name": "x", "formula": "always(tilt_deg <= 20)", "unit": "deg", "threshold": 3}, "/threshold: unknown key"),
+])
+def test_a_bad_property_file_is_refused_before_flying_naming_the_file_the_field_and_the_position(document, said, tmp_path, capsys):
+    spec = tmp_path / "prop.json"
+    spec.write_text(json.dumps(document))
+    assert main(["run", "--concrete", str(ROOT / "scenarios" / "examples" / "wall_concrete.json"), "--property", str(spec), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(spec) in err and said in err
+    assert not list(tmp_path.glob("*.mcap"))
+
+
+def test_an_unknown_property_name_is_refused_with_the_names_there_are(tmp_path, capsys):
+    assert main(["run", "--concrete", str(ROOT / "scenarios" / "examples" / "wall_concrete.json"), "--property", "geofense", "--out", str(tmp_path)]) == 2
+    assert "neither a property's name (clearance, geofence" in capsys.readouterr().err
+
+
+def flown(tmp_path: Path, capsys, *argv: str) -> dict:
+    capsys.readouterr()
+    main(["run", *argv, "--out", str(tmp_path), "--json", *(a for name in LIBRARY for a in ("--property", name))])
+    return json.loads(capsys.readouterr().out)
+
+
+def inspected(log: str, capsys, *properties: str) -> dict:
+    assert main(["inspect", log, "--json", *(a for name in properties for a in ("--property", name))]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_a_flight_scores_its_properties_and_its_log_alone_scores_them_the_same(tmp_path, capsys):
+    # GIVEN the wall flown as a mission (collision prevention stops short of it), and the same
+    # with a fault that brakes late
+    safe = flown(tmp_path / "safe", capsys, "--concrete", str(ROOT / "scenarios" / "examples" / "wall_concrete.json"))
+    late = flown(tmp_path / "late", capsys, "--concrete", str(ROOT / "scenarios" / "faults" / "cp_ignores_delay.json"), "--sut-fault", "cp_ignores_delay")
+    # THEN the clearance property is the fitness, bit for bit: kept on one, violated on the other
+    assert safe["status"] == "ok" and safe["properties"]["clearance"] == {"verdict": "kept", "robustness": safe["fitness"], "unit": "m"}
+    assert late["status"] == "violation" and late["properties"]["clearance"] == {"verdict": "violated", "robustness": late["fitness"], "unit": "m"}
+    # and a calm mission keeps the rest, its landing within the area
+    assert {name for name, scored in safe["properties"].items() if scored["verdict"] == "kept"} == set(LIBRARY)
+    assert 0 < safe["properties"]["max_tilt"]["robustness"] < LIBRARY["max_tilt"].parameters["max_tilt_deg"]
+    # and each log, read back, gives the same verdicts and robustness to the last bit
+    for result in (safe, late):
+        assert inspected(result["log_path"], capsys, *LIBRARY)["properties"] == result["properties"]
