@@ -5,6 +5,7 @@ then scored again from their logs alone."""
 from __future__ import annotations
 
 import json
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,7 @@ def inspected(log: str, capsys, *properties: str) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.mark.slow
 def test_a_flight_scores_its_properties_and_its_log_alone_scores_them_the_same(tmp_path, capsys):
     # GIVEN the wall flown as a mission (collision prevention stops short of it), and the same
     # with a fault that brakes late
@@ -101,3 +103,27 @@ def test_a_flight_scores_its_properties_and_its_log_alone_scores_them_the_same(t
     # and each log, read back, gives the same verdicts and robustness to the last bit
     for result in (safe, late):
         assert inspected(result["log_path"], capsys, *LIBRARY)["properties"] == result["properties"]
+
+
+@pytest.mark.slow
+def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_and_resumes(tmp_path, capsys):
+    gentle = tmp_path / "gentle.json"
+    gentle.write_text(json.dumps({"name": "gentle", "formula": "always(tilt_deg <= max_tilt_deg)", "parameters": {"max_tilt_deg": 5},
+                                  "unit": "deg", "description": "a camera platform's envelope"}))
+    store = tmp_path / "c.db"
+    campaign = ["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "6", "--workers", "2",
+                "--store", str(store), "--property", "clearance", "--property", str(gentle), "--json"]
+    assert main(campaign) == 0
+    [run] = json.loads(capsys.readouterr().out)["runs"]
+    # THEN every flight that flew was scored on both, and the cruise's tilt breaks the 5 degrees
+    with sqlite3.connect(store) as db:
+        rows = db.execute("SELECT status, fitness, properties FROM evaluations").fetchall()
+    flown = [(status, fitness, json.loads(properties)) for status, fitness, properties in rows if status != "infeasible"]
+    assert flown and all(set(scored) == {"clearance", "gentle"} for _s, _f, scored in flown)
+    assert all(scored["clearance"]["robustness"] == fitness for status, fitness, scored in flown if status in ("ok", "violation"))
+    least = min(min(p["robustness"] for p in scored.values()) for _s, _f, scored in flown)
+    assert run["best_fitness"] == least < 0
+    assert run["property_violations"] == sum(any(p["verdict"] == "violated" for p in scored.values()) for _s, _f, scored in flown) >= 1
+    # and the same command again answers from the store, flying nothing
+    assert main(campaign) == 0
+    assert json.loads(capsys.readouterr().out)["runs"] == []

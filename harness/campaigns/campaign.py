@@ -24,6 +24,7 @@ from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
+from harness.properties.spec import Property
 from harness.scenario.logical import LogicalScenario, load_logical
 from harness.scenario.profile import Profile, load_profile
 from harness.scenario.space import SearchSpace
@@ -68,6 +69,9 @@ class CampaignConfig:
     reference: SutConfig | None = None
     objective: str = "subject"
     stop_at_reveal: bool = False  # end each run at its first confirmed revealing candidate
+    # Safety properties scored on every flight (harness/properties); the search then minimises the
+    # least of their robustness instead of f.
+    properties: tuple[Property, ...] = ()
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
@@ -126,6 +130,8 @@ class CampaignConfig:
                 overrides["objective"] = self.objective
         if self.stop_at_reveal:
             overrides["stop_at_reveal"] = True
+        if self.properties:  # another objective: the optimizer hears other values
+            overrides["properties"] = [prop.as_dict() for prop in self.properties]
         return {
             "scenarios": scenarios,
             "algorithms": list(self.algorithms),
@@ -204,17 +210,22 @@ class RunSummary:
     failures_refused: int  # flights in which the SUT refused a failure injection
     best_fitness: float | None
     revealing: int | None = None  # a differential campaign's candidates that reveal a difference; None in others
+    property_violations: int | None = None  # flights that violated a safety property asked; None where none was
 
     def as_dict(self) -> dict[str, Any]:
         document = asdict(self)
-        if self.revealing is None:
-            del document["revealing"]
+        for optional in ("revealing", "property_violations"):
+            if document[optional] is None:
+                del document[optional]
         return document
 
 
 def run_line(run: RunSummary) -> str:
     """One line on a finished run, for a console."""
     best = run.best_fitness if run.best_fitness is not None else float("nan")
+    if run.property_violations is not None:
+        return (f"{run.scenario} {run.algorithm} run {run.run}: least robustness {best:.3f}, {run.property_violations} flights violating a property, "
+                f"{run.violations} violations of the safety distance in {run.evaluations} evaluations")
     return f"{run.scenario} {run.algorithm} run {run.run}: best fitness {best:.3f}, {run.violations} violations in {run.evaluations} evaluations"
 
 
@@ -241,7 +252,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     warm only where the executor's processes live on. on_result hears of every evaluation, on_run
     of every run as it finishes. A differential campaign keeps its reference flights in its store
     unless given another ReferenceCache (a mutation run's, shared)."""
-    options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks)
+    options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks, properties=config.properties)
     for sut in filter(None, (config.sut, config.reference)):
         executor.check_sut(sut)
     combinations = [parse_algorithm(a) for a in config.algorithms]
@@ -269,8 +280,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 store.finish_run(run_id)
                 best = problem.best
                 run = RunSummary(run_id, space.logical.name, algorithm.upper(), run_index, seed, problem.spent, problem.flown, problem.replayed,
-                                 problem.violations, store.failures_refused(run_id), best.fitness if best else None,
-                                 problem.revealing if pairs else None)
+                                 problem.violations, store.failures_refused(run_id), problem.objective_of(best) if best else None,
+                                 problem.revealing if pairs else None, problem.property_violations if config.properties else None)
                 summary.runs.append(run)
                 on_run(run)
     return summary

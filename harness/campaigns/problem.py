@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
@@ -39,6 +39,12 @@ class StopSearch(Exception):
         super().__init__("campaign termination reached" if campaign_done else "step budget reached")
 
 
+def least_robustness(properties: Mapping[str, Mapping[str, Any]]) -> float | None:
+    """The least robustness among a flight's scored properties (None: none was scored)."""
+    scored = [p["robustness"] for p in properties.values() if p.get("robustness") is not None]
+    return min(scored) if scored else None
+
+
 @dataclass(frozen=True)
 class Trial:
     """One distinct candidate of a run once it has an outcome (flown, refused as infeasible, or
@@ -51,6 +57,7 @@ class Trial:
     status: Status
     reveals: Reveal | None = None
     log_path: str | None = field(default=None, compare=False)
+    robustness: float | None = None  # the least of the safety properties' asked (None: none scored)
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,7 @@ class CampaignProblem:
         self._step = _Step()
         self.spent = 0
         self.violations = 0
+        self.property_violations = 0
         self.flown = 0
         self.replayed = 0
         self.revealing = 0
@@ -112,7 +120,12 @@ class CampaignProblem:
 
     @property
     def best(self) -> Trial | None:
-        return min(self.history, key=lambda trial: trial.fitness, default=None)
+        return min(self.history, key=self.objective_of, default=None)
+
+    def objective_of(self, trial: Trial) -> float:
+        """What the search minimises: the flight's f, or with safety properties asked, the least
+        of their robustness (a flight that could not finish, or was not flown, keeps its penalty)."""
+        return trial.robustness if self.options.properties and trial.robustness is not None else trial.fitness
 
     def start_step(self, index: int, optimizer: str, budget: int) -> None:
         """A sequence's next step asks from now on, with budget evaluations of its own."""
@@ -140,6 +153,8 @@ class CampaignProblem:
         self._trials[trial.key] = trial
         if trial.status == Status.VIOLATION:
             self.violations += 1
+        if trial.robustness is not None and trial.robustness < 0:
+            self.property_violations += 1
         if trial.reveals:
             self.revealing += 1
 
@@ -168,7 +183,8 @@ class CampaignProblem:
             stored = self._stored.get(candidate.key)
             if stored is not None:
                 self.replayed += 1
-                self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path))
+                self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path,
+                                   least_robustness(stored.properties)))
                 continue
             # Its id in the store, known now so that its log carries it: one number for an
             # evaluation in its log's name and in every command that shows or takes it.
@@ -201,7 +217,7 @@ class CampaignProblem:
 
     def _told(self, trial: Trial) -> float:
         """The fitness the optimizer hears of (the stored one is the flight's own)."""
-        return trial.fitness if self.diversity is None else self.diversity.shared(trial, self._trials.values())
+        return self.objective_of(trial) if self.diversity is None else self.diversity.shared(trial, self._trials.values())
 
     def _confirmed(self, violations: list[tuple[Job, EvaluationResult]]) -> list[tuple[Job, EvaluationResult]]:
         """Each violation with the outcome of flying it `confirm` more times (same scenario and
@@ -227,5 +243,5 @@ class CampaignProblem:
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
         self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,
-                           result.log_path))
+                           result.log_path, least_robustness(result.properties)))
         self.on_result(result)

@@ -49,6 +49,7 @@ class StoredEvaluation:
     scenario_file: str = ""
     algorithm: str = ""
     run_index: int = 0
+    properties: Mapping[str, Any] = field(default_factory=dict)  # each safety property scored: verdict, robustness, unit
 
     @property
     def flaky(self) -> bool:

@@ -59,6 +59,9 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", required=True, help="SQLite campaign store; re-run the same command to resume")
     p.add_argument("--stop-at-violation", action="store_true", help="end each run at its first violation")
     p.add_argument("--stop-at-reveal", action="store_true", help="with a reference: end each run at its first (confirmed) revealing candidate")
+    p.add_argument("--property", action="append", metavar="NAME|FILE",
+                   help="score this safety property on every flight and search for the least robustness among those given instead of f "
+                        "(`stella properties` names them; or a JSON property file); repeatable")
     add_reference_options(p, campaign=True)
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
@@ -67,6 +70,7 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     """The campaign a `stella campaign` command line asks for, every option checked before anything
     starts: what the command runs, and how the campaign page checks a campaign set up on it."""
     from harness.campaigns.campaign import CampaignConfig
+    from harness.properties.spec import load_property
     from harness.search.optimizers import parse_algorithm
 
     for algorithm in args.algorithm:
@@ -80,7 +84,11 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     check_transport(args.transport, sut)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
-                            args.mission_plan, reference_spec(args, sut), args.objective, args.stop_at_reveal)
+                            args.mission_plan, reference_spec(args, sut), args.objective, args.stop_at_reveal,
+                            tuple(load_property(given) for given in args.property or []))
+    if config.properties and (config.reference is not None or config.objective != "subject"):
+        raise InputError([Problem("--property", "", "searches the properties' robustness alone: leave out --objective and the reference SUT "
+                                                    "(differential campaigns over properties are not built yet)")])
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config
@@ -164,7 +172,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         bar.close()
         executor.close()
     unflown.check()
-    text = "\n".join(f"{r.scenario} {r.algorithm} run {r.run}: best {r.best_fitness:.3f}, {r.violations} violations, "
+    text = "\n".join(f"{r.scenario} {r.algorithm} run {r.run}: "
+                     + (f"least robustness {r.best_fitness:.3f}, {r.property_violations} violating a property, "
+                        if r.property_violations is not None else f"best {r.best_fitness:.3f}, ")
+                     + f"{r.violations} violations, "
                      + (f"{r.revealing} revealing, " if r.revealing is not None else "")
                      + f"{r.flown} flown, {r.replayed} from the store"
                      + (f"; warning: the SUT refused a failure injection in {r.failures_refused} flights, which flew without it"
