@@ -106,7 +106,8 @@ def test_a_flight_scores_its_properties_and_its_log_alone_scores_them_the_same(t
 
 
 @pytest.mark.slow
-def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_and_resumes(tmp_path, capsys):
+def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_resumes_and_exports_cases_that_keep_them(tmp_path, capsys,
+                                                                                                                        pytester):
     gentle = tmp_path / "gentle.json"
     gentle.write_text(json.dumps({"name": "gentle", "formula": "always(tilt_deg <= max_tilt_deg)", "parameters": {"max_tilt_deg": 5},
                                   "unit": "deg", "description": "a camera platform's envelope"}))
@@ -127,3 +128,28 @@ def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_
     # and the same command again answers from the store, flying nothing
     assert main(campaign) == 0
     assert json.loads(capsys.readouterr().out)["runs"] == []
+    # WHEN its worst case is exported, once as a fault fixed, once as a known violation
+    for expect in ("safe", "violation"):
+        assert main(["export-regressions", str(store), "--worst", "1", "--threshold=-inf", "--expect", expect, "--out", str(tmp_path / expect)]) == 0
+    [case] = (tmp_path / "safe").glob("*.regression.json")
+    assert [p["name"] for p in json.loads(case.read_text())["properties"]] == ["clearance", "gentle"]
+    # THEN pytest flies each with its properties: the tilt breaks the case that says safe, and is the violation the other expects
+    fixed = pytester.runpytest_subprocess(str(case), "-p", "no:cacheprovider", "--stella-out", str(tmp_path / "case-logs"))
+    fixed.assert_outcomes(failed=1)
+    assert "property gentle violated: robustness -" in fixed.stdout.str()
+    known = pytester.runpytest_subprocess(*map(str, (tmp_path / "violation").glob("*.regression.json")), "-p", "no:cacheprovider",
+                                          "--stella-out", str(tmp_path / "case-logs"))
+    known.assert_outcomes(passed=1)
+
+
+def test_a_regression_case_with_a_bad_property_names_the_case_the_property_and_the_column(tmp_path):
+    from harness.campaigns.regression import load_regression
+    from harness.errors import InputError
+
+    case = json.loads((ROOT / "tests" / "data" / "regressions" / "known_violation.json").read_text())
+    case["properties"] = [{"name": "gentle", "formula": "always(tilt <= 5)", "unit": "deg"}]
+    path = tmp_path / "bad.regression.json"
+    path.write_text(json.dumps(case))
+    with pytest.raises(InputError) as refused:
+        load_regression(path)
+    assert f"{path}: /properties/0/formula: 1:8: 'tilt' is neither a signal nor a parameter" in str(refused.value)

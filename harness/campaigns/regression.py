@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from harness.campaigns.problem import least_robustness
 from harness.campaigns.store import Store, StoredEvaluation, evaluation_name
 from harness.errors import InputError, Problem
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, TIME_RESOLUTION_S, Difference, Outcome, compare, flight_times
@@ -23,6 +24,7 @@ from harness.flight.evaluation import infeasible
 from harness.flight.results import EvaluationResult
 from harness.flight.fitness import Status
 from harness.flight.logs import slug
+from harness.properties.spec import Property, property_from
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, space_from_concrete, with_drive_recorded
@@ -49,6 +51,7 @@ class Regression:
     space: SearchSpace
     x: np.ndarray
     reference: Mapping[str, Any] | None = None  # expect as_reference: what the reference did
+    properties: tuple[Property, ...] = ()  # safety properties judged besides the safety distance
 
     @property
     def safety_distance_m(self) -> float:
@@ -69,9 +72,10 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
             concrete = space.to_concrete(x)
     except InputError as error:
         raise InputError([Problem(p.file, "/concrete_scenario" + p.pointer, p.message) for p in error.problems]) from None
+    properties = tuple(property_from(prop, str(path), f"/properties/{index}") for index, prop in enumerate(document.get("properties", [])))
     return Regression(path, document["name"], document["expect"], document["seed"],
                       SutConfig(document["sut"]["name"], dict(document["sut"].get("params", {})), document["sut"].get("fault")), concrete, document.get("found", {}), space, x,
-                      document.get("reference"))
+                      document.get("reference"), properties)
 
 
 def suite_cases(paths: Sequence[str], drive: str | None) -> list[tuple[str, Any, Any, int]]:
@@ -121,19 +125,26 @@ def describe(result: EvaluationResult, safety_distance_m: float) -> str:
 
 
 def verdict(expect: str, result: EvaluationResult, safety_distance_m: float, reference: Mapping[str, Any] | None = None) -> str | None:
-    """None when the flight meets the expectation, else the failure message."""
+    """None when the flight meets the expectation, else the failure message. The safety
+    properties the flight was scored on count as the safety distance does: `safe` keeps every
+    one, `violation` still breaks the distance or one of them."""
     what = describe(result, safety_distance_m)
+    broken = [f"property {name} violated: robustness {scored['robustness']:.3f} {scored['unit']}"
+              for name, scored in result.properties.items() if scored["verdict"] == "violated"]
     if expect == "as_reference":
         return _as_reference(result, reference or {}, what)
     if expect == "safe":
-        if result.status == Status.OK:
+        if result.status == Status.OK and not broken:
             return None
         if result.status == Status.VIOLATION:
             return f"safety distance violated: {what}"
+        if broken:
+            return f"{'; '.join(broken)}: {what}"
         return f"the mission was not flown safely to its end: {what}"
-    if result.status == Status.VIOLATION:
+    if result.status == Status.VIOLATION or broken:
         return None
-    return f"the known violation no longer reproduces: {what}. If the fault was fixed, set \"expect\": \"safe\"."
+    kept = "".join(f"; property {name} kept by {scored['robustness']:.3f} {scored['unit']}" for name, scored in result.properties.items())
+    return f"the known violation no longer reproduces: {what}{kept}. If the fault was fixed, set \"expect\": \"safe\"."
 
 
 def _as_reference(result: EvaluationResult, reference: Mapping[str, Any], what: str) -> str | None:
@@ -205,7 +216,8 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
     once. `per_mode`: only the worst violation of each failure mode (harness/campaigns/triage.py)."""
     with Store.existing(store_path) as store:
         sut = store.campaign_sut()
-        cases = store.worst_cases(threshold, worst)
+        searched_properties = bool(store.campaign_config().get("properties"))
+        cases = _least_robust(store, threshold, worst) if searched_properties else store.worst_cases(threshold, worst)
     if per_mode:
         from harness.campaigns.triage import triage
 
@@ -218,6 +230,17 @@ def chosen_cases(store_path: Path, threshold: float, worst: int, per_mode: bool 
         seen.add(case.vector_key)
         chosen.append((case_name(case), case))
     return sut, chosen
+
+
+def _least_robust(store: Store, threshold: float, worst_per_run: int) -> list[StoredEvaluation]:
+    """A property campaign's worst cases as its search ranked them: by the least robustness of
+    their properties, below threshold, plus each run's worst_per_run lowest."""
+    scored = [(least_robustness(e.properties), e) for e in store.all_evaluations() if e.properties]
+    by_run: dict[int, list[tuple[float, StoredEvaluation]]] = {}
+    for robustness, evaluation in sorted(scored, key=lambda pair: (pair[0], pair[1].ordinal)):
+        by_run.setdefault(evaluation.run_id, []).append((robustness, evaluation))
+    chosen = {e.id: (r, e) for ranked in by_run.values() for rank, (r, e) in enumerate(ranked) if r < threshold or rank < worst_per_run}
+    return [e for _r, e in sorted(chosen.values(), key=lambda pair: (pair[0], pair[1].id))]
 
 
 def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, StoredEvaluation]]]:
@@ -250,11 +273,16 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
         raise InputError([Problem("--expect", "", "as_reference needs the revealing cases of a differential campaign: add --revealing")])
     else:
         sut, chosen = chosen_cases(store_path, threshold, worst, per_mode)
+    with Store.existing(store_path) as store:
+        properties = store.campaign_config().get("properties", [])
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:
         path = out_dir / f"{name}{SUFFIX}"
-        path.write_text(json.dumps(case_document(name, case, sut, store_path, expect), indent=2) + "\n")
+        document = case_document(name, case, sut, store_path, expect)
+        if properties:
+            document["properties"] = properties
+        path.write_text(json.dumps(document, indent=2) + "\n")
         written.append(path)
     return written
 

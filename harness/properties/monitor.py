@@ -19,7 +19,7 @@ TIME_UNIT = "s"
 PERIOD_TOLERANCE = 0.1
 
 
-def parse(prop: Property, where: str, period_s: float | None = None) -> Any:
+def parse(prop: Property, where: str, period_s: float | None = None, at: str = "") -> Any:
     """rtamt's specification of the property; InputError with the formula's line and column where
     rtamt cannot parse it."""
     spec = rtamt.StlDiscreteTimeSpecification()
@@ -33,7 +33,7 @@ def parse(prop: Property, where: str, period_s: float | None = None) -> Any:
         spec.parse()
     except (rtamt.RTAMTException, Exception) as error:  # rtamt raises its own and ANTLR's
         message = str(error).replace("RTAMT Exception: ", "").strip()
-        raise InputError([Problem(where, "/formula", f"{message} (in {prop.stated!r})")]) from None
+        raise InputError([Problem(where, f"{at}/formula", f"{message} (in {prop.stated!r})")]) from None
     return spec
 
 

@@ -71,20 +71,21 @@ def _identifiers(formula: str) -> list[tuple[str, int]]:
     return found
 
 
-def check(prop: Property, where: str) -> None:
-    """InputError naming `where` and the column of each name in the formula that is neither a
-    signal, a parameter nor a word of STL, and the position of a syntax error."""
+def check(prop: Property, where: str, at: str = "") -> None:
+    """InputError naming `where` (the file), `at` (the property's JSON pointer in it) and the
+    column of each name in the formula that is neither a signal, a parameter nor a word of STL,
+    and the position of a syntax error."""
     from harness.properties.monitor import parse
 
     problems = []
     for word, column in _identifiers(prop.formula):
         if word not in SIGNALS and word not in prop.parameters and word not in KEYWORDS:
             close = difflib.get_close_matches(word, [*SIGNALS, *prop.parameters], n=3, cutoff=0.5)
-            problems.append(Problem(where, "/formula", f"1:{column}: {word!r} is neither a signal nor a parameter"
+            problems.append(Problem(where, f"{at}/formula", f"1:{column}: {word!r} is neither a signal nor a parameter"
                                                        + (f"; did you mean {', '.join(close)}?" if close else "; `stella properties` lists the signals")))
     if problems:
         raise InputError(problems)
-    parse(prop, where)
+    parse(prop, where, at=at)
 
 
 LIBRARY: dict[str, Property] = {p.name: p for p in (
@@ -104,6 +105,14 @@ LIBRARY: dict[str, Property] = {p.name: p for p in (
     Property("no_flyaway", "always(distance_from_route_m <= corridor_m)", "m",
              "stays within a corridor around its route, failures or not", {"corridor_m": 20.0}),
 )}
+
+
+def property_from(document: Mapping[str, Any], where: str, at: str = "") -> Property:
+    """A property as Property.as_dict wrote it (a regression case's, a campaign's), checked."""
+    prop = Property(document["name"], document["formula"], document["unit"], document.get("description", ""),
+                    {k: float(v) for k, v in document.get("parameters", {}).items()}, document.get("source", ""))
+    check(prop, where, at)
+    return prop
 
 
 def load_property(given: str) -> Property:
@@ -132,7 +141,4 @@ def load_property(given: str) -> Property:
     problems += [Problem(str(path), f"/{key}", "unknown key; a property has name, formula, unit, description, parameters, source") for key in unknown]
     if problems:
         raise InputError(problems)
-    prop = Property(document["name"], document["formula"], document["unit"], document.get("description", ""),
-                    {k: float(v) for k, v in parameters.items()}, document.get("source", ""))
-    check(prop, str(path))
-    return prop
+    return property_from(document, str(path))

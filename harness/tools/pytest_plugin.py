@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 from concurrent.futures import Future
+from dataclasses import replace
 from pathlib import Path
 from statistics import fmean
 from typing import Any, Callable, Iterator, Mapping
@@ -154,7 +155,7 @@ class Flights:
 
     def options(self, regression: Regression) -> RunOptions:
         sut = self.sut_override or regression.sut.name
-        return self.run_options(sut, regression.sut.params, regression.sut.fault if sut == "bundled" else None)
+        return replace(self.run_options(sut, regression.sut.params, regression.sut.fault if sut == "bundled" else None), properties=regression.properties)
 
     def run_options(self, sut: str, params: Mapping[str, float], fault: str | None = None) -> RunOptions:
         return RunOptions(sut=SutConfig(sut, dict(params), fault, self.px4_bin if sut == "px4" else None,
