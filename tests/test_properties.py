@@ -153,3 +153,21 @@ def test_a_regression_case_with_a_bad_property_names_the_case_the_property_and_t
     with pytest.raises(InputError) as refused:
         load_regression(path)
     assert f"{path}: /properties/0/formula: 1:8: 'tilt' is neither a signal nor a parameter" in str(refused.value)
+
+
+@pytest.mark.slow
+def test_a_shrink_keeps_a_step_while_the_property_stays_violated_and_refuses_a_case_that_keeps_it(tmp_path, capsys):
+    gentle = tmp_path / "gentle.json"
+    gentle.write_text(json.dumps({"name": "gentle", "formula": "always(tilt_deg <= max_tilt_deg)", "parameters": {"max_tilt_deg": 5},
+                                  "unit": "deg", "description": "a camera platform's envelope"}))
+    wall = str(ROOT / "scenarios" / "examples" / "wall_concrete.json")
+    # a case that keeps max_tilt (45 degrees) is nothing to shrink for it
+    assert main(["shrink", wall, "--property", "max_tilt", "--out", str(tmp_path / "kept"), "--json"]) == 2
+    assert "does not violate the property max_tilt as given" in capsys.readouterr().err
+    # the wall mission breaks the 5 degrees: shrunk while it does, the case written with the property
+    assert main(["shrink", wall, "--property", str(gentle), "--max-evaluations", "8", "--out", str(tmp_path / "out"), "--json"]) == 0
+    shrunk = json.loads(capsys.readouterr().out)
+    assert shrunk["after"]["fitness"] < 0  # the least robustness, in degrees
+    case = json.loads(Path(shrunk["regression"]).read_text())
+    assert [p["name"] for p in case["properties"]] == ["gentle"]
+    assert inspected(shrunk["log"], capsys, "max_tilt")["properties"]["max_tilt"]["robustness"] == pytest.approx(45 - 5 + shrunk["after"]["fitness"])

@@ -20,7 +20,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 from harness.campaigns.regression import EXPECTATIONS, FORMAT as REGRESSION_FORMAT, SUFFIX as REGRESSION_SUFFIX
 from harness.campaigns.shrink_steps import REMOVALS, STEPS, Document, elements
@@ -47,11 +47,17 @@ class Flight:
     log: str | None
     why: str | None = None
     verdict: str | None = None  # a differential shrink's: the gate's judgement of the pair this flight is the head of (a regression's kind)
+    properties: Mapping[str, Any] | None = None  # the safety properties scored (a shrink with --property)
 
 
 def violating(flight: Flight) -> bool:
     """What a shrink keeps by default: a flight that violated the safety distance."""
     return flight.status == Status.VIOLATION
+
+
+def violating_properties(names: Sequence[str]) -> Callable[[Flight], bool]:
+    """What a shrink of safety properties keeps: a flight that violated every one of them."""
+    return lambda flight: bool(flight.properties) and all(flight.properties[name]["verdict"] == "violated" for name in names)
 
 
 @dataclass(frozen=True)
@@ -263,8 +269,10 @@ class Shrinker:
     flights of it in a row must."""
 
     def __init__(self, fly: Fly, journal: Journal, *, confirm: int = 1, budget: Budget = Budget(),
-                 on_step: Callable[[StepRecord, "Shrinker"], None] | None = None, keeps: Callable[[Flight], bool] = violating):
+                 on_step: Callable[[StepRecord, "Shrinker"], None] | None = None, keeps: Callable[[Flight], bool] = violating,
+                 kept: str = "the safety distance"):
         self.fly, self.journal, self.confirm, self.budget, self.on_step, self.keeps = fly, journal, confirm, budget, on_step, keeps
+        self.kept = kept  # what `keeps` holds violated, in words
         self.flown = self.replayed = 0
         self.started = time.monotonic()
 
@@ -313,7 +321,7 @@ class Shrinker:
             return State(document, flights)
         self._forget_journal()
         seen = ", ".join(f"{f.status} with fitness {f.fitness:.3f}" for f in flights)
-        raise InputError([Problem(label, "", f"does not violate the safety distance as given (flown: {seen}"
+        raise InputError([Problem(label, "", f"does not violate {self.kept} as given (flown: {seen}"
                                              + (f", {len(flights)} of --confirm {self.confirm} flights" if self.confirm > 1 else "")
                                              + "): there is nothing to shrink; give a violating case, or the SUT it violated with (--sut, --sut-param)")])
 
@@ -374,12 +382,18 @@ def flyer(options, seed: int, out_dir: Path) -> Fly:
     def fly(document: Document, name: str) -> Flight:
         space = space_of(document)
         result = evaluate(space, space.from_concrete(document), seed=seed, out_dir=out_dir, options=options, name=name)
+        if options.properties and result.properties:
+            # A shrink of safety properties measures its steps by the least robustness among them.
+            least = min(scored["robustness"] for scored in result.properties.values())
+            return Flight(str(result.status), least, result.min_clearance_m, result.min_clearance_obstacle, result.log_path, result.why,
+                          properties=result.properties)
         return Flight(str(result.status), result.fitness, result.min_clearance_m, result.min_clearance_obstacle, result.log_path, result.why)
 
     return fly
 
 
-def write_outputs(report: ShrinkReport, case: Case, out_dir: Path, name: str, sut_identity: Mapping[str, Any], expect: str) -> dict[str, str]:
+def write_outputs(report: ShrinkReport, case: Case, out_dir: Path, name: str, sut_identity: Mapping[str, Any], expect: str,
+                  properties: Sequence[Mapping[str, Any]] = ()) -> dict[str, str]:
     """The shrunk concrete scenario, its regression case and the log of its flight."""
     out_dir.mkdir(parents=True, exist_ok=True)
     concrete = out_dir / f"{name}.concrete.json"
@@ -397,6 +411,7 @@ def write_outputs(report: ShrinkReport, case: Case, out_dir: Path, name: str, su
         "note": f"{EXPECTATIONS[expect]}; shrunk by `stella shrink` from {case.label} in {len(report.kept)} steps, "
                 f"fitness {report.f_start:.3f} -> {report.f_result:.3f}" + (f" (stopped early: {report.stopped})" if report.stopped else ""),
         "concrete_scenario": report.result,
+        **({"properties": list(properties)} if properties else {}),
     }, indent=2) + "\n")
     return {"concrete": str(concrete), "regression": str(regression), **({"log": str(log)} if log.is_file() else {})}
 

@@ -45,6 +45,8 @@ def _shrink_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cores", type=int, choices=(1, 2), default=1,
                    help="1 (default): the simulator and the SUT share one core, which a long series of flights leaves to other work; 2: a core each")
     p.add_argument("--transport", choices=TRANSPORTS, default="auto", help="as for `stella run`")
+    p.add_argument("--property", action="append", metavar="NAME|FILE",
+                   help="shrink while this safety property stays violated (instead of the safety distance); repeatable: while every one does")
 
 
 def _with_recorded_sut(args: argparse.Namespace, recorded) -> argparse.Namespace:
@@ -70,6 +72,7 @@ def cmd_shrink(args: argparse.Namespace) -> int:
     from harness.campaigns import shrink
     from harness.flight import stack
     from harness.flight.evaluation import RunOptions
+    from harness.properties.spec import load_property
 
     case = shrink.load_case(Path(args.source), args.evaluation, args.seed)
     args = _with_recorded_sut(args, case.sut)
@@ -78,33 +81,37 @@ def cmd_shrink(args: argparse.Namespace) -> int:
     start = shrink.start_document(case, args.drive, mission_plan(args))
     name = args.name or f"{case.name}-shrunk"
     out = Path(args.out)
-    header = {"format": shrink.JOURNAL_FORMAT, "start": shrink.key_of(start), "seed": case.seed, "sut": sut.identity(), "confirm": args.confirm}
+    properties = tuple(load_property(given) for given in args.property or [])
+    header = {"format": shrink.JOURNAL_FORMAT, "start": shrink.key_of(start), "seed": case.seed, "sut": sut.identity(), "confirm": args.confirm,
+              **({"properties": [prop.as_dict() for prop in properties]} if properties else {})}
     journal = shrink.Journal(out / f"{name}.journal.jsonl", header)
-    options = replace(RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport), warm=True)
+    options = replace(RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport, properties=properties), warm=True)
+    keeps = {"keeps": shrink.violating_properties([prop.name for prop in properties]),
+             "kept": "the propert" + ("y " if len(properties) == 1 else "ies ") + ", ".join(prop.name for prop in properties)} if properties else {}
 
     def progress(step: shrink.StepRecord, shrinker: shrink.Shrinker) -> None:
         if not args.json:
             print(f"[{shrinker.flown} flown, {shrinker.replayed} from the journal, {shrinker.elapsed_s:.0f} s] {shrink.step_line(step)}", file=sys.stderr)
 
     shrinker = shrink.Shrinker(shrink.flyer(options, case.seed, out / f"{name}-flights"), journal, confirm=args.confirm,
-                               budget=shrink.Budget(args.max_evaluations, args.time_budget_s), on_step=progress)
+                               budget=shrink.Budget(args.max_evaluations, args.time_budget_s), on_step=progress, **keeps)
     try:
         report = shrinker.shrink(start, case.label)
     finally:
         stack.close_kept()
-    written = shrink.write_outputs(report, case, out, name, sut.identity(), args.expect)
+    written = shrink.write_outputs(report, case, out, name, sut.identity(), args.expect, [prop.as_dict() for prop in properties])
     if not report.stopped:
         shutil.rmtree(out / f"{name}-flights", ignore_errors=True)
     result = {"source": case.label, "sut": sut.identity(), "seed": case.seed, **shrink.summary(report), **written, "journal": str(journal.path)}
-    emit(args, result, _text(report, written, case.label, journal.path))
+    emit(args, result, _text(report, written, case.label, journal.path, "least robustness" if properties else "fitness"))
     return 3 if report.unfinished_flight else 0
 
 
-def _text(report, written: dict[str, str], label: str, journal: Path) -> str:
+def _text(report, written: dict[str, str], label: str, journal: Path, measure: str = "fitness") -> str:
     from harness.campaigns.shrink import elements_text, summary
 
     counted = summary(report)
-    lines = [f"shrunk {label}: fitness {report.f_start:.3f} -> {report.f_result:.3f} in {len(report.kept)} kept steps of {len(report.steps)} tried "
+    lines = [f"shrunk {label}: {measure} {report.f_start:.3f} -> {report.f_result:.3f} in {len(report.kept)} kept steps of {len(report.steps)} tried "
              f"({report.flown} flown, {report.replayed} from the journal, {report.wall_s:.0f} s)"]
     lines += [f"  {index}. {step.description}: f {step.f_before:.3f} -> {step.f_after:.3f}" for index, step in enumerate(report.kept, 1)]
     lines.append(f"before: {elements_text(counted['before']['elements'])}")
