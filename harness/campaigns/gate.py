@@ -25,9 +25,10 @@ builds. Then, the head the subject and the base the reference of differential fl
    bundle (harness/campaigns/gate_report.py).
 
 Before any of that, a head that builds to the same program as its base (the same machine code and
-data, start-up scripts and modules: harness/firmware/programs.py), as a refactoring, a comment or a
-change of code the build leaves out does, passes at once: no flight could tell them apart.
-`fly_identical` flies them all the same, to see the gate's own false alarms.
+data, start-up scripts and modules: harness/firmware/programs.py, which the command asks), as a
+refactoring, a comment or a change of code the build leaves out does, passes at once: no flight
+could tell them apart. `fly_identical` flies them all the same, to see the gate's own false
+alarms.
 
 Base flights are cached by (concrete scenario, seed, base build) in the cache folder beside the
 builds, so a gate on the same base again flies the head only.
@@ -49,7 +50,6 @@ from harness.campaigns.shrink_steps import space_of
 from harness.campaigns.store import Store, StoredEvaluation
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution.executor import Executor, Job
-from harness.firmware.programs import fingerprint
 from harness.flight.differential import CLEARANCE_RESOLUTION_M, Difference, Outcome, Reveal, compare
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.logs import slug
@@ -381,16 +381,18 @@ def check(plan: GatePlan) -> None:
 
 
 def run_gate(plan: GatePlan, base: Side, head: Side, executor: Executor, *, out_dir: Path, cache_dir: Path,
-             started: float | None = None, progress: Callable[[str], None] = lambda _line: None) -> GateResult:
+             started: float | None = None, progress: Callable[[str], None] = lambda _line: None, one_program: bool = False) -> GateResult:
     """The suite, then the searches, judged. `started` (time.monotonic()) is when the gate began,
-    builds included, for the time budget."""
+    builds included, for the time budget. `one_program`: the two sides build to the same program
+    (harness/firmware/programs.py), so unless the plan says to fly them all the same, nothing is
+    flown."""
     started = time.monotonic() if started is None else started
     check(plan)
     for side in (base, head):
         executor.check_sut(side.sut)
     deadline = started + plan.budget_minutes * 60 if plan.budget_minutes is not None else None
     result = GateResult(base, head, plan)
-    if not plan.fly_identical and fingerprint(base.sut) == fingerprint(head.sut):
+    if one_program and not plan.fly_identical:
         progress("the head builds to the same program as the base: nothing to fly")
         result.identical = True
         result.wall_s = time.monotonic() - started

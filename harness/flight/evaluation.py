@@ -133,6 +133,14 @@ def scored_properties(properties: Sequence["Property"], recorded, api_records: S
     return verdicts(properties, extract(recorded, ((ns, datagram) for ns, direction, datagram in api_records if direction == "from_sut"), world))
 
 
+def properties_of_log(log_path: Path, properties: Sequence["Property"]) -> dict[str, dict[str, Any]]:
+    """Each property's verdict and robustness from an evaluation's log alone, as its flight scored them."""
+    world = logs.world_of(log_path)
+    api = [(ns, "from_sut", bytes.fromhex(record["hex"])) for _t, ns, record in logs.messages(log_path, ["/mavlink/api"])
+           if record["direction"] == "from_sut"]
+    return scored_properties(properties, lambda topics: logs.messages(log_path, topics), api, world)
+
+
 def rescore(log_path: Path) -> dict[str, Any]:
     """Recompute status and fitness from a log alone (what `stella inspect` does); a truncated log
     is scored on what precedes the damage, and says where that is."""

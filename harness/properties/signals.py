@@ -182,11 +182,3 @@ def _failure_signals(recorded: Recorded, time_s: np.ndarray) -> dict[str, np.nda
                 values[name][time_s >= event["t"]] = 1.0 if event["event"] == "failure" else 0.0
     return values
 
-
-def from_log(path) -> Series:
-    """The signals of an evaluation's log, as the flight computed them."""
-    from harness.flight import logs
-
-    world = logs.world_of(path)
-    api = ((ns, bytes.fromhex(record["hex"])) for _topic, ns, record in logs.messages(path, ["/mavlink/api"]) if record["direction"] == "from_sut")
-    return extract(lambda topics: logs.messages(path, topics), api, world)

@@ -163,9 +163,8 @@ def _inspect_options(p: argparse.ArgumentParser) -> None:
 
 @command("inspect", "summarize an evaluation log and recompute the fitness from it alone", _inspect_options)
 def cmd_inspect(args: argparse.Namespace) -> int:
+    from harness.flight.evaluation import properties_of_log
     from harness.flight.inspect_log import export_csv, plot, summarize, topics
-    from harness.properties.monitor import verdicts
-    from harness.properties.signals import from_log
     from harness.properties.spec import load_property
 
     path = Path(args.log)
@@ -182,7 +181,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     properties = [load_property(given) for given in args.property or []]
     summary = summarize(path)
     if properties:
-        summary["properties"] = verdicts(properties, from_log(path))
+        summary["properties"] = properties_of_log(path, properties)
     if args.competition:
         from harness.interop.competition_score import competition_score
 

@@ -139,6 +139,7 @@ def _sides(args: argparse.Namespace, settings: dict):
 def cmd_gate(args: argparse.Namespace) -> int:
     from harness.campaigns import gate, gate_report
     from harness.execution.registry import make_executor
+    from harness.firmware.programs import fingerprint
 
     started = time.monotonic()
     settings = _settings(args)
@@ -159,7 +160,7 @@ def cmd_gate(args: argparse.Namespace) -> int:
     executor = make_executor("local", settings.get("workers"))
     try:
         result = gate.run_gate(plan, base, head, executor, out_dir=Path(args.out), cache_dir=_cache_dir(settings.get("cache")), started=started,
-                               progress=progress)
+                               progress=progress, one_program=not plan.fly_identical and fingerprint(base.sut) == fingerprint(head.sut))
     finally:
         executor.close()
     written = gate_report.write(result, Path(args.out))
