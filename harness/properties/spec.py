@@ -61,13 +61,15 @@ class Property:
                 "description": self.description, "source": self.source}
 
 
-def _identifiers(formula: str) -> list[tuple[str, int]]:
-    """(identifier, column from 1) of each name in the formula, numbers' exponents left out."""
+def _identifiers(formula: str) -> list[tuple[str, str]]:
+    """(identifier, "line:column" from 1) of each name in the formula, numbers' exponents left out."""
     found = []
     for match in IDENTIFIER.finditer(formula):
-        if match.start() and (formula[match.start() - 1].isdigit() or formula[match.start() - 1] == "."):
+        start = match.start()
+        if start and (formula[start - 1].isdigit() or formula[start - 1] == "."):
             continue
-        found.append((match.group(0), match.start() + 1))
+        line_start = formula.rfind("\n", 0, start) + 1
+        found.append((match.group(0), f"{formula.count(chr(10), 0, start) + 1}:{start - line_start + 1}"))
     return found
 
 
@@ -81,7 +83,7 @@ def check(prop: Property, where: str, at: str = "") -> None:
     for word, column in _identifiers(prop.formula):
         if word not in SIGNALS and word not in prop.parameters and word not in KEYWORDS:
             close = difflib.get_close_matches(word, [*SIGNALS, *prop.parameters], n=3, cutoff=0.5)
-            problems.append(Problem(where, f"{at}/formula", f"1:{column}: {word!r} is neither a signal nor a parameter"
+            problems.append(Problem(where, f"{at}/formula", f"{column}: {word!r} is neither a signal nor a parameter"
                                                        + (f"; did you mean {', '.join(close)}?" if close else "; `stella properties` lists the signals")))
     if problems:
         raise InputError(problems)
@@ -93,7 +95,7 @@ LIBRARY: dict[str, Property] = {p.name: p for p in (
              "keeps the safety distance from every obstacle; its robustness is the fitness f"),
     Property("geofence", "always(distance_from_home_m <= max_distance_m and altitude_m <= max_altitude_m)", "m",
              "stays inside a cylinder around the take-off point", {"max_distance_m": 150.0, "max_altitude_m": 120.0},
-             "PX4 geofence: GF_MAX_HOR_DIST, GF_MAX_VER_DIST (https://docs.px4.io/main/en/config/safety.html#geofence-failsafe)"),
+             "PX4's GF_MAX_HOR_DIST and GF_MAX_VER_DIST (0 in PX4, no fence, until a team sets them)"),
     Property("max_tilt", "always(tilt_deg <= max_tilt_deg)", "deg",
              "never tilts beyond the multicopter's tilt limit", {"max_tilt_deg": 45.0},
              "PX4 MPC_TILTMAX_AIR (default 45 degrees)"),
