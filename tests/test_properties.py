@@ -128,6 +128,9 @@ def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_
     # and the same command again answers from the store, flying nothing
     assert main(campaign) == 0
     assert json.loads(capsys.readouterr().out)["runs"] == []
+    # and the comparison ranks the run by what it searched
+    assert main(["compare", str(store), "--baseline", "RANDOM", "--json"]) == 0
+    assert [row["median_best_fitness"] for row in json.loads(capsys.readouterr().out)["scenarios"]] == [least]
     # WHEN its worst case is exported, once as a fault fixed, once as a known violation
     for expect in ("safe", "violation"):
         assert main(["export-regressions", str(store), "--worst", "1", "--threshold=-inf", "--expect", expect, "--out", str(tmp_path / expect)]) == 0

@@ -68,7 +68,7 @@ class StoredRun:
     run_index: int
     seed: int
     finished: float | None  # when it finished; None while under way or stopped
-    best_fitness: float | None  # None before its first evaluation
+    best_fitness: float | None  # what its search minimised (f, or the least robustness of its properties); None before its first evaluation
     evaluations: int
     violations: int
     contacts: int  # violations that touched an obstacle (clearance 0 or less)

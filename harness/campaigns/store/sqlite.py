@@ -97,6 +97,11 @@ EVALUATIONS = _SELECT.format(concrete="e.concrete", differential="e.differential
 OUTCOMES = _SELECT.format(concrete="NULL", differential="NULL")
 
 
+# What a run's search minimised, per evaluation: the least robustness of its safety properties
+# where the campaign scored them (harness/campaigns/problem.py: objective_of), else its fitness.
+SEARCHED = "COALESCE((SELECT MIN(json_extract(p.value, '$.robustness')) FROM json_each(e.properties) p), e.fitness)"
+
+
 def _json(text: str | None) -> Any:
     return json.loads(text) if text is not None else None
 
@@ -314,7 +319,7 @@ class Store:
     def runs(self) -> list[StoredRun]:
         query = (
             "SELECT r.id, r.scenario_file, r.scenario, r.algorithm, r.run_index, r.seed, r.finished,"
-            " MIN(e.fitness), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0), COALESCE(SUM(e.status = :violation AND e.min_clearance_m <= 0), 0),"
+            f" MIN({SEARCHED}), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0), COALESCE(SUM(e.status = :violation AND e.min_clearance_m <= 0), 0),"
             " COALESCE(SUM(e.status = :violation AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')), 0),"
             " COALESCE(SUM(e.failures_refused IS NOT NULL), 0), COALESCE(SUM(e.reveals IS NOT NULL), 0), COALESCE(SUM(e.reveals = :unsafe), 0),"
             " MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END), MIN(e.created), MAX(e.created)"
