@@ -2,7 +2,11 @@
 resumed, then its store checked for evaluations lost or flown twice.
 
     .venv/bin/python scripts/soak.py --out runs/soak --evaluations 20000 --workers 2 --kill-after-s 1200 \
-        [--scenario scenarios/examples/fig4.json] [--stop-after-s S] [-- EXTRA CAMPAIGN OPTIONS, e.g. --sut px4 --drive pilot]
+        [--scenario scenarios/examples/fig4.json] [--stop-after-s S] [-- EXTRA CAMPAIGN OPTIONS, e.g. --sut px4 --drive pilot --sut-logs violations]
+
+A PX4 soak keeps each flight's ULog unless told otherwise (`--sut-logs`): about 40 MB with its
+MCAP for a pilot flight of fig4, so 2,000 flights want 80 GB; `--sut-logs violations` keeps the
+violating flights' only.
 
 Every --sample-s it writes a row to OUT/samples.csv: evaluations stored, and of the campaign's
 process tree (the campaign, its workers, their simulators and SUTs) the processes, their summed
