@@ -91,11 +91,12 @@ def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
     return False
 
 
-def _logged_api_traffic(log_path: Path) -> Iterator[bytes]:
-    """What the SUT sent on the API link, as recorded in an evaluation's log."""
-    for _t, _ns, record in logs.messages(log_path, ["/mavlink/api"]):
+def _logged_api_traffic(log_path: Path) -> Iterator[tuple[int, str, bytes]]:
+    """What the SUT sent on the API link, as recorded in an evaluation's log: (SUT time ns,
+    "from_sut", datagram), as the API tap records it in flight."""
+    for _t, ns, record in logs.messages(log_path, ["/mavlink/api"]):
         if record["direction"] == "from_sut":
-            yield bytes.fromhex(record["hex"])
+            yield ns, "from_sut", bytes.fromhex(record["hex"])
 
 
 def refused_failures(events: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -136,9 +137,7 @@ def scored_properties(properties: Sequence["Property"], recorded, api_records: S
 def properties_of_log(log_path: Path, properties: Sequence["Property"]) -> dict[str, dict[str, Any]]:
     """Each property's verdict and robustness from an evaluation's log alone, as its flight scored them."""
     world = logs.world_of(log_path)
-    api = [(ns, "from_sut", bytes.fromhex(record["hex"])) for _t, ns, record in logs.messages(log_path, ["/mavlink/api"])
-           if record["direction"] == "from_sut"]
-    return scored_properties(properties, lambda topics: logs.messages(log_path, topics), api, world)
+    return scored_properties(properties, lambda topics: logs.messages(log_path, topics), list(_logged_api_traffic(log_path)), world)
 
 
 def rescore(log_path: Path) -> dict[str, Any]:
@@ -154,7 +153,7 @@ def rescore(log_path: Path) -> dict[str, Any]:
     failure = None
     if recorded.get("status") in COULD_NOT_FINISH:
         failure = Failure(Status(recorded["status"]), recorded.get("why") or "")
-    score = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, _logged_api_traffic(log_path), partial=cut is not None)
+    score = _score(lambda topics: logs.messages(log_path, topics), world, summary, failure, (datagram for _ns, _direction, datagram in _logged_api_traffic(log_path)), partial=cut is not None)
     return {"status": score.status, "fitness": score.fitness, "why": score.why, "clearance": score.clearance, "world": world, "summary": summary,
             "recorded": recorded,
             "truncation": cut, "failures_refused": refused_failures(m for _t, _ns, m in logs.messages(log_path, ["/events"]))}
