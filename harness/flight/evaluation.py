@@ -27,6 +27,7 @@ from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.mavsdk_session import ACCEPTANCE_RADIUS_M, MavsdkSession, mission_items
 from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightOutcome, RunOptions, Score
 from harness.flight.stack import Stack, simulation_stack
+from harness.properties.signals import mode_of
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import world_spec
 from sim_bridge.control import EXIT_CUT_SHORT, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
@@ -40,9 +41,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-PX4_MAIN_MODE_POSCTL = 3
-# ArduCopter's custom modes where the pilot's sticks steer the position and simple avoidance acts: Loiter, PosHold.
-ARDUCOPTER_POSITION_MODES = (5, 16)
 # How long a SUT whose simulated time runs on while it is set up (hold "paced": PX4) may deny
 # arming before the denial counts: PX4's arming checks flicker just after its start-up. Held
 # frozen, a SUT cannot change its mind, so its first answer counts.
@@ -76,17 +74,15 @@ def wait_booted(sut: SutHandle, timeout_s: float, alive: Callable[[], bool]) -> 
 
 def _reported_position_mode(from_sut: Iterable[bytes]) -> bool:
     """Whether the SUT's heartbeats on the API link (its datagrams) ever said Position mode (PX4
-    custom main mode 3; ArduCopter's Loiter or PosHold)."""
+    custom main mode 3; ArduCopter's Loiter or PosHold, where its sticks steer the position and
+    simple avoidance acts)."""
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
     for datagram in from_sut:
         for message in parser.parse_buffer(datagram) or []:
             if message.get_type() != "HEARTBEAT" or message.type == mavlink.MAV_TYPE_GCS:
                 continue
-            if message.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-                if message.custom_mode in ARDUCOPTER_POSITION_MODES:
-                    return True
-            elif (message.custom_mode >> 16) & 0xFF == PX4_MAIN_MODE_POSCTL:
+            if mode_of(message) == "position":
                 return True
     return False
 
