@@ -18,7 +18,7 @@ cdef class Autopilot:
     cdef public RateControl rate_control
     cdef public ObstacleMap obstacles
     cdef public bint _manual_active, sensors_seen, _controlling
-    cdef public double now_s, collective, lift
+    cdef public double now_s, collective, lift, _position_mode_since_s
     cdef public object _last_time_us, _ground_truth, _last_sensor_values, _last_gps_fix, _last_obstacle_reading
     cdef public int _seq
     cdef public set _wanted_sim_messages
@@ -32,7 +32,7 @@ cdef class Autopilot:
     cpdef double _baro_drift_m(self, double temperature_c)
 
     @cython.locals(est=Estimator, commander=Commander, sp=Setpoint, estimate=VehicleEstimate, dt=cython.double, manual=cython.bint, vn=cython.double,
-                   ve=cython.double, yaw_sp=cython.double, collective=cython.double, q_sp=(cython.double, cython.double, cython.double, cython.double),
+                   ve=cython.double, yaw_sp=cython.double, positioned=cython.bint, horizontal=(cython.double, cython.double), collective=cython.double, q_sp=(cython.double, cython.double, cython.double, cython.double),
                    rates_sp=(cython.double, cython.double, cython.double), torque=(cython.double, cython.double, cython.double), vel_sp=(cython.double, cython.double, cython.double),
                    thrust=(cython.double, cython.double, cython.double))
     cpdef tuple step(self, time_us, values)

@@ -12,8 +12,8 @@ import time
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.api import ApiLink
-from autopilot.collision import ObstacleMap, constrain_velocity
-from autopilot.commander import Commander, MissionItem, VehicleEstimate
+from autopilot.collision import STALE_HOLD_S, ObstacleMap, constrain_velocity
+from autopilot.commander import MAIN_AUTO, SUB_AUTO_LOITER, Commander, MissionItem, VehicleEstimate
 from autopilot.control import (
     PositionControl,
     Setpoint,
@@ -24,7 +24,7 @@ from autopilot.control import (
     mix,
 )
 from autopilot.estimator import Estimator, GpsFix
-from autopilot.manual import PositionMode, sticks_from_rc
+from autopilot.manual import PositionMode, altitude_mode_thrust, sticks_from_rc
 from autopilot.params import Params
 from simlink import codec, shared_memory
 from simlink.failures import (
@@ -70,6 +70,7 @@ class Autopilot:
         self.obstacles = ObstacleMap(params.fault)
         self.position_mode = PositionMode(params)
         self._manual_active = False
+        self._position_mode_since_s = 0.0
         self.now_s = 0.0
         self.collective = 0.0
         self.lift = 0.0
@@ -220,6 +221,21 @@ class Autopilot:
             if sticks is not None:
                 self.commander.on_sticks(sticks, self.vehicle_estimate())
 
+    def _hold_without_range_data(self, estimate: VehicleEstimate) -> None:
+        """PX4's collision prevention in Position mode: once range data has been stale for
+        STALE_HOLD_S (TIMEOUT_HOLD_US), with the module active that long, it switches to Hold."""
+        now_s = self.now_s
+        if not self._manual_active:
+            self._position_mode_since_s = now_s
+        if (self.params["CP_DIST"] >= 0.0 and now_s - self.obstacles.updated_s > STALE_HOLD_S and now_s - self._position_mode_since_s > STALE_HOLD_S
+                and self.commander.set_mode((MAIN_AUTO, SUB_AUTO_LOITER), estimate, now_s)):
+            self.commander.events.append(("statustext", "No obstacle data, switching to Hold"))
+
+    @property
+    def _dead_reckoning_s(self) -> float:
+        """EKF2_NOAID_TOUT in seconds; the seeded fault noaid_timeout_ms reads its microseconds as milliseconds."""
+        return self.params["EKF2_NOAID_TOUT"] * (1e-3 if self.params.fault == "noaid_timeout_ms" else 1e-6)
+
     def _baro_drift_m(self, temperature_c: float) -> float:
         """Seeded fault baro_temperature_drift: an uncompensated sensor reads high as it warms up
         after power-on, by 0.4 m per degC above 15 degC over its first minute."""
@@ -250,7 +266,7 @@ class Autopilot:
         if not est.position_ready:
             return (0.0, 0.0, 0.0, 0.0)
         estimate = self.vehicle_estimate()
-        sp = commander.update(self.now_s, estimate, self.lift)
+        sp = commander.update(self.now_s, estimate, self.lift, est.position_valid(self.now_s, self._dead_reckoning_s))
         if sp.idle:
             self._controlling = self._manual_active = False
             self.collective = self.lift = 0.0
@@ -261,19 +277,29 @@ class Autopilot:
             self._controlling = True
         params = self.params
         manual = sp.manual
+        positioned = not (sp.level or sp.tilt_from_sticks)
+        if sp.tilt_from_sticks:
+            horizontal = altitude_mode_thrust(params, commander.manual, estimate.yaw_rad)
+        else:
+            horizontal = (0.0, 0.0)
         if manual:
             if not self._manual_active:
                 self.position_mode.reset(est.vel[0], est.vel[1], est.pos, estimate.yaw_rad)
             north, east, down, vn, ve, vd, yaw = self.position_mode.update(dt, commander.manual, est.pos, estimate.yaw_rad)
             sp = Setpoint(north_m=north, east_m=east, down_m=down, v_north_m_s=vn, v_east_m_s=ve, v_down_m_s=vd, yaw_rad=yaw)
+            if positioned:
+                self._hold_without_range_data(estimate)
         self._manual_active = manual
         vel_sp = self.position_control.velocity_setpoint(sp, est.pos, params["MPC_XY_VEL_MAX"])
-        if not commander.landed:
+        if not commander.landed and positioned:
             vn, ve = constrain_velocity(params, self.obstacles, self.now_s, (vel_sp[0], vel_sp[1]), (est.vel[0], est.vel[1]))
             vel_sp = (vn, ve, vel_sp[2])
             if manual and self.position_mode.hold_ne is None:
                 self.position_mode.constrained(vn, ve)
         thrust = self.position_control.thrust(dt, vel_sp, est.vel, est.acc_ned)
+        if not positioned:
+            thrust = (horizontal[0], horizontal[1], thrust[2])
+            self.position_control.hold_level()
         self.lift = -thrust[2]
         yaw_sp = sp.yaw_rad if sp.yaw_rad is not None else estimate.yaw_rad
         q_sp, collective = attitude_from_thrust(thrust, yaw_sp)

@@ -9,7 +9,8 @@ PX4's jerk-limited braking (MPC_ACC_HOR, MPC_JERK_AUTO; math::computeMaxSpeedFro
 v_max(s) = (-b + sqrt(b^2 + 8 a s)) / 2 with b = 4 a^2 / j and s = d - CP_DIST - CP_DELAY v. The component
 across the sector is kept, so the vehicle slides along an obstacle; closer than CP_DIST it backs
 off at up to 0.5 m/s (PX4 only stops; without this, drift creeps a hovering vehicle closer). Without fresh range data
-for 0.5 s horizontal motion stops. Unlike PX4's, it is applied in every automatic mode.
+for 0.5 s horizontal motion stops, and in Position mode after 5 s the vehicle switches to Hold
+(autopilot/app.py), as PX4's does. Unlike PX4's, it is applied in every automatic mode.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ BIN_RAD = 2.0 * math.pi / BINS
 BIN_DIRECTIONS = tuple((math.cos(i * BIN_RAD), math.sin(i * BIN_RAD)) for i in range(BINS))
 UINT16_MAX = 65535
 STALE_AFTER_S = 0.5
+STALE_HOLD_S = 5.0  # in Position mode, then Hold (PX4's TIMEOUT_HOLD_US)
 MAX_PASSES = 8
 BACK_OFF_GAIN = 1.0  # 1/s
 BACK_OFF_MAX_M_S = 0.5

@@ -21,7 +21,7 @@ cdef class Commander:
     cdef public int current
     cdef public list events
     cdef public double _target_alt_m, _wait_until_s, _yaw_sp
-    cdef public str _phase
+    cdef public str _phase, failsafe
 
     cpdef double _altitude(self, VehicleEstimate estimate)
 
@@ -42,4 +42,8 @@ cdef class Commander:
     @cython.locals(item=MissionItem, target=cython.double, radius=cython.double, distance=cython.double)
     cpdef Setpoint _mission(self, double now_s, VehicleEstimate estimate, double lift)
 
-    cpdef Setpoint update(self, double now_s, VehicleEstimate estimate, double lift)
+    cpdef _fall_back(self, double now_s, VehicleEstimate estimate, bint position_valid)
+
+    cpdef Setpoint _descend(self, double now_s, VehicleEstimate estimate, double lift)
+
+    cpdef Setpoint update(self, double now_s, VehicleEstimate estimate, double lift, bint position_valid=*)

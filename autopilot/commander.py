@@ -17,6 +17,7 @@ from autopilot.control import Setpoint
 from autopilot.manual import FLIGHT_MODE_PARAM, Sticks
 
 # PX4 custom main modes and AUTO sub modes (px4_custom_mode.h).
+MAIN_ALTCTL = 2
 MAIN_POSCTL = 3
 MAIN_AUTO = 4
 SUB_AUTO_READY = 1
@@ -35,6 +36,9 @@ MODE_NAMES = {
     (MAIN_AUTO, SUB_AUTO_LAND): "Land",
 }
 SUPPORTED_MODES = set(MODE_NAMES)
+# The position-loss failsafe's modes, which no command selects: how PX4 reports them (its
+# Descend mode as AUTO/LAND) and their names.
+FAILSAFE_MODES = {"descend": ((MAIN_AUTO, SUB_AUTO_LAND), "Descend"), "altitude": ((MAIN_ALTCTL, 0), "Altitude")}
 LANDED_CONFIRM_S = 0.6
 VERTICAL_ACCEPTANCE_M = 0.8
 
@@ -87,6 +91,12 @@ class Commander:
     _yaw_sp: float = 0.0
     manual: Sticks | None = None
     _mode_slot: int | None = None
+    failsafe: str = ""  # a FAILSAFE_MODES key while the position is lost; `mode` stays what the user chose
+
+    @property
+    def reported_mode(self) -> tuple[int, int]:
+        """The mode flown, as the heartbeat reports it: a failsafe's, or the user's."""
+        return FAILSAFE_MODES[self.failsafe][0] if self.failsafe else self.mode
 
     # -- manual control -------------------------------------------------------------------------
 
@@ -333,7 +343,35 @@ class Commander:
         target = {1: (MAIN_AUTO, SUB_AUTO_LOITER), 2: (MAIN_AUTO, SUB_AUTO_RTL)}.get(action, (MAIN_AUTO, SUB_AUTO_LAND))
         self.set_mode(target, estimate, now_s)
 
-    def update(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
+    def _fall_back(self, now_s: float, estimate: VehicleEstimate, position_valid: bool) -> None:
+        """PX4's mode fallback when the horizontal position is lost (failsafe.cpp checkModeFallback
+        and the action's fallback chain): every mode here needs a position, so Position mode
+        falls back to Altitude mode while manual control lasts, and every other to Descend (Hold,
+        Return and Land cannot run either, and the Hold delay COM_FAIL_ACT_T is skipped when Hold
+        cannot run). The user's mode comes back once the position does (the fallback clears when
+        its condition does)."""
+        if position_valid:
+            if self.failsafe:
+                self.failsafe = ""
+                self._enter(estimate)
+                self.events.append(("statustext", "Position regained"))
+                self.events.append(("mode", MODE_NAMES[self.mode]))
+            return
+        wanted = "altitude" if self.mode == (MAIN_POSCTL, 0) and self.manual_fresh(now_s) else "descend"
+        if wanted != self.failsafe:
+            self.failsafe = wanted
+            self._land_candidate_s = None
+            self.events.append(("statustext", f"Failsafe: no position, switching to {FAILSAFE_MODES[wanted][1]}"))
+            self.events.append(("mode", FAILSAFE_MODES[wanted][1]))
+
+    def _descend(self, now_s: float, estimate: VehicleEstimate, lift: float) -> Setpoint:
+        """PX4's Descend: down at MPC_LAND_SPEED, level, wherever the wind takes it."""
+        if self._detect_landing(now_s, estimate, lift, True):
+            self._touch_down(now_s)
+            return Setpoint(idle=True)
+        return Setpoint(v_down_m_s=self.params["MPC_LAND_SPEED"], yaw_rad=self._yaw_sp, level=True)
+
+    def update(self, now_s: float, estimate: VehicleEstimate, lift: float, position_valid: bool = True) -> Setpoint:
         if self.manual is not None and not self.manual_fresh(now_s):
             # As PX4's manual_control: switch positions seen before the loss count for nothing.
             self._mode_slot = None
@@ -342,10 +380,13 @@ class Commander:
         if not self.armed:
             self.landed = True
             return Setpoint(idle=True)
+        self._fall_back(now_s, estimate, position_valid)
         if self.landed:
             delay = self.params["COM_DISARM_LAND"]
             if self._landed_at_s is not None and delay >= 0 and now_s - self._landed_at_s >= delay:
                 self.disarm()
+                return Setpoint(idle=True)
+            if self.failsafe:
                 return Setpoint(idle=True)
             if self.mode == (MAIN_AUTO, SUB_AUTO_TAKEOFF):
                 self.landed = False
@@ -354,6 +395,10 @@ class Commander:
                 return Setpoint(idle=True)
         if self._hold is None:
             self._enter(estimate)
+        if self.failsafe == "descend":
+            return self._descend(now_s, estimate, lift)
+        if self.failsafe == "altitude":
+            return Setpoint(manual=True, tilt_from_sticks=True)
         mode = self.mode
         if mode == (MAIN_AUTO, SUB_AUTO_MISSION):
             return self._mission(now_s, estimate, lift)

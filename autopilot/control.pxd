@@ -30,12 +30,14 @@ cpdef (double, double) limit_norm2(double x, double y, double limit)
 cdef class Setpoint:
     cdef public object north_m, east_m, down_m, yaw_rad
     cdef public double v_north_m_s, v_east_m_s, v_down_m_s
-    cdef public bint idle, manual
+    cdef public bint idle, manual, level, tilt_from_sticks
 
 cdef class PositionControl:
     cdef public object params
     cdef public double _int_n, _int_e, _int_d, _ff_n, _ff_e
     cdef public object _last_sp
+
+    cpdef hold_level(self)
 
     @cython.locals(alpha=cython.double, limit=cython.double, raw_n=cython.double, raw_e=cython.double)
     cpdef (double, double) _feed_forward(self, double dt, (double, double, double) vel_sp)

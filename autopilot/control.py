@@ -102,6 +102,11 @@ class Setpoint:
     yaw_rad: float | None = None
     idle: bool = False  # armed on the ground: motors at idle, no control
     manual: bool = False  # Position mode: the sticks make the setpoint (autopilot.manual)
+    # Without a valid horizontal position (the position-loss failsafe) nothing horizontal is
+    # controlled: level flies level (PX4's Descend), tilt_from_sticks tilts as the sticks say
+    # (PX4's Altitude mode, whose vertical and yaw are Position mode's).
+    level: bool = False
+    tilt_from_sticks: bool = False
 
 
 class PositionControl:
@@ -114,6 +119,13 @@ class PositionControl:
     def reset(self) -> None:
         self._int_n = self._int_e = self._int_d = 0.0
         self._last_sp: tuple[float, float] | None = None
+        self._ff_n = self._ff_e = 0.0
+
+    def hold_level(self) -> None:
+        """Nothing horizontal is controlled (no position): the horizontal loop starts afresh when
+        it is again, rather than from what it integrated of a dead-reckoned velocity."""
+        self._int_n = self._int_e = 0.0
+        self._last_sp = None
         self._ff_n = self._ff_e = 0.0
 
     def _feed_forward(self, dt: float, vel_sp: Vec3) -> tuple[float, float]:

@@ -24,5 +24,7 @@ cdef class Estimator:
                    axis=cython.int, q=(cython.double, cython.double, cython.double, cython.double))
     cpdef update_imu(self, double now_s, double dt, gyro, accel, mag)
 
+    cpdef bint position_valid(self, double now_s, double dead_reckoning_s)
+
     @cython.locals(innovation=cython.double)
     cpdef update_baro(self, double dt, double pressure_alt_m)

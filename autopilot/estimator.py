@@ -55,6 +55,11 @@ class Estimator:
     def position_ready(self) -> bool:
         return self.origin is not None and self.attitude_ready
 
+    def position_valid(self, now_s: float, dead_reckoning_s: float) -> bool:
+        """Whether the horizontal position may still be flown on: a GPS fix fused within
+        dead_reckoning_s (PX4's EKF2 declares it invalid after EKF2_NOAID_TOUT without aiding)."""
+        return self.origin is not None and now_s - self.last_gps_s <= dead_reckoning_s
+
     def healthy(self, now_s: float) -> bool:
         return self.position_ready and now_s - self.last_gps_s < GPS_TIMEOUT_S and now_s - self.last_imu_s < SENSOR_TIMEOUT_S
 

@@ -16,6 +16,9 @@ class Fault:
     breaks: str  # what goes wrong
     kin: str  # the kind of bug it imitates, in PX4 or elsewhere
     revealed_by: str  # scenario features that should reveal it
+    # The safety properties (harness/properties) its witness is judged by; none: the clearance
+    # and the mission, as for a fault that makes the vehicle unsafe or fail.
+    properties: tuple[str, ...] = ()
 
 
 FAULTS: tuple[Fault, ...] = (
@@ -59,6 +62,11 @@ FAULTS: tuple[Fault, ...] = (
           "A waypoint counts as reached within ten times its acceptance radius, so the vehicle turns early and cuts corners.",
           "a unit slip (decimetres for metres) in the acceptance radius",
           "a route with turns (waypoints or a plan), obstacles inside the corner"),
+    Fault("noaid_timeout_ms", "failsafe",
+          "EKF2_NOAID_TOUT (microseconds) is read as milliseconds, so the position counts as valid for 5,000 s instead of 5 s without GPS: the position-loss failsafe never descends, and the vehicle flies its mission on a drifting dead-reckoned position.",
+          "a parameter's unit slip (PX4's time parameters mix s, ms and us)",
+          "a GPS that goes off for more than 5 s in flight",
+          ("gps_loss_lands",)),
 )
 
 BY_NAME = {fault.name: fault for fault in FAULTS}

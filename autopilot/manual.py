@@ -181,3 +181,17 @@ class PositionMode:
         self.yaw_sp = (self.yaw_sp + yaw_rate * dt + math.pi) % (2.0 * math.pi) - math.pi
         hold_n, hold_e = self.hold_ne if self.hold_ne is not None else (None, None)
         return hold_n, hold_e, self.hold_down, self.v_north, self.v_east, v_down, self.yaw_sp
+
+
+def altitude_mode_thrust(params, sticks: Sticks, yaw: float) -> tuple[float, float]:
+    """Altitude mode's horizontal thrust (north, east; collective units at hover): the roll and
+    pitch sticks tilt the vehicle, MPC_MAN_TILT_MAX at full deflection, and nothing holds its
+    position or velocity, so it drifts with the wind."""
+    dz = params["MPC_HOLD_DZ"]
+    forward, right = deadzone(sticks.pitch, dz), deadzone(sticks.roll, dz)
+    length = math.hypot(forward, right)
+    if length > 1.0:
+        forward, right = forward / length, right / length
+    lean = math.tan(math.radians(params["MPC_MAN_TILT_MAX"])) * params["MPC_THR_HOVER"]
+    cos_y, sin_y = math.cos(yaw), math.sin(yaw)
+    return lean * (forward * cos_y - right * sin_y), lean * (forward * sin_y + right * cos_y)

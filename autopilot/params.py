@@ -80,6 +80,8 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("COM_DISARM_LAND", 1.0, -1.0, 20.0, "s", "Disarm this long after landing is detected."),
     _i("COM_DL_LOSS_T", 10, 5, 300, "s", "API link loss is declared after this long without a heartbeat; missions carry on, as in PX4."),
     _f("EKF2_MAG_DECL", 3.0, -180.0, 180.0, "deg", "Magnetic declination at the flying site (PX4's default home, Zurich: 3 deg)."),
+    _i("EKF2_NOAID_TOUT", 5000000, 500000, 10000000, "us", "Dead-reckoning time after the last GPS fix fused before the horizontal position counts as invalid; the position-loss failsafe then descends (Altitude mode in Position mode with RC), as PX4's mode fallback does."),
+    _f("MPC_MAN_TILT_MAX", 35.0, 0.0, 90.0, "deg", "Altitude mode (the position-loss fallback from Position mode): tilt at full roll or pitch stick."),
     _i("EKF2_GT_MODE", 0, 0, 1, "", "1: use the simulator's ground truth (HIL_STATE_QUATERNION) instead of estimating; for debugging only."),
     _i("SYS_AUTOSTART", 4001, 0, 9999999, "", "Airframe (4001: generic quadrotor X), reported for tools that read it."),
     _i("SYS_FAILURE_EN", 0, 0, 1, "", "1: accept failure injection (MAV_CMD_INJECT_FAILURE, MAVSDK's failure plugin; what each failure does: simlink/failures.py); 0 refuses it with MAV_RESULT_DENIED, as PX4 does."),

@@ -92,7 +92,7 @@ class Telemetry:
 
     def heartbeat(self) -> None:
         c = self.ap.commander
-        main, sub = c.mode
+        main, sub = c.reported_mode
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED
         if c.armed:
             base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
@@ -158,7 +158,7 @@ class Telemetry:
         c = self.ap.commander
         if not c.armed or c.landed:
             landed = mavlink.MAV_LANDED_STATE_ON_GROUND
-        elif c.mode == (MAIN_AUTO, SUB_AUTO_LAND):
+        elif c.reported_mode == (MAIN_AUTO, SUB_AUTO_LAND):
             landed = mavlink.MAV_LANDED_STATE_LANDING
         else:
             landed = mavlink.MAV_LANDED_STATE_IN_AIR

@@ -30,6 +30,11 @@ def trace(**given: list[float]) -> Series:
     return Series(np.arange(length) * PERIOD_S, values)
 
 
+def steps(length: int, on_from: int) -> list[float]:
+    """A 0/1 signal that turns 1 at sample on_from."""
+    return [0.0] * on_from + [1.0] * (length - on_from)
+
+
 CASES = {
     # name: (a trace that keeps it, its robustness; a trace that violates it, its robustness)
     "clearance": (trace(margin_m=[5.0, 1.5, 0.25, 2.0]), 0.25, trace(margin_m=[5.0, -0.5, 0.1]), -0.5),
@@ -40,6 +45,17 @@ CASES = {
     "lands_in_area": (trace(agl_m=[0.0, 8.0, 8.0, 0.1, 0.05], distance_to_goal_m=[30.0, 20.0, 2.0, 1.0, 1.0]), 0.25,
                       trace(agl_m=[0.0, 8.0, 8.0, 0.1, 0.05], distance_to_goal_m=[30.0, 20.0, 9.0, 7.0, 7.0]), -4.0),
     "no_flyaway": (trace(distance_from_route_m=[0.0, 12.0, 3.0]), 8.0, trace(distance_from_route_m=[0.0, 35.0, 3.0]), -15.0),
+    "altitude_band": (trace(agl_m=[0.0, 5.0, 8.0, 0.5], distance_from_home_m=[0.0, 10.0, 30.0, 40.0], distance_to_goal_m=[40.0, 30.0, 10.0, 0.0]), 4.0,
+                      trace(agl_m=[0.0, 5.0, 0.5, 0.2], distance_from_home_m=[0.0, 10.0, 30.0, 40.0], distance_to_goal_m=[40.0, 30.0, 10.0, 0.0]), -0.5),
+    # GPS off from 1 s: landing by 8 s answers the loss at 6 s within 3 s; never landing does not.
+    "gps_loss_lands": (trace(lost_gps=steps(400, 25), mode_land=steps(400, 200), armed=[1.0] * 400), 0.5,
+                       trace(lost_gps=steps(400, 25), mode_mission=[1.0] * 400, armed=[1.0] * 400), -0.5),
+    # Range sensor off in Position mode from 1 s: 0.2 m/s 3 s later keeps it, 2 m/s is 1.5 m/s too fast.
+    "range_loss_stops": (trace(lost_distance_sensor=steps(200, 25), mode_position=[1.0] * 200, horizontal_speed_m_s=[5.0] * 60 + [0.2] * 140), 0.0,
+                         trace(lost_distance_sensor=steps(200, 25), mode_position=[1.0] * 200, horizontal_speed_m_s=[2.0] * 200), -1.5),
+    # ... and Hold 5 s after the loss keeps it; Position mode 7 s on does not.
+    "range_loss_holds": (trace(lost_distance_sensor=steps(300, 25), mode_position=[1.0] * 150 + [0.0] * 150, mode_hold=steps(300, 150)), 0.5,
+                         trace(lost_distance_sensor=steps(300, 25), mode_position=[1.0] * 300), -0.5),
 }
 
 

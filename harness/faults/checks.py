@@ -3,6 +3,9 @@ scenarios/faults/ that reveals it), flying the witnesses both ways, and finding 
 
 A scenario *reveals* a fault when the faulty autopilot violates the safety distance or fails the
 mission in it and the fault-free one flies it `ok`: unsafe because of the fault, not merely unsafe.
+A fault judged by safety properties (a failsafe's: Fault.properties) is revealed where the faulty
+autopilot violates one of them and the fault-free one keeps them all, whatever the mission's
+outcome (a failsafe that lands short of the goal does what it should).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from harness.flight.evaluation import evaluate, infeasible
 from harness.flight.results import EvaluationResult, RunOptions
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
+from harness.properties.spec import LIBRARY, Property
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
@@ -47,21 +51,38 @@ def fault_list() -> list[dict[str, Any]]:
     return [{**asdict(fault), "witness": str(witness_path(fault.name)) if witness_path(fault.name).is_file() else None} for fault in seeded_faults().values()]
 
 
+def unsafe(result: EvaluationResult) -> bool:
+    """Violates a property it was judged by, or (judged by none) the safety distance or the mission."""
+    if result.properties:
+        return any(scored["verdict"] == "violated" for scored in result.properties.values())
+    return result.status in REVEALING
+
+
 def reveals(faulty: EvaluationResult, clean: EvaluationResult | None) -> bool:
-    return faulty.status in REVEALING and clean is not None and clean.status == Status.OK
+    if clean is None or not unsafe(faulty):
+        return False
+    if clean.properties:
+        return all(scored["verdict"] == "kept" for scored in clean.properties.values())
+    return clean.status == Status.OK
 
 
-def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None) -> RunOptions:
+def judged_by(fault: str) -> tuple[Property, ...]:
+    """The properties a fault's witness is judged by (none: the clearance and the mission)."""
+    return tuple(LIBRARY[name] for name in seeded_faults()[fault].properties)
+
+
+def options_for(fault: str | None, sut_params: Mapping[str, float] | None = None, properties: tuple[Property, ...] = ()) -> RunOptions:
     """The bundled autopilot with the fault switched on, or fault-free for None."""
-    return RunOptions(sut=SutConfig(params=dict(sut_params or {}), fault=fault))
+    return RunOptions(sut=SutConfig(params=dict(sut_params or {}), fault=fault), properties=properties)
 
 
-def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str) -> EvaluationResult:
-    return evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options_for(fault), name=name)
+def _fly(space: SearchSpace, x: np.ndarray, fault: str | None, out_dir: Path, name: str, properties: tuple[Property, ...]) -> EvaluationResult:
+    return evaluate(space, x, seed=WITNESS_SEED, out_dir=out_dir, options=options_for(fault, properties=properties), name=name)
 
 
 def _outcome(result: EvaluationResult) -> dict[str, Any]:
-    return {"status": str(result.status), "fitness": result.fitness, "why": result.why, "min_clearance_m": result.min_clearance_m, "log_path": result.log_path}
+    return {"status": str(result.status), "fitness": result.fitness, "why": result.why, "min_clearance_m": result.min_clearance_m, "log_path": result.log_path,
+            **({"properties": result.properties} if result.properties else {})}
 
 
 def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None,
@@ -85,7 +106,8 @@ def check(names: Iterable[str] | None, out_dir: Path, workers: int | None = None
             continue
         for fault, suffix in ((name, "with-fault"), (None, "without")):
             witness_of[len(jobs)] = name
-            jobs.append(Job.of(len(jobs), space, x, seed=WITNESS_SEED, out_dir=out_dir, name=f"{name}-{suffix}", options=options_for(fault)))
+            jobs.append(Job.of(len(jobs), space, x, seed=WITNESS_SEED, out_dir=out_dir, name=f"{name}-{suffix}",
+                               options=options_for(fault, properties=judged_by(name))))
     flown: dict[str, EvaluationResult] = {}
     executor = make_executor("local", workers)
     try:
@@ -108,8 +130,13 @@ def _line(entry: dict[str, Any]) -> str:
     if "with_fault" not in entry:  # no witness, or one that cannot be flown
         return f"{entry['fault']:<28} {entry['why']}"
     a, b = entry["with_fault"], entry["without"]
-    return (f"{entry['fault']:<28} {'revealed' if entry['revealed'] else 'NOT REVEALED':<13} with it: {a['status']} "
-            f"(fitness {a['fitness']:.3f}); without: {b['status']} (fitness {b['fitness']:.3f})")
+    return (f"{entry['fault']:<28} {'revealed' if entry['revealed'] else 'NOT REVEALED':<13} with it: {_judged(a)}; without: {_judged(b)}")
+
+
+def _judged(outcome: dict[str, Any]) -> str:
+    if "properties" in outcome:
+        return ", ".join(f"{name} {scored['verdict']}" for name, scored in outcome["properties"].items())
+    return f"{outcome['status']} (fitness {outcome['fitness']:.3f})"
 
 
 def check_text(report: list[dict[str, Any]]) -> str:
@@ -124,11 +151,12 @@ def find_witness(fault: str, scenario: Path, tries: int, seed: int, out_dir: Pat
     checked_names([fault])
     profile = load_profile("default")
     space = SearchSpace(load_logical(scenario, profile), profile)
+    properties = judged_by(fault)
     for index, x in enumerate(space.sample_feasible(np.random.default_rng(seed), tries), 1):
-        faulty = _fly(space, x, fault, out_dir, f"{fault}-try{index}-with-fault")
-        if faulty.status not in REVEALING:
+        faulty = _fly(space, x, fault, out_dir, f"{fault}-try{index}-with-fault", properties)
+        if not unsafe(faulty):
             continue
-        if reveals(faulty, _fly(space, x, None, out_dir, f"{fault}-try{index}-without")):
+        if reveals(faulty, _fly(space, x, None, out_dir, f"{fault}-try{index}-without", properties)):
             return space.to_concrete(x), index
     return None, tries
 

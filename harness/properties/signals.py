@@ -32,17 +32,22 @@ class Signal:
     meaning: str
 
 
-MODES = ("manual", "position", "hold", "mission", "takeoff", "land", "rtl")
-# PX4's custom_mode: main mode in bits 16-23, sub mode in bits 24-31 (px4_custom_mode.h).
-PX4_MAIN = {1: "manual", 2: "manual", 3: "position", 5: "manual", 7: "manual", 8: "manual"}
+MODES = ("manual", "altitude", "position", "hold", "mission", "takeoff", "land", "rtl")
+# PX4's custom_mode: main mode in bits 16-23, sub mode in bits 24-31 (px4_custom_mode.h). PX4's
+# Descend (the position-loss failsafe) reports itself as AUTO/LAND.
+PX4_MAIN = {1: "manual", 2: "altitude", 3: "position", 5: "manual", 7: "manual", 8: "manual"}
 PX4_AUTO = 4
 PX4_AUTO_SUB = {2: "takeoff", 3: "hold", 4: "mission", 5: "rtl", 6: "land", 9: "land"}
-ARDUCOPTER = {0: "manual", 1: "manual", 2: "manual", 3: "mission", 5: "position", 6: "rtl", 9: "land", 16: "position", 17: "hold", 21: "rtl"}
+ARDUCOPTER = {0: "manual", 1: "manual", 2: "altitude", 3: "mission", 5: "position", 6: "rtl", 9: "land", 16: "position", 17: "hold", 21: "rtl"}
 ARMED_FLAG = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 def _failure_signal(unit: str) -> str:
     return "failed_" + unit.replace(" ", "_")
+
+
+def _loss_signal(unit: str) -> str:
+    return "lost_" + unit.replace(" ", "_")
 
 
 SIGNALS: dict[str, Signal] = {
@@ -60,6 +65,7 @@ SIGNALS: dict[str, Signal] = {
     "armed": Signal("1/0", "1 while the SUT reports itself armed"),
     **{f"mode_{mode}": Signal("1/0", f"1 while the SUT reports its {mode} mode") for mode in MODES},
     **{_failure_signal(unit): Signal("1/0", f"1 while a failure of the {unit} is injected") for unit in UNIT_BY_NAME},
+    **{_loss_signal(unit): Signal("1/0", f"1 while an injected failure stops the {unit}'s readings altogether (type off)") for unit in UNIT_BY_NAME},
 }
 
 
@@ -174,11 +180,14 @@ def _heartbeat_signals(api_from_sut: Iterable[tuple[int, bytes]], time_s: np.nda
 
 
 def _failure_signals(recorded: Recorded, time_s: np.ndarray) -> dict[str, np.ndarray]:
-    values = {_failure_signal(unit): np.zeros(len(time_s)) for unit in UNIT_BY_NAME}
+    values = {name(unit): np.zeros(len(time_s)) for unit in UNIT_BY_NAME for name in (_failure_signal, _loss_signal)}
     for _topic, _ns, event in recorded(["/events"]):
         if event.get("event") in ("failure", "failure_cleared"):
-            name = _failure_signal(event["detail"]["unit"])
-            if name in values:
-                values[name][time_s >= event["t"]] = 1.0 if event["event"] == "failure" else 0.0
+            detail = event["detail"]
+            on = 1.0 if event["event"] == "failure" else 0.0
+            if _failure_signal(detail["unit"]) in values:
+                values[_failure_signal(detail["unit"])][time_s >= event["t"]] = on
+                if detail.get("type") == "off" or not on:
+                    values[_loss_signal(detail["unit"])][time_s >= event["t"]] = on
     return values
 

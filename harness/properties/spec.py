@@ -106,6 +106,29 @@ LIBRARY: dict[str, Property] = {p.name: p for p in (
              "ends the flight on the ground within the landing area around the goal", {"landed_agl_m": 0.3, "radius_m": 3.0}),
     Property("no_flyaway", "always(distance_from_route_m <= corridor_m)", "m",
              "stays within a corridor around its route, failures or not", {"corridor_m": 20.0}),
+    Property("altitude_band", "always(agl_m <= ceiling_m and ((distance_from_home_m >= clear_m and distance_to_goal_m >= clear_m) -> agl_m >= floor_m))", "m",
+             "between take-off and landing (farther than clear_m from either) flies no lower than floor_m above the ground, and never above ceiling_m",
+             {"floor_m": 1.0, "ceiling_m": 120.0, "clear_m": 5.0},
+             "the 120 m ceiling of EU and US drone rules; PX4's GF_MAX_VER_DIST when a team sets it"),
+    Property("gps_loss_lands",
+             "always(historically[0:loss_s](lost_gps >= 0.5) -> eventually[0:react_s]((mode_land >= 0.5) or (mode_altitude >= 0.5) or (armed <= 0.5)))", "1/0",
+             "once the GPS has been off for loss_s, within react_s the vehicle descends or lands (or, flown by hand, is in Altitude mode), or is disarmed",
+             {"loss_s": 5.0, "react_s": 3.0},
+             "PX4: the EKF reports no horizontal position after EKF2_NOAID_TOUT (5 s) without aiding; a mode that needs one falls back "
+             "(failsafe.cpp checkModeFallback): Position to Altitude mode, the others to Land, else Descend, both reported as AUTO/LAND. "
+             "ArduCopter: the EKF failsafe, FS_EKF_ACTION (1: Land, 2: AltHold), after the EKF's variance passes FS_EKF_THRESH for a second"),
+    Property("range_loss_stops",
+             "always((historically[0:stop_s](lost_distance_sensor * mode_position)) * (horizontal_speed_m_s - creep_m_s) <= 0)", "m/s",
+             "in Position mode, stop_s after the range sensor goes silent the vehicle is no faster than creep_m_s: it moves nowhere it cannot see "
+             "(robustness: 0 when kept, less by the excess speed when not)",
+             {"stop_s": 3.0, "creep_m_s": 0.5},
+             "PX4 CollisionPrevention.cpp: bins without data for 0.5 s (RANGE_STREAM_TIMEOUT_US) are reset, and with no obstacle data at all "
+             "'allow no movement' (even with CP_GO_NO_DATA=1, CollisionPreventionTest.cpp)"),
+    Property("range_loss_holds",
+             "always(not historically[0:hold_s]((lost_distance_sensor >= 0.5) and (mode_position >= 0.5)))", "1/0",
+             "in Position mode with the range sensor silent, the vehicle switches to Hold within hold_s",
+             {"hold_s": 6.0},
+             "PX4 CollisionPrevention.cpp: 'if distance data is stale, switch to Loiter' after TIMEOUT_HOLD_US (5 s)"),
 )}
 
 

@@ -1,0 +1,113 @@
+"""The bundled autopilot's failsafes, as PX4 documents them: the position-loss fallback (Descend,
+or Altitude mode by hand) and collision prevention's Hold without range data; then flown, judged
+by the failsafe properties, and the seeded fault in them found by its witness."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from autopilot.commander import MAIN_ALTCTL, MAIN_AUTO, MAIN_POSCTL, SUB_AUTO_LAND, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
+from autopilot.manual import Sticks
+from autopilot.params import Params
+from harness.tools.cli import main
+from pymavlink.dialects.v20.common import MAV_CMD_NAV_WAYPOINT
+
+from conftest import ROOT
+
+WALL_CONCRETE = ROOT / "scenarios" / "examples" / "wall_concrete.json"
+
+
+def estimate(north: float = 0.0, down: float = -10.0, v_down: float = 0.0) -> VehicleEstimate:
+    return VehicleEstimate(north, 0.0, down, 0.0, 0.0, v_down, 0.0)
+
+
+def on_a_mission() -> Commander:
+    commander = Commander(Params())
+    commander.armed, commander.landed, commander.home = True, False, (0.0, 0.0, 0.0)
+    commander.set_mission([MissionItem(0, MAV_CMD_NAV_WAYPOINT, 80.0, 0.0, 10.0)])
+    commander.start_mission(estimate())
+    return commander
+
+
+def test_a_lost_position_makes_a_mission_descend_level_and_the_mission_resumes_once_it_is_back():
+    commander = on_a_mission()
+    assert commander.update(1.0, estimate(), 0.42, position_valid=True).v_north_m_s > 0
+    # WHEN the estimator stops vouching for its position
+    descending = commander.update(1.1, estimate(), 0.42, position_valid=False)
+    # THEN it descends at the landing speed without holding anything horizontal, reported as PX4 reports Descend
+    assert (descending.level, descending.v_down_m_s, descending.north_m) == (True, commander.params["MPC_LAND_SPEED"], None)
+    assert commander.reported_mode == (MAIN_AUTO, SUB_AUTO_LAND) and commander.mode == (MAIN_AUTO, SUB_AUTO_MISSION)
+    assert ("statustext", "Failsafe: no position, switching to Descend") in commander.events
+    # and once the position is back, the mission goes on towards its waypoint
+    resumed = commander.update(1.2, estimate(), 0.42, position_valid=True)
+    assert commander.reported_mode == (MAIN_AUTO, SUB_AUTO_MISSION) and resumed.v_north_m_s > 0 and not resumed.level
+
+
+def test_a_descent_without_position_lands_and_disarms_where_it_is():
+    commander = on_a_mission()
+    commander.update(1.0, estimate(), 0.42, position_valid=False)
+    # on the ground: no longer descending, lift well below hover, for the land detector's time
+    for step in range(100):
+        commander.update(1.0 + step * 0.02, estimate(down=0.0), 0.1, position_valid=False)
+    assert commander.landed and not commander.armed
+
+
+def test_position_mode_falls_back_to_altitude_mode_while_the_sticks_last_and_to_descend_without_them():
+    commander = Commander(Params())
+    commander.armed, commander.landed, commander.home = True, False, (0.0, 0.0, 0.0)
+    commander.on_sticks(Sticks(0.0, 0.5, 0.0, 0.0, 0, 1.0), estimate())
+    assert commander.set_mode((MAIN_POSCTL, 0), estimate(), 1.0)
+    by_hand = commander.update(1.1, estimate(), 0.42, position_valid=False)
+    assert by_hand.tilt_from_sticks and commander.reported_mode == (MAIN_ALTCTL, 0)
+    # the sticks fall silent: manual control is lost (NAV_RCL_ACT's Return cannot run either), so it descends
+    lost = commander.update(1.0 + commander.params["COM_RC_LOSS_T"] + 0.1, estimate(), 0.42, position_valid=False)
+    assert lost.level and commander.reported_mode == (MAIN_AUTO, SUB_AUTO_LAND)
+
+
+def flown(tmp_path: Path, capsys, concrete: Path, *argv: str) -> dict:
+    capsys.readouterr()
+    main(["run", "--concrete", str(concrete), "--out", str(tmp_path), "--json", *argv])
+    return json.loads(capsys.readouterr().out)
+
+
+def wall_with_the_range_sensor_off(tmp_path: Path) -> Path:
+    """The wall moved 25 m east, off the route, and the range sensor going silent 6 s into the
+    run for good: whatever the vehicle does, it hits nothing."""
+    document = json.loads(WALL_CONCRETE.read_text())
+    document["obstacles"][0]["position"]["east_m"] = 25.0
+    document["failures"] = [{"unit": "distance sensor", "type": "off", "onset_s": 6.0, "duration_s": 60.0}]
+    document["logical_scenario"]["failures"] = [{"unit": "distance sensor", "type": "off"}]
+    path = tmp_path / "wall_range_off.json"
+    path.write_text(json.dumps(document))
+    return path
+
+
+@pytest.mark.slow
+def test_in_position_mode_a_silent_range_sensor_stops_the_vehicle_and_switches_to_hold_unless_collision_prevention_is_off(tmp_path, capsys):
+    concrete = wall_with_the_range_sensor_off(tmp_path)
+    judged = ("--drive", "pilot", "--property", "range_loss_stops", "--property", "range_loss_holds", "--property", "clearance")
+    # GIVEN a pilot pushing along the route when the range sensor falls silent
+    held = flown(tmp_path / "cp", capsys, concrete, *judged)
+    # THEN the bundled autopilot stops where it is and switches to Hold, as PX4's collision prevention does
+    assert "No obstacle data, switching to Hold" in held["mavsdk"]["status_texts"]
+    assert {name: scored["verdict"] for name, scored in held["properties"].items()} == {"range_loss_stops": "kept", "range_loss_holds": "kept", "clearance": "kept"}
+    # and without collision prevention the same flight goes on blind, breaking both failsafe
+    # properties, which the clearance alone cannot tell
+    blind = flown(tmp_path / "no-cp", capsys, concrete, *judged, "--sut-param", "CP_DIST=-1")
+    assert {name: scored["verdict"] for name, scored in blind["properties"].items()} == {"range_loss_stops": "violated", "range_loss_holds": "violated", "clearance": "kept"}
+    assert blind["properties"]["range_loss_stops"]["robustness"] < -3.0  # m/s faster than the creep allowed
+
+
+@pytest.mark.slow
+def test_a_lost_gps_makes_the_bundled_autopilot_descend_and_the_seeded_unit_slip_flies_on_blind(tmp_path, capsys):
+    witness = ROOT / "scenarios" / "faults" / "noaid_timeout_ms.json"
+    lost = flown(tmp_path / "clean", capsys, witness, "--property", "gps_loss_lands", "--property", "clearance")
+    assert lost["properties"]["gps_loss_lands"]["verdict"] == "kept"
+    assert "Failsafe: no position, switching to Descend" in lost["mavsdk"]["status_texts"]
+    blind = flown(tmp_path / "fault", capsys, witness, "--sut-fault", "noaid_timeout_ms", "--property", "gps_loss_lands", "--property", "clearance")
+    assert blind["properties"]["gps_loss_lands"]["verdict"] == "violated"
+    # the clearance alone sees nothing wrong with either flight
+    assert lost["properties"]["clearance"]["verdict"] == blind["properties"]["clearance"]["verdict"] == "kept"
