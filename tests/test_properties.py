@@ -147,6 +147,11 @@ def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_
     # and the comparison ranks the run by what it searched
     assert main(["compare", str(store), "--baseline", "RANDOM", "--json"]) == 0
     assert [row["median_best_fitness"] for row in json.loads(capsys.readouterr().out)["scenarios"]] == [least]
+    # and the report counts each property's violations and names the flight of least robustness
+    assert main(["report", str(store), "--out", str(tmp_path / "report.html")]) == 0
+    page = (tmp_path / "report.html").read_text()
+    gentle_violated = sum(scored["gentle"]["verdict"] == "violated" for _s, _f, scored in flown)
+    assert "<h2>Safety properties</h2>" in page and f"<td class='text'>gentle</td><td>{len(flown)}</td><td>{gentle_violated}</td>" in page
     # WHEN its worst case is exported, once as a fault fixed, once as a known violation
     for expect in ("safe", "violation"):
         assert main(["export-regressions", str(store), "--worst", "1", "--threshold=-inf", "--expect", expect, "--out", str(tmp_path / expect)]) == 0

@@ -1,7 +1,7 @@
 """`stella report DB --out report.html`: one self-contained page (plots embedded as PNG data).
 
-Best fitness vs evaluations per algorithm (median and range over runs, per scenario), the
-comparison table, the violations, and the worst concrete scenarios with their top-view plots
+Best fitness vs evaluations per algorithm (median and range over runs, per scenario), each safety
+property's violations and least robustness per run, the comparison table, the violations, and the worst concrete scenarios with their top-view plots
 and MCAP paths.
 """
 
@@ -162,6 +162,28 @@ def _failure_modes(store: Store) -> str:
     return summary + f"<table>{''.join(rows)}</table>"
 
 
+def _properties(store: Store) -> list[str]:
+    """Each safety property a run scored: its flights, the violations, the least robustness and
+    the flight that came closest to (or furthest into) violating it."""
+    rows = ["<tr><th>scenario</th><th>algorithm</th><th>run</th><th>property</th><th>flights scored</th><th>violated</th><th>least robustness</th><th>evaluation, log</th></tr>"]
+    for run in store.runs():
+        scored: dict[str, list] = {}
+        for evaluation in store.evaluations(run.id).values():
+            for name, verdict in evaluation.properties.items():
+                scored.setdefault(name, []).append((evaluation, verdict))
+        for name, flights in sorted(scored.items()):
+            judged = [(e, v) for e, v in flights if v.get("robustness") is not None]
+            closest = min(judged, key=lambda ev: ev[1]["robustness"], default=None)
+            least = f"{closest[1]['robustness']:.3f} {html.escape(closest[1]['unit'])}" if closest else "-"
+            where = f"{closest[0].id} <code>{html.escape(str(closest[0].log_path))}</code>" if closest else "-"
+            rows.append(f"<tr><td class='text'>{html.escape(run.scenario)}</td><td class='text'>{run.algorithm}</td><td>{run.run_index}</td>"
+                        f"<td class='text'>{html.escape(name)}</td><td>{len(flights)}</td><td>{sum(v['verdict'] == 'violated' for _e, v in flights)}</td>"
+                        f"<td>{least}</td><td class='text'>{where}</td></tr>")
+    if len(rows) == 1:
+        return []
+    return ["<h2>Safety properties</h2>", f"<table>{''.join(rows)}</table>"]
+
+
 def _revealing(store: Store) -> list[str]:
     """A differential campaign's revealing candidates, unsafe ones first: both sides' outcomes."""
     if not store.is_differential():
@@ -181,7 +203,7 @@ def _revealing(store: Store) -> list[str]:
 
 def write_report(store: Store, out: Path, worst: int = 5, baseline: str = "NSGAII") -> None:
     report = compare(store, baseline)
-    body = [*_revealing(store), "<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
+    body = [*_revealing(store), *_properties(store), "<h2>Best fitness vs evaluations</h2>", *_convergence(store), "<h2>Comparison</h2>", _comparison_table(report),
             "<h2>Violations</h2>", _violations(store), "<h2>Failure modes</h2>", _failure_modes(store),
             f"<h2>The {worst} worst concrete scenarios</h2>", *_worst(store, worst)]
     out.write_text(PAGE.format(title=f"Campaign report: {html.escape(str(store.path))}", body="\n".join(body)), encoding="utf-8")
