@@ -12,7 +12,7 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class Fault:
     name: str
-    area: str  # collision prevention, sensing, estimation, control, commander
+    area: str  # collision prevention, sensing, estimation, control, commander, failsafe
     breaks: str  # what goes wrong
     kin: str  # the kind of bug it imitates, in PX4 or elsewhere
     revealed_by: str  # scenario features that should reveal it

@@ -19,7 +19,7 @@ from conftest import ROOT
 from harness.faults.checks import witness_path
 from harness.tools.cli import main
 
-AREAS = {"collision prevention", "sensing", "estimation", "control", "commander"}
+AREAS = {"collision prevention", "sensing", "estimation", "control", "commander", "failsafe"}
 
 
 def test_at_least_ten_documented_faults_over_every_area():
