@@ -111,8 +111,9 @@ LIBRARY: dict[str, Property] = {p.name: p for p in (
              {"floor_m": 1.0, "ceiling_m": 120.0, "clear_m": 5.0},
              "the 120 m ceiling of EU and US drone rules; PX4's GF_MAX_VER_DIST when a team sets it"),
     Property("gps_loss_lands",
-             "always(historically[0:loss_s](lost_gps >= 0.5) -> eventually[0:react_s]((mode_land >= 0.5) or (mode_altitude >= 0.5) or (armed <= 0.5)))", "1/0",
-             "once the GPS has been off for loss_s, within react_s the vehicle descends or lands (or, flown by hand, is in Altitude mode), or is disarmed",
+             "always(historically[0:loss_s](lost_gps >= 0.5) -> eventually[0:react_s]((mode_land >= 0.5) or (mode_altitude >= 0.5) or (armed <= 0.5) or (lost_gps <= 0.5)))", "1/0",
+             "once the GPS has been off for loss_s, within react_s the vehicle descends or lands (or, flown by hand, is in Altitude mode), or is disarmed, "
+             "or has its GPS back",
              {"loss_s": 5.0, "react_s": 3.0},
              "PX4: the EKF reports no horizontal position after EKF2_NOAID_TOUT (5 s) without aiding; a mode that needs one falls back "
              "(failsafe.cpp checkModeFallback): Position to Altitude mode, the others to Land, else Descend, both reported as AUTO/LAND. "
