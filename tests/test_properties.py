@@ -121,6 +121,40 @@ def test_a_flight_scores_its_properties_and_its_log_alone_scores_them_the_same(t
         assert inspected(result["log_path"], capsys, *LIBRARY)["properties"] == result["properties"]
 
 
+def wall_aside(tmp_path: Path, name: str, waypoints: list[dict] | None = None, failures: list[dict] | None = None) -> Path:
+    """The wall scenario with the wall 25 m east of the route, and another route or failures."""
+    document = json.loads((ROOT / "scenarios" / "examples" / "wall_concrete.json").read_text())
+    document["obstacles"][0]["position"]["east_m"] = 25.0
+    if waypoints:
+        document["logical_scenario"]["mission"] = {"waypoints": waypoints}
+    if failures:
+        document["failures"] = failures
+        document["logical_scenario"]["failures"] = [{"unit": f["unit"], "type": f["type"]} for f in failures]
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps(document))
+    return path
+
+
+# Real flights that break named properties (the calm mission above keeps them all; the clearance,
+# the failsafes and lands_in_area have theirs in the test before and in tests/test_failsafes.py).
+BROKEN_BY = {
+    "a route to 160 m north": ({"waypoints": [{"north_m": 160.0, "east_m": 0.0, "altitude_m": 8.0}]}, {"geofence"}),
+    "a cruise 0.6 m above the ground": ({"waypoints": [{"north_m": 60.0, "east_m": 0.0, "altitude_m": 0.6}]}, {"altitude_band"}),
+    # The heading 90 degrees off: the vehicle circles away from its route, faster and faster, and crashes.
+    "the magnetometer wrong from 4 s": ({"failures": [{"unit": "magnetometer", "type": "wrong", "onset_s": 4.0, "duration_s": 60.0}]},
+                                        {"max_tilt", "max_speed", "altitude_band", "no_flyaway", "lands_in_area"}),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("world", sorted(BROKEN_BY))
+def test_a_real_flight_breaks_exactly_the_named_properties_its_world_provokes(world, tmp_path, capsys):
+    changes, broken = BROKEN_BY[world]
+    concrete = wall_aside(tmp_path, "world", **changes)
+    result = flown(tmp_path, capsys, "--concrete", str(concrete))
+    assert {name for name, scored in result["properties"].items() if scored["verdict"] == "violated"} == broken
+
+
 @pytest.mark.slow
 def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_resumes_and_exports_cases_that_keep_them(tmp_path, capsys,
                                                                                                                         pytester):
