@@ -200,6 +200,41 @@ def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_
     known.assert_outcomes(passed=1)
 
 
+@pytest.mark.slow
+def test_with_one_objective_per_property_nsga_ii_hears_each_robustness_and_the_campaign_is_another_one(tmp_path, capsys, monkeypatch):
+    from harness.search import optimizers
+
+    heard: list = []
+    told = optimizers._told
+    monkeypatch.setattr(optimizers, "_told", lambda solutions, fitness: (heard.extend(fitness), told(solutions, fitness)))
+    store = tmp_path / "c.db"
+    campaign = ["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "NSGAII", "--evaluations", "8", "--population", "4",
+                "--workers", "2", "--property", "clearance", "--property", "max_tilt", "--json"]
+    assert main([*campaign, "--store", str(store), "--objective", "properties"]) == 0
+    capsys.readouterr()
+    # THEN the optimizer was told both robustness values of each flight it heard of, in the order
+    # asked (a property a flight could not score, the flight's penalty; the last batch, cut short
+    # by the budget, is heard of by nobody)
+    with sqlite3.connect(store) as db:
+        scored = [(fitness, json.loads(p or "{}")) for fitness, p in db.execute("SELECT fitness, properties FROM evaluations")]
+    pairs = [[p[name]["robustness"] if p.get(name, {}).get("robustness") is not None else fitness for name in ("clearance", "max_tilt")]
+             for fitness, p in scored]
+    assert heard and all(objectives in pairs for objectives in heard)
+    # and the same properties minimised as their least are another campaign, which the store refuses to resume
+    assert main([*campaign, "--store", str(store)]) == 2
+    assert "this store holds a different campaign" in capsys.readouterr().err
+    # and which, in a store of its own, tells the optimizer one number per flight
+    heard.clear()
+    assert main([*campaign, "--store", str(tmp_path / "least.db")]) == 0
+    assert heard and all(not isinstance(value, list) for value in heard)
+
+
+def test_one_objective_per_property_needs_two_properties(tmp_path, capsys):
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "NSGAII", "--evaluations", "2",
+                 "--store", str(tmp_path / "c.db"), "--property", "clearance", "--objective", "properties"]) == 2
+    assert "--objective: properties makes each --property an objective of its own: name two or more properties" in capsys.readouterr().err
+
+
 def test_a_regression_case_with_a_bad_property_names_the_case_the_property_and_the_column(tmp_path):
     from harness.campaigns.regression import load_regression
     from harness.errors import InputError

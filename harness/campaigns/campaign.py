@@ -179,11 +179,11 @@ def run_sequence(combination: str, problem: CampaignProblem, *, budget: int, see
         optimizer = OPTIMIZERS[letter]
         initial: list[np.ndarray] = []
         if problem.history:
-            ranked = sorted(problem.history, key=lambda trial: trial.fitness)
+            ranked = sorted(problem.history, key=problem.objective_of)
             initial = [trial.vector for trial in ranked[: min(SEEDS_FROM_BEST, population)]]
             initial += least_explored(problem.space, [trial.vector for trial in problem.history], population - len(initial), rng)
         problem.start_step(step, optimizer.name, step_budget)
-        search = optimizer.start(problem.space, seed=seed * 1000 + step, population=population, batch=batch, initial=initial)
+        search = optimizer.start(problem.space, seed=seed * 1000 + step, population=population, batch=batch, initial=initial, objectives=problem.objectives)
         try:
             while True:
                 vectors = search.ask()
@@ -275,7 +275,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
-                                          confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None)
+                                          confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
+                                          each_property=config.objective == "properties")
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best

@@ -58,6 +58,7 @@ class Trial:
     reveals: Reveal | None = None
     log_path: str | None = field(default=None, compare=False)
     robustness: float | None = None  # the least of the safety properties' asked (None: none scored)
+    robustness_each: tuple[float | None, ...] = ()  # each property's asked, in the order asked (None: not scored)
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,7 @@ class CampaignProblem:
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
     pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
     diversity: FailureModes | None = None  # the optimizer is told fitness shared over failure modes (--objective diverse)
+    each_property: bool = False  # the optimizer is told one objective per property (--objective properties)
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
@@ -121,6 +123,14 @@ class CampaignProblem:
     @property
     def best(self) -> Trial | None:
         return min(self.history, key=self.objective_of, default=None)
+
+    @property
+    def objectives(self) -> int:
+        """How many objectives the optimizer is told per candidate."""
+        return len(self.options.properties) if self.each_property else 1
+
+    def _robustness_each(self, properties: Mapping[str, Mapping[str, Any]]) -> tuple[float | None, ...]:
+        return tuple(properties.get(prop.name, {}).get("robustness") for prop in self.options.properties)
 
     def objective_of(self, trial: Trial) -> float:
         """What the search minimises: the flight's f, or with safety properties asked, the least
@@ -162,7 +172,7 @@ class CampaignProblem:
         x = np.clip(np.asarray(raw, dtype=float), self.space.lower, self.space.upper)
         return _Candidate(index, x, vector_key(x))
 
-    def evaluate(self, vectors: list[np.ndarray]) -> list[float]:
+    def evaluate(self, vectors: list[np.ndarray]) -> list[float] | list[list[float]]:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
         candidates = [self._candidate(index, raw) for index, raw in enumerate(vectors)]
         to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
@@ -184,7 +194,7 @@ class CampaignProblem:
             if stored is not None:
                 self.replayed += 1
                 self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path,
-                                   least_robustness(stored.properties)))
+                                   least_robustness(stored.properties), self._robustness_each(stored.properties)))
                 continue
             # Its id in the store, known now so that its log carries it: one number for an
             # evaluation in its log's name and in every command that shows or takes it.
@@ -215,8 +225,12 @@ class CampaignProblem:
             raise stop or StopSearch(campaign_done=True)
         return [self._told(self._trials[c.key]) for c in candidates]
 
-    def _told(self, trial: Trial) -> float:
-        """The fitness the optimizer hears of (the stored one is the flight's own)."""
+    def _told(self, trial: Trial) -> float | list[float]:
+        """The fitness the optimizer hears of (the stored one is the flight's own): with one
+        objective per property, each one's robustness (a property not scored, in a flight that
+        could not finish or was not flown, gets the flight's penalty)."""
+        if self.each_property:
+            return [trial.fitness if value is None else value for value in trial.robustness_each]
         return self.objective_of(trial) if self.diversity is None else self.diversity.shared(trial, self._trials.values())
 
     def _confirmed(self, violations: list[tuple[Job, EvaluationResult]]) -> list[tuple[Job, EvaluationResult]]:
@@ -243,5 +257,5 @@ class CampaignProblem:
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
         self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,
-                           result.log_path, least_robustness(result.properties)))
+                           result.log_path, least_robustness(result.properties), self._robustness_each(result.properties)))
         self.on_result(result)

@@ -41,26 +41,29 @@ class Search(Protocol):
 
     def ask(self) -> list[np.ndarray]: ...
 
-    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None: ...
+    def tell(self, vectors: list[np.ndarray], fitness: list[float] | list[list[float]]) -> None:
+        """fitness: a number per vector, or with several objectives a list of them, all minimised."""
 
 
 class Optimizer(Protocol):
     letter: str
     name: str
 
-    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray], objectives: int = 1) -> Search:
         """A search over space, beginning with the initial candidates (fewer than population: the
-        rest is the optimizer's own)."""
+        rest is the optimizer's own). With several objectives NSGA-II and SMPSO rank by Pareto
+        dominance; BO, a single-objective method, minimises the least of them."""
 
 
 class _JMetalProblem(FloatProblem):
-    def __init__(self, lower: np.ndarray, upper: np.ndarray):
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, objectives: int = 1):
         super().__init__()
         self.lower_bound = [float(v) for v in lower]
         self.upper_bound = [float(v) for v in upper]
+        self._objectives = objectives
 
     def number_of_objectives(self) -> int:
-        return 1
+        return self._objectives
 
     def number_of_constraints(self) -> int:
         return 0
@@ -112,9 +115,9 @@ def _mutation(n: int) -> PolynomialMutation:
     return PolynomialMutation(probability=1.0 / n, distribution_index=20.0)
 
 
-def nsgaii(space: SearchSpace, population: int, initial: list[np.ndarray]) -> NSGAII:
+def nsgaii(space: SearchSpace, population: int, initial: list[np.ndarray], objectives: int = 1) -> NSGAII:
     """jMetalPy's NSGA-II with the paper's settings, its population starting with initial."""
-    jproblem = _JMetalProblem(space.lower, space.upper)
+    jproblem = _JMetalProblem(space.lower, space.upper, objectives)
     return NSGAII(
         problem=jproblem,
         population_size=population,
@@ -128,9 +131,9 @@ def nsgaii(space: SearchSpace, population: int, initial: list[np.ndarray]) -> NS
     )
 
 
-def smpso(space: SearchSpace, population: int, initial: list[np.ndarray]) -> SMPSO:
+def smpso(space: SearchSpace, population: int, initial: list[np.ndarray], objectives: int = 1) -> SMPSO:
     """jMetalPy's SMPSO with the paper's settings, its swarm starting with initial."""
-    jproblem = _JMetalProblem(space.lower, space.upper)
+    jproblem = _JMetalProblem(space.lower, space.upper, objectives)
     return SMPSO(
         problem=jproblem,
         swarm_size=population,
@@ -145,9 +148,9 @@ def _vectors(solutions) -> list[np.ndarray]:
     return [np.array(solution.variables, dtype=float) for solution in solutions]
 
 
-def _told(solutions, fitness: list[float]) -> None:
+def _told(solutions, fitness: list[float] | list[list[float]]) -> None:
     for solution, value in zip(solutions, fitness):
-        solution.objectives[0] = value
+        solution.objectives[:] = value if isinstance(value, list) else [value]
 
 
 class _NSGAIISearch:
@@ -220,8 +223,8 @@ class NSGAIIOptimizer:
     letter: str = "N"
     name: str = "NSGAII"
 
-    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
-        return _NSGAIISearch(nsgaii(space, population, initial), _OwnStreams(seed))
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray], objectives: int = 1) -> Search:
+        return _NSGAIISearch(nsgaii(space, population, initial, objectives), _OwnStreams(seed))
 
 
 @dataclass(frozen=True)
@@ -229,8 +232,8 @@ class SMPSOOptimizer:
     letter: str = "P"
     name: str = "SMPSO"
 
-    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
-        return _SMPSOSearch(smpso(space, population, initial), _OwnStreams(seed))
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray], objectives: int = 1) -> Search:
+        return _SMPSOSearch(smpso(space, population, initial, objectives), _OwnStreams(seed))
 
 
 class _BOSearch:
@@ -265,9 +268,10 @@ class _BOSearch:
             liar.register(params=params, target=lie)
         return suggestions
 
-    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+    def tell(self, vectors: list[np.ndarray], fitness: list[float] | list[list[float]]) -> None:
         for x, value in zip(vectors, fitness):
-            self._optimizer.register(params=dict(zip(self._names, x.tolist())), target=-min(value, BO_TARGET_CAP))
+            least = min(value) if isinstance(value, list) else value
+            self._optimizer.register(params=dict(zip(self._names, x.tolist())), target=-min(least, BO_TARGET_CAP))
 
 
 @dataclass(frozen=True)
@@ -275,7 +279,7 @@ class BOOptimizer:
     letter: str = "B"
     name: str = "BO"
 
-    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray], objectives: int = 1) -> Search:
         return _BOSearch(space, seed, population, batch, initial)
 
 
@@ -290,7 +294,7 @@ class _RandomSearch:
             return asked
         return list(self._space.sample(self._rng, self._batch))
 
-    def tell(self, vectors: list[np.ndarray], fitness: list[float]) -> None:
+    def tell(self, vectors: list[np.ndarray], fitness: list[float] | list[list[float]]) -> None:
         pass
 
 
@@ -299,7 +303,7 @@ class RandomSearch:
     letter: str = "R"
     name: str = "RANDOM"
 
-    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray]) -> Search:
+    def start(self, space: SearchSpace, *, seed: int, population: int, batch: int, initial: list[np.ndarray], objectives: int = 1) -> Search:
         return _RandomSearch(space, seed, batch, initial)
 
 

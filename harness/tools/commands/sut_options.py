@@ -52,9 +52,11 @@ def add_reference_options(p: argparse.ArgumentParser, *, campaign: bool = False)
     group.add_argument("--reference-sut-param", action="append", metavar="NAME=VALUE", help="a reference parameter (over the subject's); repeatable")
     group.add_argument("--reference-sut-fault", metavar="NAME", help="a seeded fault of the reference's bundled autopilot")
     if campaign:
-        p.add_argument("--objective", choices=["subject", "difference", "diverse"], default="subject",
-                       help="what the search minimises: the fitness (default); with a reference, f_subject - f_reference (difference: where the "
-                            "subject is worse); without one, the fitness shared over failure modes (diverse: new failures before repeats; docs/diversity.md)")
+        p.add_argument("--objective", choices=["subject", "difference", "diverse", "properties"], default="subject",
+                       help="what the search minimises: the fitness (default; with --property, the least robustness of the properties); with a "
+                            "reference, f_subject - f_reference (difference: where the subject is worse); without one, the fitness shared over "
+                            "failure modes (diverse: new failures before repeats; docs/diversity.md); with --property, each property's robustness "
+                            "as an objective of its own (properties: NSGA-II and SMPSO keep a Pareto front over them; docs/properties.md)")
     else:
         group.add_argument("--objective", choices=["subject", "difference"], default="subject",
                            help="the pair's fitness: the subject's (default), or f_subject - f_reference (where the subject is worse)")
@@ -139,9 +141,9 @@ def reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | 
     import sut_adapter
 
     given = {name: getattr(args, f"reference_{name}") for name in ("sut", "px4_bin", "ardupilot_bin", "autopilot_dir", "sut_param", "sut_fault")}
-    if args.objective == "diverse":
+    if args.objective in ("diverse", "properties"):
         if any(value is not None for value in given.values()):
-            raise InputError([Problem("--objective", "", "diverse searches one SUT's failures: drop the --reference-* options, or use "
+            raise InputError([Problem("--objective", "", f"{args.objective} searches one SUT: drop the --reference-* options, or use "
                                                          "--objective difference to search where the subject is worse than the reference")])
         return None
     if not any(value is not None for value in given.values()):
