@@ -229,6 +229,33 @@ def test_with_one_objective_per_property_nsga_ii_hears_each_robustness_and_the_c
     assert heard and all(not isinstance(value, list) for value in heard)
 
 
+def test_a_pair_reveals_a_property_the_subject_breaks_and_the_reference_keeps_on_every_flight():
+    from harness.flight.differential import Outcome, Reveal, compare
+    from harness.flight.fitness import Status
+
+    def flight(*violated: str) -> Outcome:
+        return Outcome(Status.OK, 5.0, 6.0, 40.0, violated=violated)
+
+    verdict = compare([flight("gps_loss_lands"), flight("gps_loss_lands", "max_tilt")], [flight(), flight("max_tilt")])
+    assert (verdict.reveals, verdict.why) == (Reveal.UNSAFE, "the subject violates gps_loss_lands where the reference keeps it")
+    # a property broken on one of the subject's flights only, or by the reference too, reveals nothing
+    assert compare([flight("gps_loss_lands"), flight()], [flight()]).reveals is None
+    assert compare([flight("max_tilt")], [flight("max_tilt")]).reveals is None
+
+
+@pytest.mark.slow
+def test_a_differential_campaign_over_properties_finds_the_seeded_failsafe_fault_the_reference_does_not_have(tmp_path, capsys):
+    store = tmp_path / "d.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "faults" / "logical" / "gps_loss.json"), "--algorithm", "RANDOM", "--evaluations", "4",
+                 "--workers", "2", "--seed", "3", "--store", str(store), "--sut-fault", "noaid_timeout_ms", "--reference-sut", "bundled",
+                 "--property", "gps_loss_lands", "--json"]) == 0
+    [run] = json.loads(capsys.readouterr().out)["runs"]
+    with sqlite3.connect(store) as db:
+        whys = [json.loads(d)["why"] for (d,) in db.execute("SELECT differential FROM evaluations WHERE reveals = 'unsafe'")]
+    assert run["revealing"] == len(whys) >= 1
+    assert set(whys) == {"the subject violates gps_loss_lands where the reference keeps it"}
+
+
 def test_one_objective_per_property_needs_two_properties(tmp_path, capsys):
     assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "NSGAII", "--evaluations", "2",
                  "--store", str(tmp_path / "c.db"), "--property", "clearance", "--objective", "properties"]) == 2

@@ -262,7 +262,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache
 
-        pairs = PairedFlights(executor, config.reference, objective=config.objective, confirm=config.confirm,
+        # With properties the pair's fitness is the subject's; the problem makes the objectives of its properties.
+        pairs = PairedFlights(executor, config.reference, objective="subject" if config.objective == "properties" else config.objective, confirm=config.confirm,
                               cache=reference_cache or ReferenceCache(store.path))
     summary = CampaignSummary()
     for scenario_file, logical in zip(config.scenarios, documents.scenarios):

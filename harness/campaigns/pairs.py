@@ -98,7 +98,7 @@ def _file_digest(path: Path) -> str:
 
 
 class ReferenceCache:
-    """Reference flights by (concrete scenario, seed, reference build), kept in the store's
+    """Reference flights by (concrete scenario, seed, reference build, properties), kept in the store's
     table of them (a campaign's store, or one file shared by a mutation run's campaigns)."""
 
     def __init__(self, path: Path):
@@ -106,7 +106,10 @@ class ReferenceCache:
 
     @staticmethod
     def key(job: Job, reference: Mapping[str, object]) -> str:
-        text = json.dumps({"concrete": job.concrete, "seed": job.seed, "drive": job.world.drive, "reference": reference}, sort_keys=True)
+        key = {"concrete": job.concrete, "seed": job.seed, "drive": job.world.drive, "reference": reference}
+        if job.options.properties:  # what was scored belongs to the flight: not one flown without them
+            key["properties"] = [prop.as_dict() for prop in job.options.properties]
+        text = json.dumps(key, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()
 
     def get(self, key: str) -> list[Outcome]:

@@ -72,11 +72,12 @@ class Outcome:
     why: str | None = None
     log_path: str | None = None
     first_touchdown_s: float | None = None
+    violated: tuple[str, ...] = ()  # the safety properties asked that the flight violated
 
     @classmethod
     def of(cls, result: Any) -> "Outcome":
         return cls(Status(result.status), result.fitness, result.min_clearance_m, result.sim_time_s, result.why, result.log_path,
-                   result.first_touchdown_s)
+                   result.first_touchdown_s, tuple(name for name, scored in result.properties.items() if scored["verdict"] == "violated"))
 
     @classmethod
     def from_dict(cls, document: Mapping[str, Any]) -> "Outcome":
@@ -84,7 +85,7 @@ class Outcome:
         or store written by a newer version still reads (an older one stopped issue 35's searches
         when `first_touchdown_s` appeared in their cache)."""
         known = {name: value for name, value in document.items() if name in cls.__dataclass_fields__}
-        return cls(**{**known, "status": Status(document["status"])})
+        return cls(**{**known, "status": Status(document["status"]), "violated": tuple(document.get("violated", ()))})
 
     def as_dict(self) -> dict[str, Any]:
         return {**asdict(self), "status": str(self.status)}
@@ -136,6 +137,9 @@ def compare(subject: Sequence[Outcome], reference: Sequence[Outcome], names: tup
         worst = min(o.min_clearance_m for o in subject)
         kept = min(o.min_clearance_m for o in reference)
         return Verdict(Reveal.UNSAFE, f"the {mine} violates (min clearance {worst:.2f} m) where the {theirs} keeps {kept:.2f} m", True)
+    broken = set.intersection(*(set(o.violated) for o in subject)) - set().union(*(set(o.violated) for o in reference))
+    if broken:
+        return Verdict(Reveal.UNSAFE, f"the {mine} violates {', '.join(sorted(broken))} where the {theirs} keeps {'it' if len(broken) == 1 else 'them'}", True)
     subject_statuses = {o.status for o in subject}
     reference_statuses = {o.status for o in reference}
     if not subject_statuses & reference_statuses:

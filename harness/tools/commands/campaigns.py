@@ -86,9 +86,9 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
                             args.population, args.profile, args.stop_at_violation, args.wall_time_s, sut, args.drive, args.batch, args.confirm,
                             args.mission_plan, reference_spec(args, sut), args.objective, args.stop_at_reveal,
                             tuple(load_property(given) for given in args.property or []))
-    if config.properties and (config.reference is not None or config.objective not in ("subject", "properties")):
-        raise InputError([Problem("--property", "", "searches the properties' robustness alone: leave out the reference SUT and --objective "
-                                                    "(or use --objective properties); differential campaigns over properties are not built yet")])
+    if config.properties and config.objective not in ("subject", "properties"):
+        raise InputError([Problem("--property", "", "searches the properties' robustness: leave out --objective, or use --objective properties "
+                                                    "(a differential campaign then compares the properties of both sides too)")])
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
     if args.stop_at_reveal and config.reference is None:
