@@ -88,7 +88,11 @@ class Outcome:
         return cls(**{**known, "status": Status(document["status"]), "violated": tuple(document.get("violated", ()))})
 
     def as_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "status": str(self.status)}
+        """Without `violated` where no property was broken (or asked), as before properties were."""
+        document = {**asdict(self), "status": str(self.status)}
+        if not self.violated:
+            del document["violated"]
+        return document
 
 
 @dataclass(frozen=True)

@@ -141,13 +141,13 @@ def reference_spec(args: argparse.Namespace, subject: SutConfig) -> SutConfig | 
     import sut_adapter
 
     given = {name: getattr(args, f"reference_{name}") for name in ("sut", "px4_bin", "ardupilot_bin", "autopilot_dir", "sut_param", "sut_fault")}
-    if args.objective in ("diverse", "properties"):
+    if args.objective == "diverse":
         if any(value is not None for value in given.values()):
-            raise InputError([Problem("--objective", "", f"{args.objective} searches one SUT: drop the --reference-* options, or use "
+            raise InputError([Problem("--objective", "", "diverse searches one SUT's failures: drop the --reference-* options, or use "
                                                          "--objective difference to search where the subject is worse than the reference")])
         return None
     if not any(value is not None for value in given.values()):
-        if args.objective != "subject":
+        if args.objective == "difference":
             raise InputError([Problem("--objective", "", "difference needs a reference SUT: add --reference-px4-bin, --reference-ardupilot-bin, --reference-sut or --reference-sut-param")])
         return None
     name = given["sut"] or subject.name
