@@ -111,3 +111,27 @@ def test_a_lost_gps_makes_the_bundled_autopilot_descend_and_the_seeded_unit_slip
     assert blind["properties"]["gps_loss_lands"]["verdict"] == "violated"
     # the clearance alone sees nothing wrong with either flight
     assert lost["properties"]["clearance"]["verdict"] == blind["properties"]["clearance"]["verdict"] == "kept"
+
+
+@pytest.mark.slow
+def test_a_property_campaigns_findings_are_triaged_by_what_broke_and_exported_with_their_properties(tmp_path, capsys):
+    store = tmp_path / "c.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "faults" / "logical" / "gps_loss.json"), "--algorithm", "RANDOM", "--evaluations", "4",
+                 "--workers", "2", "--seed", "3", "--store", str(store), "--sut-fault", "noaid_timeout_ms",
+                 "--property", "gps_loss_lands", "--property", "clearance", "--json"]) == 0
+    capsys.readouterr()
+    # THEN triage groups the flights by the properties they broke and the failures injected
+    assert main(["triage", str(store), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["by_properties"] and report["violations"] >= 1
+    assert all(mode["mode"].startswith("breaks ") and mode["failures"] == "gps off" for mode in report["modes"])
+    assert report["modes"][0]["worst"]["robustness"] < 0
+    # and each bundle keeps the properties: its case judges them, its FINDING says how to fly and shrink with them
+    assert main(["export-findings", str(store), "--out", str(tmp_path / "findings")]) == 0
+    capsys.readouterr()
+    bundle = sorted((tmp_path / "findings").glob("01-*"))[0]
+    case = json.loads((bundle / "case.regression.json").read_text())
+    assert [prop["name"] for prop in case["properties"]] == ["gps_loss_lands", "clearance"]
+    assert json.loads((bundle / "properties.json").read_text())["gps_loss_lands"]["verdict"] == "violated"
+    finding = (bundle / "FINDING.md").read_text()
+    assert "--property gps_loss_lands --property clearance" in finding and "--out shrunk --sut-fault noaid_timeout_ms --property gps_loss_lands" in finding

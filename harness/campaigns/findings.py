@@ -14,6 +14,10 @@ developer needs to see, rerun and keep the failure:
   parameters the campaign set);
 * with `--shrink`, `shrunk/`: the smallest version that still violates (`stella shrink`).
 
+A campaign that searched safety properties gets one bundle per mode of the flights that broke
+them (harness/campaigns/triage.py): its case keeps the properties, and `properties.json` (each
+property's verdict and robustness) stands in for the explanation of a closest approach.
+
 `FINDINGS.md` in DIR lists the modes, most frequent first.
 """
 
@@ -31,6 +35,7 @@ from harness.campaigns.triage import FailureMode, triage
 from harness.errors import InputError, Problem
 from harness.flight.inspect_log import plot
 from harness.flight.logs import slug
+from harness.properties.spec import LIBRARY
 
 
 def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
@@ -53,10 +58,11 @@ def export_findings(store_path: Path, out_dir: Path) -> list[tuple[Path, int]]:
         folder.mkdir(exist_ok=True)
         _bundle(folder, mode, case, sut, sources, config, store_path)
         folders.append(folder)
-    index = ["# Findings", "", f"From `{store_path}`: {report.violations} violations in {len(report.modes)} failure modes.", "",
-             "| # | failure mode | violations | contacts | worst f | folder |", "| --- | --- | --- | --- | --- | --- |"]
-    index += [f"| {n} | {m.mode} | {m.count} | {m.contacts} | {m.worst.fitness:.3f} | [{f.name}]({f.name}/FINDING.md) |"
-              for n, (m, f) in enumerate(zip(report.modes, folders), start=1)]
+    what, worst_column = ("flights breaking a property", "least robustness") if report.by_properties else ("violations", "worst f")
+    index = ["# Findings", "", f"From `{store_path}`: {report.violations} {what} in {len(report.modes)} failure modes.", "",
+             f"| # | failure mode | {what} | contacts | {worst_column} | folder |", "| --- | --- | --- | --- | --- | --- |"]
+    index += [f"| {n} | {m.mode} | {m.count} | {m.contacts} | {m.worst.robustness if m.worst.robustness is not None else m.worst.fitness:.3f} "
+              f"| [{f.name}]({f.name}/FINDING.md) |" for n, (m, f) in enumerate(zip(report.modes, folders), start=1)]
     (out_dir / "FINDINGS.md").write_text("\n".join(index) + "\n")
     return [(folder, case.id) for folder, case in zip(folders, worst)]
 
@@ -70,18 +76,47 @@ def _bundle(folder: Path, mode: FailureMode, case: StoredEvaluation | None, sut:
     regression = folder / f"case{SUFFIX}"
     # A differential campaign's case holds the subject to the reference's clearance instead.
     expect = "as_reference" if "reference" in config else "safe"
-    regression.write_text(json.dumps(case_document(name, case, sut, store_path, expect), indent=2) + "\n")
+    document = case_document(name, case, sut, store_path, expect)
+    if config.get("properties"):  # the case judges what the campaign did
+        document["properties"] = config["properties"]
+    regression.write_text(json.dumps(document, indent=2) + "\n")
     (folder / "concrete.json").write_text(json.dumps(case.concrete, indent=2) + "\n")
     shutil.copyfile(log, folder / "flight.mcap")
     artifacts = log.with_suffix(".artifacts")
     if artifacts.is_dir():
         shutil.copytree(artifacts, folder / "sut", dirs_exist_ok=True)
     plot(log, folder / "flight.png")
-    explanation = explain(log)
-    (folder / "explanation.txt").write_text(explain_text(explanation) + "\n")
-    (folder / "explanation.json").write_text(json.dumps(explanation, indent=2, default=str) + "\n")
+    if "broken" in mode.keys:
+        (folder / "properties.json").write_text(json.dumps(case.properties, indent=2) + "\n")
+    else:
+        explanation = explain(log)
+        (folder / "explanation.txt").write_text(explain_text(explanation) + "\n")
+        (folder / "explanation.json").write_text(json.dumps(explanation, indent=2, default=str) + "\n")
     sut_files = sorted(str(path.relative_to(folder)) for path in (folder / "sut").rglob("*") if path.is_file()) if (folder / "sut").is_dir() else []
-    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, config, regression.name, sut_files, str(store_path.resolve())))
+    (folder / "FINDING.md").write_text(_finding_text(mode, case, sut, sources, config, regression.name, sut_files, str(store_path.resolve()),
+                                                     " ".join(f"--property {given}" for given in judged_by(config.get("properties", []), folder)),
+                                                     " ".join(f"--property {given}" for given in judged_by(broken_by(case, config), folder))))
+
+
+def broken_by(case: StoredEvaluation, config: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    """The campaign's properties this flight broke: what a shrink of it keeps broken (a shrink
+    with several properties keeps each of them broken)."""
+    return [prop for prop in config.get("properties", []) if case.properties.get(prop["name"], {}).get("verdict") == "violated"]
+
+
+def judged_by(properties: list[Mapping[str, Any]], folder: Path) -> list[str]:
+    """What --property takes to judge a flight as the campaign did: a named property's name, or
+    the path (relative to the bundle) of one of the user's, written beside it (properties/NAME.json)."""
+    given = []
+    for prop in properties:
+        if prop["name"] in LIBRARY and LIBRARY[prop["name"]].as_dict() == prop:
+            given.append(prop["name"])
+            continue
+        path = folder / "properties" / f"{slug(prop['name'])}.json"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(json.dumps(prop, indent=2) + "\n")
+        given.append(str(path.relative_to(folder)))
+    return given
 
 
 def _sut_options(sut: Mapping[str, Any], build: Mapping[str, Any], prefix: str = "") -> str:
@@ -112,7 +147,7 @@ def _identity(title: str, sut: Mapping[str, Any], build: Mapping[str, Any]) -> l
 
 
 def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, Any], sources: Mapping[str, Any], config: Mapping[str, Any],
-                  regression: str, sut_files: list[str], store_hint: str) -> str:
+                  regression: str, sut_files: list[str], store_hint: str, judged: str = "", shrunk_by: str = "") -> str:
     # Stores made before the sources kept the builds still have their digests in the identity.
     build = sources.get("sut_build") or config.get("subject", {})
     options = subject_options = _sut_options(sut, build)
@@ -120,6 +155,17 @@ def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, A
     identity = _identity("SUT" if "reference" not in config else "subject", sut, build)
     outcome = f"fitness {case.fitness:.3f}, least clearance {clearance}" + (f": {case.why}" if case.why else "")
     expectation = "fails while the SUT violates the safety distance here"
+    by_properties = "broken" in mode.keys
+    if by_properties:
+        outcome = f"least robustness {mode.worst.robustness:.3f}, breaking {mode.keys['broken']}; {case.status}" + (f": {case.why}" if case.why else "")
+        expectation = "fails while the SUT breaks one of the properties here"
+    detail = ([f"* broken: {mode.keys['broken']}; injected: {mode.keys['failures']}; {mode.keys['wind']}; {mode.keys['visibility']}",
+               "* `properties.json`: each property's verdict and robustness (`stella inspect flight.mcap " + judged + "` gives them again from the log)"]
+              if by_properties else
+              ["* obstacle: " + str(mode.keys["obstacle"]) + "; approach: " + str(mode.keys["approach"]) + "; phase: " + str(mode.keys["phase"])
+               + "; closing speed: " + str(mode.keys["speed"]) + "; " + str(mode.keys["wind"]) + "; " + str(mode.keys["visibility"]),
+               "* `explanation.txt`: why it failed (`stella explain`): the timeline of the closest approach and the mechanism, with its evidence"])
+    flights = "flights breaking a property" if by_properties else "violations"
     if "reference" in config:
         reference = config["reference"]
         reference_build = sources.get("reference_build") or reference
@@ -130,13 +176,11 @@ def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, A
     return "\n".join([
         f"# {mode.mode}",
         "",
-        f"{mode.count} violations of this mode in the campaign ({mode.contacts} contacts, {mode.near_misses} near misses). "
+        f"{mode.count} {flights} of this mode in the campaign ({mode.contacts} contacts, {mode.near_misses} near misses). "
         f"The worst: scenario {case.scenario!r}, evaluation {case.id}, found by {case.algorithm} (run {case.run_index}), "
         f"{outcome}.",
         "",
-        "* obstacle: " + str(mode.keys["obstacle"]) + "; approach: " + str(mode.keys["approach"]) + "; phase: " + str(mode.keys["phase"])
-        + "; closing speed: " + str(mode.keys["speed"]) + "; " + str(mode.keys["wind"]) + "; " + str(mode.keys["visibility"]),
-        "* `explanation.txt`: why it failed (`stella explain`): the timeline of the closest approach and the mechanism, with its evidence",
+        *detail,
         "* `flight.png`: the trajectory from above, with the obstacles, and the clearance over time",
         "* `flight.mcap`: the flight's log (open it in Foxglove; `stella inspect flight.mcap`)",
         ("* the SUT's own logs and console: " + ", ".join(f"`{name}`" for name in sut_files) if sut_files
@@ -146,7 +190,7 @@ def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, A
         "## Fly it again",
         "",
         "```",
-        f"stella run --concrete concrete.json --seed {case.seed} {options}".rstrip(),
+        f"stella run --concrete concrete.json --seed {case.seed} {options} {judged}".rstrip(),
         f"pytest {regression}    # the regression case: {expectation}",
         "```",
         "",
@@ -155,7 +199,7 @@ def _finding_text(mode: FailureMode, case: StoredEvaluation, sut: Mapping[str, A
         "The smallest, simplest version of this scenario that still violates (docs/shrink.md; `export-findings --shrink` runs it into `shrunk/`):",
         "",
         "```",
-        f"stella shrink {store_hint} --evaluation {case.id} --out shrunk {subject_options}".rstrip(),
+        f"stella shrink {store_hint} --evaluation {case.id} --out shrunk {subject_options} {shrunk_by}".rstrip(),
         "```",
         "",
         "## The SUT" + ("s" if "reference" in config else ""),

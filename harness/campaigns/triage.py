@@ -13,6 +13,11 @@ severity (near miss: 0 < clearance < safety distance; contact: clearance <= 0), 
 most typical example (the one whose trajectory is closest to the others'), with their logs.
 The campaign's diversity is the number of modes and, as the UAV Testing Competition measures
 it, the mean pairwise distance between the violating trajectories.
+
+A campaign that searched safety properties (`--property`) is triaged by them instead: its
+findings are the flights that broke a property, and a mode is which properties they broke, the
+failures the scenario injected (unit and type), and the wind and visibility; its worst example
+is the flight of least robustness.
 """
 
 from __future__ import annotations
@@ -138,8 +143,9 @@ class Example:
     algorithm: str
     run: int
     fitness: float
-    min_clearance_m: float
+    min_clearance_m: float | None
     log: str
+    robustness: float | None = None  # in a property campaign: the least robustness of the properties it broke
 
 
 @dataclass(frozen=True)
@@ -165,10 +171,11 @@ class Triage:
     skipped: tuple[Mapping[str, Any], ...]  # evaluations that could not be triaged, with why
     differential: bool
     mean_pairwise_trajectory_distance_m: float | None
+    by_properties: bool = False  # a property campaign's: the flights that broke a property
 
     def as_dict(self) -> dict[str, Any]:
         return {"store": self.store, "violations": self.violations, "modes": [mode.as_dict() for mode in self.modes], "skipped": list(self.skipped),
-                "differential": self.differential,
+                "differential": self.differential, "by_properties": self.by_properties,
                 "diversity": {"modes": len(self.modes), "mean_pairwise_trajectory_distance_m": self.mean_pairwise_trajectory_distance_m}}
 
 
@@ -179,7 +186,43 @@ class _Violation:
 
     def example(self) -> Example:
         e = self.evaluation
-        return Example(e.id, e.scenario, e.scenario_file, e.algorithm, e.run_index, e.fitness, self.features["min_clearance_m"], e.log_path)
+        return Example(e.id, e.scenario, e.scenario_file, e.algorithm, e.run_index, e.fitness, self.features["min_clearance_m"], e.log_path,
+                       self.features.get("robustness"))
+
+    @property
+    def severity(self) -> float:
+        """What makes one worse than another: its least robustness, else its fitness."""
+        return self.features.get("robustness", self.evaluation.fitness)
+
+
+PROPERTY_MODE_KEYS = ("broken", "failures", "wind", "visibility")
+
+
+def broken_properties(evaluation: StoredEvaluation) -> dict[str, float]:
+    """The properties a flight broke, with their robustness."""
+    return {name: scored["robustness"] for name, scored in evaluation.properties.items()
+            if scored["verdict"] == "violated" and scored.get("robustness") is not None}
+
+
+def property_features(evaluation: StoredEvaluation) -> dict[str, Any]:
+    """What a flight that broke safety properties broke, under which failures and weather."""
+    log_path = Path(evaluation.log_path)
+    states = [m for _t, _ns, m in logs.messages(log_path, ["/uav/state"])]
+    if not states or evaluation.concrete is None:
+        raise InputError([Problem(str(log_path), "", "no trajectory or concrete scenario for this flight: it cannot be triaged")])
+    broken = broken_properties(evaluation)
+    weather = space_from_concrete(evaluation.concrete, str(log_path)).logical.weather
+    wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
+    failures = [f"{failure['unit']} {failure['type']}" for failure in evaluation.concrete.get("failures", [])]
+    return {
+        "broken": ", ".join(sorted(broken)),
+        "failures": ", ".join(failures) or "no failure",
+        "wind": "no wind" if wind == "none" else f"{wind} wind",
+        "visibility": "clear" if visibility == "none" else visibility,
+        "robustness": min(broken.values()),
+        "min_clearance_m": evaluation.min_clearance_m,
+        "trajectory": trajectory(states),
+    }
 
 
 def triage(store_path: Path) -> Triage:
@@ -188,9 +231,14 @@ def triage(store_path: Path) -> Triage:
     the level they reveal."""
     with Store.existing(store_path) as store:
         differential = store.is_differential()
-        found = (sorted(store.revealing_cases(), key=lambda e: (e.run_id, e.ordinal)) if differential
-                 else store.evaluations_with(Status.VIOLATION))
-    keys = ("reveals", *MODE_KEYS) if differential else MODE_KEYS
+        by_properties = not differential and bool(store.campaign_config().get("properties"))
+        if differential:
+            found = sorted(store.revealing_cases(), key=lambda e: (e.run_id, e.ordinal))
+        elif by_properties:
+            found = [e for e in store.all_evaluations() if broken_properties(e)]
+        else:
+            found = store.evaluations_with(Status.VIOLATION)
+    keys = ("reveals", *MODE_KEYS) if differential else PROPERTY_MODE_KEYS if by_properties else MODE_KEYS
     violations: list[_Violation] = []
     skipped: list[dict[str, Any]] = []
     seen = set()
@@ -202,7 +250,8 @@ def triage(store_path: Path) -> Triage:
             skipped.append(_skipped(evaluation, "its log is missing"))
             continue
         try:
-            violations.append(_Violation(evaluation, {"reveals": evaluation.reveals, **features(Path(evaluation.log_path))}))
+            seen_in_log = property_features(evaluation) if by_properties else features(Path(evaluation.log_path))
+            violations.append(_Violation(evaluation, {"reveals": evaluation.reveals, **seen_in_log}))
         except InputError as error:
             skipped.append(_skipped(evaluation, str(error)))
     modes: dict[tuple, list[_Violation]] = {}
@@ -210,15 +259,18 @@ def triage(store_path: Path) -> Triage:
         modes.setdefault(tuple(violation.features[key] for key in keys), []).append(violation)
     described = []
     for key, members in sorted(modes.items(), key=lambda item: (-len(item[1]), item[0])):
-        worst = min(members, key=lambda v: v.evaluation.fitness)
+        worst = min(members, key=lambda v: v.severity)
         typical = min(members, key=lambda v: sum(trajectory_distance(v.features["trajectory"], o.features["trajectory"]) for o in members))
         fields = dict(zip(keys, key))
-        contacts = sum(v.features["min_clearance_m"] <= 0.0 for v in members)
-        described.append(FailureMode((f"reveals {fields['reveals']}: " if differential else "") + mode_name(fields), fields, len(members),
-                                     contacts, len(members) - contacts, worst.example(), typical.example()))
+        contacts = sum(v.features["min_clearance_m"] is not None and v.features["min_clearance_m"] <= 0.0 for v in members)
+        # A property's finding need not have come near an obstacle: its near misses are those inside the safety distance.
+        near_misses = (sum(v.evaluation.status == Status.VIOLATION for v in members) - contacts) if by_properties else len(members) - contacts
+        name = (f"breaks {fields['broken']}: {fields['failures']}, {fields['wind']}, {fields['visibility']}" if by_properties
+                else (f"reveals {fields['reveals']}: " if differential else "") + mode_name(fields))
+        described.append(FailureMode(name, fields, len(members), contacts, near_misses, worst.example(), typical.example()))
     pairs = list(itertools.combinations([v.features["trajectory"] for v in violations], 2))
     return Triage(str(store_path), len(violations), tuple(described), tuple(skipped), differential,
-                  float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None)
+                  float(np.mean([trajectory_distance(a, b) for a, b in pairs])) if pairs else None, by_properties)
 
 
 def _skipped(evaluation: StoredEvaluation, why: str) -> dict[str, Any]:
@@ -229,13 +281,18 @@ def _skipped(evaluation: StoredEvaluation, why: str) -> dict[str, Any]:
 
 def triage_text(report: Triage) -> str:
     spread = report.mean_pairwise_trajectory_distance_m
-    what = "revealing candidates (differential campaign)" if report.differential else "violations"
+    what = ("revealing candidates (differential campaign)" if report.differential else "flights breaking a property" if report.by_properties
+            else "violations")
     lines = [f"{report.violations} distinct {what} in {len(report.modes)} failure modes; mean pairwise trajectory distance "
              + (f"{spread:.1f} m" if spread is not None else "-")]
     for mode in report.modes:
-        lines.append(f"{mode.count:>4}  {mode.mode}  ({mode.contacts} contact, {mode.near_misses} near miss)")
-        lines.append(f"      worst: evaluation {mode.worst.id}, fitness {mode.worst.fitness:.3f}, {mode.worst.log}")
-        lines.append(f"      typical: evaluation {mode.typical.id}, fitness {mode.typical.fitness:.3f}, {mode.typical.log}")
+        lines.append(f"{mode.count:>4}  {mode.mode}" + ("" if report.by_properties else f"  ({mode.contacts} contact, {mode.near_misses} near miss)"))
+        lines.append(f"      worst: evaluation {mode.worst.id}, {_severity(mode.worst)}, {mode.worst.log}")
+        lines.append(f"      typical: evaluation {mode.typical.id}, {_severity(mode.typical)}, {mode.typical.log}")
     for skipped in report.skipped:
         lines.append(f"not triaged: evaluation {skipped['id']} ({skipped['algorithm']} run {skipped['run']}): {skipped['why']}")
     return "\n".join(lines)
+
+
+def _severity(example: Example) -> str:
+    return f"least robustness {example.robustness:.3f}" if example.robustness is not None else f"fitness {example.fitness:.3f}"

@@ -303,13 +303,21 @@ def _findings_options(p: argparse.ArgumentParser) -> None:
 
 @command("export-findings", "write one bug-report bundle per failure mode of a campaign: case, logs, plot, FINDING.md", _findings_options)
 def cmd_export_findings(args: argparse.Namespace) -> int:
-    from harness.campaigns.findings import export_findings
+    from harness.campaigns.findings import broken_by, export_findings, judged_by
+    from harness.campaigns.store import Store
+    from harness.properties.spec import LIBRARY
 
     bundles = export_findings(Path(args.store), Path(args.out))
+    with Store.existing(Path(args.store)) as store:
+        config = store.campaign_config()
+        broken = {evaluation: broken_by(store.evaluation(evaluation), config) for _folder, evaluation in bundles}
     for folder, evaluation in bundles if args.shrink else ():
-        # As a user would run it (its progress on stderr), with the SUT the store records.
+        # As a user would run it (its progress on stderr), with the SUT the store records, while
+        # the properties it broke stay broken.
         shrunk = subprocess.run([sys.executable, "-m", "harness.tools.cli", "shrink", args.store, "--evaluation", str(evaluation), "--out", str(folder / "shrunk"),
-                                 "--name", "minimal", "--max-evaluations", str(args.shrink_evaluations)], stdout=subprocess.DEVNULL)
+                                 "--name", "minimal", "--max-evaluations", str(args.shrink_evaluations),
+                                 *(a for given in judged_by(broken[evaluation], folder) for a in ("--property", given if given in LIBRARY else str(folder / given)))],
+                                stdout=subprocess.DEVNULL)
         if shrunk.returncode not in (0, 1):
             return shrunk.returncode
     text = "\n".join(str(f) for f, _ in bundles) + f"\nwrote {len(bundles)} finding(s) to {args.out}: start with {Path(args.out) / 'FINDINGS.md'}"
