@@ -4,6 +4,7 @@ and how to mend it, never a traceback (issue 18). Nothing here flies."""
 from __future__ import annotations
 
 import sqlite3
+from pathlib import Path
 
 import pytest
 
@@ -155,3 +156,22 @@ def test_a_defect_of_stella_exits_3_with_its_traceback_not_1(monkeypatch, capsys
     assert main(["space", FIG4]) == 3
     said = capsys.readouterr().err
     assert "RuntimeError: a defect" in said and "a defect of stella" in said
+
+
+@pytest.mark.parametrize("section, entry, said", [
+    ("failures", {"unit": "distance sensor", "type": "off", "onset_s": 6.0, "duration_s": 60.0},
+     "/failures: 1 failures (distance sensor off) but its logical scenario declares 0 (none)"),
+    ("obstacles", {"kind": "static", "form": "sphere", "size": {"radius_m": 2.0}, "position": {"north_m": 40.0, "east_m": 5.0}},
+     "/obstacles: 2 obstacles (static, static) but its logical scenario declares 1 (static)"),
+])
+def test_a_concrete_scenario_with_more_than_its_logical_scenario_declares_is_refused_rather_than_flown_without_it(tmp_path, capsys, section, entry, said):
+    import json
+
+    document = json.loads(Path(WALL).read_text())
+    document.setdefault(section, []).append(entry)
+    concrete = tmp_path / "concrete.json"
+    concrete.write_text(json.dumps(document))
+    assert main(["run", "--concrete", str(concrete), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{concrete}: {said}: declare them in /logical_scenario, which is what is flown" in err
+    assert not list(tmp_path.glob("*.mcap"))

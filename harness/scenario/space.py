@@ -442,6 +442,14 @@ class SearchSpace:
         if document.get("drive", self.mission.drive) != self.mission.drive:
             problems.append(Problem(file, "/drive", f'"{document["drive"]}" but its logical scenario is flown with the {self.mission.drive} drive '
                                                     f'(/logical_scenario/mission/drive, or --drive): make them agree'))
+        for section in ("obstacles", "failures"):
+            # What its logical scenario does not declare would not be flown: say so rather than fly without it.
+            declared, given = self._template.get(section, []), document.get(section, [])
+            kinds = [(entry.get("unit"), entry.get("type")) if section == "failures" else entry.get("kind") for entry in given if isinstance(entry, Mapping)]
+            wanted = [(entry["unit"], entry["type"]) if section == "failures" else entry["kind"] for entry in declared]
+            if kinds != wanted:
+                problems.append(Problem(file, f"/{section}", f"{len(given)} {section} ({_listed(kinds)}) but its logical scenario declares "
+                                                             f"{len(declared)} ({_listed(wanted)}): declare them in /logical_scenario, which is what is flown"))
         for dimension in self.dimensions:
             at = pointer(dimension.path)
             try:
@@ -479,3 +487,7 @@ class SearchSpace:
             "constraints": sorted(self.constraint_margins(self.lower[None, :]).keys()),
             "constraint_policy": "infeasible",
         }
+
+
+def _listed(entries: list) -> str:
+    return ", ".join(" ".join(e) if isinstance(e, tuple) else str(e) for e in entries) or "none"
