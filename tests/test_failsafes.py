@@ -12,6 +12,7 @@ import pytest
 from autopilot.commander import MAIN_ALTCTL, MAIN_AUTO, MAIN_POSCTL, SUB_AUTO_LAND, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.manual import Sticks
 from autopilot.params import Params
+from harness.flight import logs
 from harness.tools.cli import main
 from pymavlink.dialects.v20.common import MAV_CMD_NAV_WAYPOINT
 
@@ -111,6 +112,13 @@ def test_a_lost_gps_makes_the_bundled_autopilot_descend_and_the_seeded_unit_slip
     assert blind["properties"]["gps_loss_lands"]["verdict"] == "violated"
     # the clearance alone sees nothing wrong with either flight
     assert lost["properties"]["clearance"]["verdict"] == blind["properties"]["clearance"]["verdict"] == "kept"
+    # and explain says when the faulty flight broke it: 5 s into the loss, still flying its mission
+    capsys.readouterr()
+    assert main(["explain", blind["log_path"], "--property", "gps_loss_lands", "--json"]) == 0
+    explained = json.loads(capsys.readouterr().out)["properties"]["gps_loss_lands"]
+    onset_s = next(m for _t, _ns, m in logs.messages(Path(blind["log_path"]), ["/events"]) if m["event"] == "failure")["t"]
+    assert explained["verdict"] == "violated" and onset_s + 5.0 <= explained["decided"]["time_s"] <= onset_s + 5.1
+    assert explained["decided"]["signals"] == {"lost_gps": 1.0, "mode_land": 0.0, "mode_altitude": 0.0, "armed": 1.0}
 
 
 @pytest.mark.slow

@@ -136,6 +136,18 @@ def properties_of_log(log_path: Path, properties: Sequence["Property"]) -> dict[
     return scored_properties(properties, lambda topics: logs.messages(log_path, topics), list(_logged_api_traffic(log_path)), world)
 
 
+def properties_explained(log_path: Path, properties: Sequence["Property"]) -> dict[str, dict[str, Any]]:
+    """Each property's verdict and robustness from the log alone, with when it was decided and
+    its signals then (harness/properties/monitor.py: decided)."""
+    from harness.properties.monitor import decided, verdicts
+    from harness.properties.signals import extract
+
+    world = logs.world_of(log_path)
+    api = list(_logged_api_traffic(log_path))
+    series = extract(lambda topics: logs.messages(log_path, topics), ((ns, datagram) for ns, _direction, datagram in api), world)
+    return {name: {**scored, "decided": decided(prop, series)} for prop, (name, scored) in zip(properties, verdicts(properties, series).items())}
+
+
 def rescore(log_path: Path) -> dict[str, Any]:
     """Recompute status and fitness from a log alone (what `stella inspect` does); a truncated log
     is scored on what precedes the damage, and says where that is."""
