@@ -191,6 +191,10 @@ def test_a_campaign_searches_the_least_robustness_of_its_properties_stores_them_
         assert main(["export-regressions", str(store), "--worst", "1", "--threshold=-inf", "--expect", expect, "--out", str(tmp_path / expect)]) == 0
     [case] = (tmp_path / "safe").glob("*.regression.json")
     assert [p["name"] for p in json.loads(case.read_text())["properties"]] == ["clearance", "gentle"]
+    # (or, asked for others, judges those)
+    assert main(["export-regressions", str(store), "--worst", "1", "--threshold=-inf", "--property", "max_speed", "--out", str(tmp_path / "other")]) == 0
+    [other] = (tmp_path / "other").glob("*.regression.json")
+    assert [p["name"] for p in json.loads(other.read_text())["properties"]] == ["max_speed"]
     # THEN pytest flies each with its properties: the tilt breaks the case that says safe, and is the violation the other expects
     fixed = pytester.runpytest_subprocess(str(case), "-p", "no:cacheprovider", "--stella-out", str(tmp_path / "case-logs"))
     fixed.assert_outcomes(failed=1)

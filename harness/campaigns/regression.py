@@ -259,11 +259,12 @@ def revealing_cases(store_path: Path) -> tuple[dict[str, Any], list[tuple[str, S
 
 
 def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.0, worst: int = 0, expect: str = "safe", per_mode: bool = False,
-                       revealing: bool = False) -> list[Path]:
+                       revealing: bool = False, properties: list[dict[str, Any]] | None = None) -> list[Path]:
     """One case file per distinct concrete scenario with fitness below `threshold`, plus the
     `worst` lowest-fitness ones of each run; identical scenarios found twice are written once.
     `revealing`: instead, each revealing scenario of a differential campaign, expecting the SUT
-    to do as well as the reference did (fails on the subject's build, passes on the reference's)."""
+    to do as well as the reference did (fails on the subject's build, passes on the reference's).
+    `properties`: what the cases judge besides the safety distance (default: the campaign's)."""
     if expect not in EXPECTATIONS:
         raise InputError([Problem("--expect", "", f"{expect!r} is not allowed; allowed values: {', '.join(EXPECTATIONS)}")])
     if revealing:
@@ -273,8 +274,9 @@ def export_regressions(store_path: Path, out_dir: Path, *, threshold: float = 0.
         raise InputError([Problem("--expect", "", "as_reference needs the revealing cases of a differential campaign: add --revealing")])
     else:
         sut, chosen = chosen_cases(store_path, threshold, worst, per_mode)
-    with Store.existing(store_path) as store:
-        properties = store.campaign_config().get("properties", [])
+    if properties is None:
+        with Store.existing(store_path) as store:
+            properties = store.campaign_config().get("properties", [])
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, case in chosen:

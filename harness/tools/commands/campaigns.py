@@ -259,16 +259,23 @@ def _export_options(p: argparse.ArgumentParser) -> None:
                         "reference did (run it with --stella-px4-bin or --stella-autopilot-dir of either build)")
     p.add_argument("--format", choices=["stella", "aerialist"], default="stella",
                    help="stella: regression cases for pytest (default); aerialist: the UAV Testing Competition's YAML and .plan (static boxes only)")
+    p.add_argument("--property", action="append", metavar="NAME|FILE",
+                   help="the cases judge this safety property (in place of the campaign's; `stella properties` names them, or a JSON property file); "
+                        "repeatable")
 
 
 @command("export-regressions", "write each violation (or chosen worst case) of a campaign as a regression case that pytest flies", _export_options)
 def cmd_export_regressions(args: argparse.Namespace) -> int:
     from harness.campaigns.regression import export_regressions
+    from harness.properties.spec import load_property
 
+    properties = [load_property(given) for given in args.property or []]
     if args.format == "aerialist":
+        if properties:
+            raise InputError([Problem("--property", "", "the competition's format has no properties: leave --property out with --format aerialist")])
         return _export_aerialist(args)
     written = export_regressions(Path(args.store), Path(args.out), threshold=args.threshold, worst=args.worst, expect=args.expect, per_mode=args.per_mode,
-                                 revealing=args.revealing)
+                                 revealing=args.revealing, properties=[prop.as_dict() for prop in properties] or None)
     text = "\n".join(str(p) for p in written) + f"\nwrote {len(written)} regression case(s) to {args.out}; run them with: pytest {args.out}"
     emit(args, {"out": args.out, "files": [str(p) for p in written]}, text)
     return 0
