@@ -75,10 +75,13 @@ def flown(tmp_path: Path, capsys, concrete: Path, *argv: str) -> dict:
 
 
 def wall_with_the_range_sensor_off(tmp_path: Path) -> Path:
-    """The wall moved 25 m east, off the route, and the range sensor going silent 6 s into the
-    run for good: whatever the vehicle does, it hits nothing."""
+    """The wall moved 25 m east, off the route, the route 150 m long, and the range sensor going
+    silent 6 s into the run for good: whatever the vehicle does, it hits nothing, and a vehicle
+    that flies on blind is still in Position mode well past the 6 s of range_loss_holds (on the
+    wall's 60 m route it could reach the goal just then)."""
     document = json.loads(WALL_CONCRETE.read_text())
     document["obstacles"][0]["position"]["east_m"] = 25.0
+    document["logical_scenario"]["mission"] = {"waypoints": [{"north_m": 150.0, "east_m": 0.0, "altitude_m": 8.0}]}
     document["failures"] = [{"unit": "distance sensor", "type": "off", "onset_s": 6.0, "duration_s": 60.0}]
     document["logical_scenario"]["failures"] = [{"unit": "distance sensor", "type": "off"}]
     path = tmp_path / "wall_range_off.json"
