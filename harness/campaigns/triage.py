@@ -99,8 +99,6 @@ def features(log_path: Path) -> dict[str, Any]:
     here = obstacle.position_at(at["t"])
     obstacle_velocity = (obstacle.position_at(at["t"] + 0.1) - obstacle.position_at(max(0.0, at["t"] - 0.1))) / 0.2
     closing = math.hypot(at["v_ned_m_s"][0] - obstacle_velocity[0], at["v_ned_m_s"][1] - obstacle_velocity[1])
-    weather = space_from_concrete(logs.json_metadata(log_path, "concrete_scenario"), str(log_path)).logical.weather
-    wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
     return {
         "mechanism": _mechanism(log_path),
         "obstacle": f"{spec['kind']} {spec['form']}",
@@ -108,11 +106,17 @@ def features(log_path: Path) -> dict[str, Any]:
         # Inside the obstacle, where its centre lies says nothing of how the vehicle got there.
         "approach": "inside" if clearance.min_clearance_m <= 0.0 else _approach(at, here),
         "speed": _band(closing, SPEED_BANDS),
-        "wind": "no wind" if wind == "none" else f"{wind} wind",
-        "visibility": "clear" if visibility == "none" else visibility,
+        **_environment(logs.json_metadata(log_path, "concrete_scenario"), log_path),
         "min_clearance_m": clearance.min_clearance_m,
         "trajectory": trajectory(states),
     }
+
+
+def _environment(concrete: Mapping[str, Any], log_path: Path) -> dict[str, str]:
+    """The wind and visibility categories of the profile the scenario was flown in, in words."""
+    weather = space_from_concrete(concrete, str(log_path)).logical.weather
+    wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
+    return {"wind": "no wind" if wind == "none" else f"{wind} wind", "visibility": "clear" if visibility == "none" else visibility}
 
 
 def _mechanism(log_path: Path) -> str:
@@ -211,14 +215,11 @@ def property_features(evaluation: StoredEvaluation) -> dict[str, Any]:
     if not states or evaluation.concrete is None:
         raise InputError([Problem(str(log_path), "", "no trajectory or concrete scenario for this flight: it cannot be triaged")])
     broken = broken_properties(evaluation)
-    weather = space_from_concrete(evaluation.concrete, str(log_path)).logical.weather
-    wind, visibility = weather["wind force"].category, weather["reduced visibility"].category
     failures = [f"{failure['unit']} {failure['type']}" for failure in evaluation.concrete.get("failures", [])]
     return {
         "broken": ", ".join(sorted(broken)),
         "failures": ", ".join(failures) or "no failure",
-        "wind": "no wind" if wind == "none" else f"{wind} wind",
-        "visibility": "clear" if visibility == "none" else visibility,
+        **_environment(evaluation.concrete, log_path),
         "robustness": min(broken.values()),
         "min_clearance_m": evaluation.min_clearance_m,
         "trajectory": trajectory(states),
