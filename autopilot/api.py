@@ -80,6 +80,7 @@ class ApiLink:
             log.debug("api send failed: %s", error)
 
     def statustext(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
+        self.streams.system_time()  # a status text carries no time of its own
         self.send(self.mav.statustext_encode(severity, text.encode()[:50]))
 
     def heartbeat(self) -> None:
@@ -94,6 +95,7 @@ class ApiLink:
             if kind == "statustext":
                 self.statustext(str(value))
             elif kind == "item_reached":
+                self.streams.system_time()  # when it was reached, for the recorder
                 self.send(self.mav.mission_item_reached_encode(int(value)))
             elif kind == "mission_current":
                 self.streams.mission_current()
@@ -126,19 +128,25 @@ class ApiLink:
     def handle(self, msg) -> None:
         kind = msg.get_type()
         if kind == "HEARTBEAT":
-            self.last_gcs_heartbeat = time.monotonic()
-            self.link_lost_reported = False
+            # Simulated time, as PX4's is in lockstep: the loss is declared after COM_DL_LOSS_T of the flight, however fast it runs.
+            self.last_gcs_heartbeat = self.ap.now_s
+            if self.link_lost_reported:
+                self.link_lost_reported = False
+                self.statustext("Data link regained")
             return
         handler = self._handlers.get(kind)
         if handler is not None:
             handler(msg)
 
     def check_link(self, timeout_s: float) -> None:
+        """The ground station's link lost after timeout_s of simulated time without its heartbeat:
+        the commander's NAV_DLL_ACT failsafe acts."""
         if self.last_gcs_heartbeat is None or self.link_lost_reported:
             return
-        if time.monotonic() - self.last_gcs_heartbeat > timeout_s:
+        if self.ap.now_s - self.last_gcs_heartbeat > timeout_s:
             self.link_lost_reported = True
-            self.statustext("Connection to ground station lost; continuing", mavlink.MAV_SEVERITY_WARNING)
+            self.statustext("Data link lost", mavlink.MAV_SEVERITY_WARNING)
+            self.ap.commander.data_link_lost(self.ap.now_s, self.ap.vehicle_estimate())
 
     def _timesync(self, msg) -> None:
         if msg.tc1 == 0:

@@ -363,9 +363,9 @@ class Autopilot:
                 wall = perf()
                 if wall >= next_check:
                     api.receive()
+                    api.check_link(self.params["COM_DL_LOSS_T"])  # before the events: its failsafe's are reported at once
                     api.report_events()
                     api.telemetry(wall)
-                    api.check_link(self.params["COM_DL_LOSS_T"])
                     next_check = wall + TELEMETRY_CHECK_S
                 if sim_lost_at is not None and wall - sim_lost_at > SIM_LOSS_EXIT_S:
                     return 0

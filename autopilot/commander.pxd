@@ -16,7 +16,7 @@ cdef class VehicleEstimate:
 
 cdef class Commander:
     cdef public Params params
-    cdef public object mode, home, mission, _hold, _cruise_m_s, _land_candidate_s, _landed_at_s, manual, _mode_slot
+    cdef public object mode, home, mission, _hold, _cruise_m_s, _land_candidate_s, _landed_at_s, manual, _mode_slot, _delayed
     cdef public bint armed, landed, mission_finished
     cdef public int current
     cdef public list events
@@ -41,6 +41,8 @@ cdef class Commander:
 
     @cython.locals(item=MissionItem, target=cython.double, radius=cython.double, distance=cython.double)
     cpdef Setpoint _mission(self, double now_s, VehicleEstimate estimate, double lift)
+
+    cpdef data_link_lost(self, double now_s, VehicleEstimate estimate)
 
     cpdef _fall_back(self, double now_s, VehicleEstimate estimate, bint position_valid)
 

@@ -92,6 +92,7 @@ class Commander:
     manual: Sticks | None = None
     _mode_slot: int | None = None
     failsafe: str = ""  # a FAILSAFE_MODES key while the position is lost; `mode` stays what the user chose
+    _delayed: tuple[tuple[int, int], float] | None = None  # a failsafe's mode and when Hold gives way to it (COM_FAIL_ACT_T)
 
     @property
     def reported_mode(self) -> tuple[int, int]:
@@ -343,6 +344,22 @@ class Commander:
         target = {1: (MAIN_AUTO, SUB_AUTO_LOITER), 2: (MAIN_AUTO, SUB_AUTO_RTL)}.get(action, (MAIN_AUTO, SUB_AUTO_LAND))
         self.set_mode(target, estimate, now_s)
 
+    def data_link_lost(self, now_s: float, estimate: VehicleEstimate) -> None:
+        """PX4's data-link loss failsafe (NAV_DLL_ACT), in flight and not while landing: Hold, or
+        Hold for COM_FAIL_ACT_T and then Return or Land; it stays when the link comes back (PX4
+        clears it on a mode change or disarm)."""
+        action = int(self.params["NAV_DLL_ACT"])
+        if not action or not self.armed or self.landed or self.mode == (MAIN_AUTO, SUB_AUTO_LAND):
+            return
+        target = {1: (MAIN_AUTO, SUB_AUTO_LOITER), 2: (MAIN_AUTO, SUB_AUTO_RTL)}.get(action, (MAIN_AUTO, SUB_AUTO_LAND))
+        delay = self.params["COM_FAIL_ACT_T"]
+        if target == (MAIN_AUTO, SUB_AUTO_LOITER) or delay <= 0.0:
+            self.set_mode(target, estimate, now_s)
+            return
+        self.set_mode((MAIN_AUTO, SUB_AUTO_LOITER), estimate, now_s)
+        self._delayed = (target, now_s + delay)
+        self.events.append(("statustext", f"Failsafe activated: entering Hold for {delay:.0f} seconds"))
+
     def _fall_back(self, now_s: float, estimate: VehicleEstimate, position_valid: bool) -> None:
         """PX4's mode fallback when the horizontal position is lost (failsafe.cpp checkModeFallback
         and the action's fallback chain): every mode here needs a position, so Position mode
@@ -381,6 +398,10 @@ class Commander:
             self.landed = True
             return Setpoint(idle=True)
         self._fall_back(now_s, estimate, position_valid)
+        if self._delayed is not None and now_s >= self._delayed[1]:
+            target, self._delayed = self._delayed[0], None
+            if self.mode == (MAIN_AUTO, SUB_AUTO_LOITER):  # not taken over meanwhile
+                self.set_mode(target, estimate, now_s)
         if self.landed:
             delay = self.params["COM_DISARM_LAND"]
             if self._landed_at_s is not None and delay >= 0 and now_s - self._landed_at_s >= delay:

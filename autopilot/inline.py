@@ -76,9 +76,9 @@ class InProcessLink:
                     api.receive()
                 return
             api.receive()
+            api.check_link(self.autopilot.params["COM_DL_LOSS_T"])  # before the events: its failsafe's are reported at once
             api.report_events()
             api.telemetry(wall)
-            api.check_link(self.autopilot.params["COM_DL_LOSS_T"])
         except Exception as error:  # as in send(): the SUT crashed
             raise _crashed(error) from error
         self._next_check = wall + TELEMETRY_CHECK_S

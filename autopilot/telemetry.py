@@ -6,6 +6,7 @@ to, each at its wall-clock period (a client may change it: MAV_CMD_SET_MESSAGE_I
 from __future__ import annotations
 
 import math
+import time
 from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -83,6 +84,7 @@ class Telemetry:
         self._next = {name: 0.0 for name in STREAMS}
         self._reported_health = -1
         self._home_reported = False
+        self._system_time_due_s = 0.0
 
     def _send(self, message) -> None:
         self.link.send(message)
@@ -90,7 +92,17 @@ class Telemetry:
     def _time_boot_ms(self) -> int:
         return int(self.ap.now_s * 1000) & 0xFFFFFFFF
 
+    def system_time(self) -> None:
+        """The flight's clock: sent before what carries none (a heartbeat, a status text), and at
+        least once per simulated second. A recorder stamps a frame with the latest time_boot_ms it
+        heard, and a ground station paced by that clock (the harness's API tap) sends its
+        heartbeat by it, while the streams that carry one are paced by the wall clock: a tenth of
+        a second, two or more simulated seconds at 20 times real time."""
+        self._send(self.mav.system_time_encode(int(time.time() * 1e6), self._time_boot_ms()))
+        self._system_time_due_s = self.ap.now_s + 1.0
+
     def heartbeat(self) -> None:
+        self.system_time()
         c = self.ap.commander
         main, sub = c.reported_mode
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED
@@ -212,6 +224,8 @@ class Telemetry:
         if not self._home_reported and self.ap.home_geodetic() is not None:
             self._home_reported = True
             self._next["home"] = 0.0
+        if self.ap.now_s >= self._system_time_due_s:
+            self.system_time()
         for name, due in self._next.items():
             if wall_s >= due and self.periods[name] > 0:
                 self.stream(name)

@@ -266,7 +266,8 @@ def test_garbage_datagrams_from_another_port_do_not_divert_the_telemetry():
         link.receive()
         assert link.remote == gcs.getsockname()
         link.heartbeat()
-        assert mavlink.MAVLink(None).parse_buffer(gcs.recv(2048))[0].get_type() == "HEARTBEAT"
+        # the flight's clock first, for a recorder to stamp the heartbeat with
+        assert [mavlink.MAVLink(None).parse_buffer(gcs.recv(2048))[0].get_type() for _ in range(2)] == ["SYSTEM_TIME", "HEARTBEAT"]
         peer = mavlink.MAVLink(None, srcSystem=255)
         stranger.sendto(peer.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(peer), target)
         time.sleep(0.05)
@@ -356,7 +357,7 @@ def test_a_px4_parameter_it_does_not_model_is_acknowledged_over_mavlink_as_witho
         client = mavlink.MAVLink(None, srcSystem=245)
         for name in (b"MIS_YAW_ERR", b"CP_DISTANCE"):
             gcs.sendto(client.param_set_encode(1, 1, name, 12.0, mavlink.MAV_PARAM_TYPE_REAL32).pack(client), link.sock.getsockname())
-        kinds = [(m.get_type(), m.param_id if m.get_type() == "PARAM_VALUE" else m.text) for m in answers(gcs)]
+        kinds = [(m.get_type(), m.param_id if m.get_type() == "PARAM_VALUE" else m.text) for m in answers(gcs) if m.get_type() in ("PARAM_VALUE", "STATUSTEXT")]
         assert ("PARAM_VALUE", "MIS_YAW_ERR") in kinds and ("STATUSTEXT", "MIS_YAW_ERR accepted without effect") in kinds
         assert not any(kind == "PARAM_VALUE" and name == "CP_DISTANCE" for kind, name in kinds)
         assert autopilot.params.unmodelled == {"MIS_YAW_ERR": 12.0} and "MIS_YAW_ERR" not in autopilot.params.names()

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from autopilot.commander import MAIN_ALTCTL, MAIN_AUTO, MAIN_POSCTL, SUB_AUTO_LAND, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
+from autopilot.commander import (MAIN_ALTCTL, MAIN_AUTO, MAIN_POSCTL, SUB_AUTO_LAND, SUB_AUTO_LOITER, SUB_AUTO_MISSION, SUB_AUTO_RTL, Commander,
+                                 MissionItem, VehicleEstimate)
 from autopilot.manual import Sticks
 from autopilot.params import Params
 from harness.flight import logs
@@ -54,6 +55,24 @@ def test_a_descent_without_position_lands_and_disarms_where_it_is():
     for step in range(100):
         commander.update(1.0 + step * 0.02, estimate(down=0.0), 0.1, position_valid=False)
     assert commander.landed and not commander.armed
+
+
+def test_a_lost_data_link_holds_then_returns_with_nav_dll_act_2_and_does_nothing_by_default_or_while_landing():
+    commander = on_a_mission()
+    commander.data_link_lost(1.0, estimate())
+    assert commander.mode == (MAIN_AUTO, SUB_AUTO_MISSION)  # NAV_DLL_ACT 0, PX4's default
+    commander.params.set("NAV_DLL_ACT", 2)
+    commander.data_link_lost(1.0, estimate())
+    assert commander.mode == (MAIN_AUTO, SUB_AUTO_LOITER)
+    commander.update(1.0 + commander.params["COM_FAIL_ACT_T"] - 0.1, estimate(), 0.42)
+    assert commander.mode == (MAIN_AUTO, SUB_AUTO_LOITER)
+    commander.update(1.0 + commander.params["COM_FAIL_ACT_T"], estimate(), 0.42)
+    assert commander.mode == (MAIN_AUTO, SUB_AUTO_RTL)
+    landing = on_a_mission()
+    landing.params.set("NAV_DLL_ACT", 2)
+    landing.set_mode((MAIN_AUTO, SUB_AUTO_LAND), estimate())
+    landing.data_link_lost(1.0, estimate())
+    assert landing.mode == (MAIN_AUTO, SUB_AUTO_LAND)
 
 
 def test_position_mode_falls_back_to_altitude_mode_while_the_sticks_last_and_to_descend_without_them():
@@ -146,3 +165,52 @@ def test_a_property_campaigns_findings_are_triaged_by_what_broke_and_exported_wi
     assert json.loads((bundle / "properties.json").read_text())["gps_loss_lands"]["verdict"] == "violated"
     finding = (bundle / "FINDING.md").read_text()
     assert "--property gps_loss_lands --property clearance" in finding and "--out shrunk --sut-fault noaid_timeout_ms --property gps_loss_lands" in finding
+
+
+def with_the_data_link_lost(tmp_path: Path, onset_s: float = 8.0, duration_s: float = 30.0) -> Path:
+    """The wall moved off the route, and the ground station's link lost 8 s into the run for 30 s."""
+    document = json.loads(WALL_CONCRETE.read_text())
+    document["obstacles"][0]["position"]["east_m"] = 25.0
+    document["failures"] = [{"unit": "data link", "type": "off", "onset_s": onset_s, "duration_s": duration_s}]
+    document["logical_scenario"]["failures"] = [{"unit": "data link", "type": "off"}]
+    path = tmp_path / "link_lost.json"
+    path.write_text(json.dumps(document))
+    return path
+
+
+@pytest.mark.slow
+def test_a_lost_data_link_makes_the_bundled_autopilot_hold_then_return_as_nav_dll_act_says_and_nothing_by_default(tmp_path, capsys):
+    concrete = with_the_data_link_lost(tmp_path)
+    # GIVEN NAV_DLL_ACT 2 (Return): PX4 holds COM_FAIL_ACT_T, then returns
+    acting = flown(tmp_path / "act", capsys, concrete, "--sut-param", "NAV_DLL_ACT=2", "--property", "datalink_loss_acts")
+    assert acting["status"] not in ("sut_crashed", "sim_crashed", "timeout", "sut_stalled"), acting["why"]
+    assert acting["properties"]["datalink_loss_acts"]["verdict"] == "kept"
+    said = sut_status_texts(Path(acting["log_path"]))
+    # COM_DL_LOSS_T (10 s) of simulated time after the last heartbeat, which came at most about a
+    # simulated second before the loss: heartbeats paced by the flight's clock, not MAVSDK's wall clock
+    lost_after_s = said["Data link lost"] - failure_onset_s(Path(acting["log_path"]))
+    assert 8.0 <= lost_after_s <= 11.0
+    assert said["Failsafe activated: entering Hold for 5 seconds"] - said["Data link lost"] < 0.5
+    # and with PX4's default, 0, the mission carries on: the property (for a SUT set to act) is broken
+    default = flown(tmp_path / "default", capsys, concrete, "--property", "datalink_loss_acts")
+    assert default["properties"]["datalink_loss_acts"]["verdict"] == "violated"
+
+
+def sut_status_texts(log: Path) -> dict[str, float]:
+    """What the SUT said on its API link and when first (log time, s), as the log recorded it (also
+    what MAVSDK did not hear during a link loss)."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    texts: dict[str, float] = {}
+    for _t, ns, record in logs.messages(log, ["/mavlink/api"]):
+        if record["direction"] == "from_sut":
+            for message in parser.parse_buffer(bytes.fromhex(record["hex"])) or []:
+                if message.get_type() == "STATUSTEXT":
+                    texts.setdefault(message.text, ns / 1e9)
+    return texts
+
+
+def failure_onset_s(log: Path) -> float:
+    return next(ns / 1e9 for _t, ns, event in logs.messages(log, ["/events"]) if event.get("event") == "failure")

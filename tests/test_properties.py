@@ -50,6 +50,9 @@ CASES = {
     # GPS off from 1 s: landing by 8 s answers the loss at 6 s within 3 s; never landing does not.
     "gps_loss_lands": (trace(lost_gps=steps(400, 25), mode_land=steps(400, 200), armed=[1.0] * 400), 0.5,
                        trace(lost_gps=steps(400, 25), mode_mission=[1.0] * 400, armed=[1.0] * 400), -0.5),
+    # The data link lost from 1 s: Hold 11 s later answers the loss declared at 11 s within 5 s; a mission carrying on does not.
+    "datalink_loss_acts": (trace(lost_data_link=steps(400, 25), mode_hold=steps(400, 25 + 275), armed=[1.0] * 400), 0.5,
+                           trace(lost_data_link=steps(400, 25), mode_mission=[1.0] * 400, armed=[1.0] * 400), -0.5),
     # Range sensor off in Position mode from 1 s: 0.2 m/s 3 s later keeps it, 2 m/s is 1.5 m/s too fast.
     "range_loss_stops": (trace(lost_distance_sensor=steps(200, 25), mode_position=[1.0] * 200, horizontal_speed_m_s=[5.0] * 60 + [0.2] * 140), 0.0,
                          trace(lost_distance_sensor=steps(200, 25), mode_position=[1.0] * 200, horizontal_speed_m_s=[2.0] * 200), -1.5),

@@ -210,3 +210,52 @@ def test_a_px4_campaigns_failure_mode_becomes_a_bundle_with_px4s_ulog_and_the_bi
     binary = resolve_binary(os.environ["STELLA_PX4_BIN"])[0]
     assert hashlib.sha256(binary.read_bytes()).hexdigest() in finding
     assert f"--px4-bin {binary.parent.parent}" in finding or f"--px4-bin {binary}" in finding
+
+
+def mode_changes(log: Path) -> list[tuple[float, str]]:
+    """PX4's flight modes as its API heartbeats told them, with the log time of each change."""
+    from harness.properties.signals import mode_of
+
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    changes: list[tuple[float, str]] = []
+    for _t, ns, record in logs.messages(log, ["/mavlink/api"]):
+        if record["direction"] == "from_sut":
+            for message in parser.parse_buffer(bytes.fromhex(record["hex"])) or []:
+                if message.get_type() == "HEARTBEAT" and message.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+                    mode = mode_of(message)
+                    if not changes or changes[-1][1] != mode:
+                        changes.append((ns / 1e9, mode))
+    return changes
+
+
+def test_px4_set_to_return_holds_then_returns_after_a_lost_data_link_and_never_without_one(capsys, tmp_path):
+    """The API tap sends the ground station's heartbeat on PX4's clock, so PX4 keeps its
+    documented COM_DL_LOSS_T (10 s) at 20 times real time and loses the link only when the
+    scenario takes it away."""
+    from harness.scenario.logical import load_logical
+    from harness.scenario.profile import load_profile
+    from harness.scenario.space import SearchSpace
+
+    profile = load_profile("default")
+    space = SearchSpace(load_logical(ROOT / "scenarios" / "examples" / "datalink_loss.json", profile), profile)
+    x = space.vector_from({"obstacle_1.diameter_m": 5.0, "obstacle_1.north_m": 60.0, "obstacle_1.east_m": 30.0,
+                           "failure_1.onset_s": 8.0, "failure_1.duration_s": 30.0})
+    concrete = tmp_path / "link_lost.json"
+    concrete.write_text(json.dumps(space.to_concrete(x)))
+    main(["run", "--concrete", str(concrete), "--sut", "px4", "--sut-param", "NAV_DLL_ACT=2", "--property", "datalink_loss_acts",
+          "--out", str(tmp_path / "lost"), "--json"])
+    result = json.loads(capsys.readouterr().out)
+    assert result["properties"]["datalink_loss_acts"]["verdict"] == "kept", result
+    log = Path(result["log_path"])
+    onset = next(ns / 1e9 for _t, ns, event in logs.messages(log, ["/events"]) if event.get("event") == "failure")
+    after_onset = [(t - onset, mode) for t, mode in mode_changes(log) if t > onset]
+    (held_after, held), (returned_after, returned) = after_onset[:2]
+    assert (held, returned) == ("hold", "rtl"), after_onset
+    assert 10.0 <= held_after <= 14.0  # COM_DL_LOSS_T, plus PX4's own 2.5 s link timeout and 1 Hz report
+    assert returned_after - held_after == pytest.approx(5.0, abs=1.2)  # COM_FAIL_ACT_T
+    # the same PX4 on the wall's mission, no link lost: it flies its mission and nothing else
+    assert main(["run", "--concrete", str(ROOT / "scenarios" / "examples" / "wall_concrete.json"), "--sut", "px4", "--sut-param", "NAV_DLL_ACT=2",
+                 "--out", str(tmp_path / "kept"), "--json"]) in (0, 1)
+    kept = json.loads(capsys.readouterr().out)
+    assert {mode for _t, mode in mode_changes(Path(kept["log_path"]))} <= {"hold", "takeoff", "mission", "land"}

@@ -84,6 +84,15 @@ def test_two_failures_of_one_unit_and_an_unknown_gust_band_are_refused(profile):
     assert [p.pointer for p in logical_problems(document, profile, "s.json")] == ["/environment/weather/gusts"]
 
 
+def test_the_data_link_is_lost_or_not_and_a_stuck_one_is_refused_where_it_is_written(profile):
+    document = json.loads((DATA / "wall_baro_wrong_gps_off.json").read_text())
+    document["failures"].append({"unit": "data link", "type": "off"})
+    assert logical_problems(document, profile, "s.json") == []
+    document["failures"][-1]["type"] = "stuck"
+    problems = logical_problems(document, profile, "s.json")
+    assert [(p.pointer, '"off"' in p.message) for p in problems] == [("/failures/2/type", True)]
+
+
 def test_arc_and_smooth_paths_go_where_they_are_described():
     north, east = arc_points(30.0, 12.0, 270.0, 12.0, 180.0, 65)
     # A right turn from heading west: the centre 12 m to the north, half a circle to (54, 12).

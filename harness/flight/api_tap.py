@@ -4,6 +4,12 @@ The SUT sends to the API port as it would to a ground station; the tap forwards 
 port of its own and relays the answers back. Frames are stamped with the SUT's own clock
 (the latest `time_boot_ms` it sent), which in lockstep is simulation time, so they line up
 with the bridge's recording.
+
+The tap also sends the ground station's heartbeat once per second of the SUT's clock, in
+MAVSDK's name. MAVSDK's own is paced by the wall clock: a flight at 20 times real time hears one
+per 20 simulated seconds, and a SUT that declares the link lost after 10 s of its own time
+(PX4's `COM_DL_LOSS_T`) would do so while nothing is wrong. A scenario's data-link failure
+silences both (`blackout`).
 """
 
 from __future__ import annotations
@@ -79,6 +85,11 @@ class ApiTap:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="api-tap", daemon=True)
         self.records: list[tuple[int, str, bytes]] = []  # (sut time ns, direction, datagram)
+        # A scenario's data-link failure: nothing passes either way, while the SUT's own frames
+        # are still recorded (what it said, unheard).
+        self.blackout = False
+        self._gcs: mavlink.MAVLink | None = None  # encodes heartbeats as MAVSDK's system and component, once it has spoken
+        self._next_heartbeat_ns = 0
 
     def __enter__(self) -> "ApiTap":
         self._thread.start()
@@ -101,6 +112,8 @@ class ApiTap:
         self.records = []
         self._clock = SutClock()
         self._sut_address = None
+        self.blackout = False
+        self._next_heartbeat_ns = 0
 
     def _run(self) -> None:
         sockets = [self._sut_side, self._client_side]
@@ -115,9 +128,34 @@ class ApiTap:
                     self._sut_address = address
                     self._clock.feed(datagram)
                     self.records.append((self._clock.time_ns, "from_sut", datagram))
-                    self._client_side.sendto(datagram, self._client_address)
+                    if not self.blackout:
+                        self._client_side.sendto(datagram, self._client_address)
+                        self._heartbeat_on_sut_time(address)
                 else:
+                    if self._gcs is None:
+                        self._gcs = _ground_station(datagram)
                     sut_address = self._sut_address  # once: restart() may clear it meanwhile
-                    if sut_address is not None:
+                    if sut_address is not None and not self.blackout:
                         self.records.append((self._clock.time_ns, "to_sut", datagram))
                         self._sut_side.sendto(datagram, sut_address)
+
+    def _heartbeat_on_sut_time(self, sut_address: tuple[str, int]) -> None:
+        now_ns = self._clock.time_ns
+        if self._gcs is None or now_ns < self._next_heartbeat_ns:
+            return
+        self._next_heartbeat_ns = now_ns + 1_000_000_000
+        datagram = self._gcs.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE).pack(self._gcs)
+        self._gcs.seq = (self._gcs.seq + 1) % 256
+        self.records.append((now_ns, "to_sut", datagram))
+        self._sut_side.sendto(datagram, sut_address)
+
+
+def _ground_station(datagram: bytes) -> mavlink.MAVLink | None:
+    """An encoder in the name of the client's system and component, read from any of its messages:
+    a fast flight may be over before MAVSDK's first heartbeat, never before its first command."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    for message in parser.parse_buffer(datagram) or []:
+        if message.get_type() != "BAD_DATA":
+            return mavlink.MAVLink(None, srcSystem=message.get_srcSystem(), srcComponent=message.get_srcComponent())
+    return None

@@ -29,6 +29,7 @@ from harness.flight.results import NOT_FLOWN, EvaluationResult, Failure, FlightO
 from harness.flight.stack import Stack, simulation_stack
 from harness.properties.signals import mode_of
 from harness.scenario.space import SearchSpace
+from harness.scenario.logical import DATA_LINK
 from harness.scenario.world import world_spec
 from sim_bridge.control import EXIT_CUT_SHORT, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
@@ -376,7 +377,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         sut_cpu_at_run = sut.cpu_s()
         control.send(Run())
         deadline = world.time_limit_s / options.min_real_time_factor + 30.0
-        finished = _fly_until_finished(control, session, deadline, lambda: bridge.poll() is None)
+        finished = _fly_until_finished(control, session, stack.tap, deadline, lambda: bridge.poll() is None)
         timings["flight_wall_s"] = time.monotonic() - t0 - timings["setup_s"]
         sut_cpu_at_end = sut.cpu_s()
         if sut_cpu_at_run is not None and sut_cpu_at_end is not None:
@@ -397,15 +398,19 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         control.close()
 
 
-def _fly_until_finished(control: BridgeControl, session: MavsdkSession, timeout_s: float, alive) -> Finished | None:
-    """The bridge's Finished event, injecting each failure it asks for on the way."""
+def _fly_until_finished(control: BridgeControl, session: MavsdkSession, tap: ApiTap, timeout_s: float, alive) -> Finished | None:
+    """The bridge's Finished event, injecting each failure it asks for on the way: the data link's
+    by silencing the API tap, every other through the SUT's own means."""
     deadline = time.monotonic() + timeout_s
     events = list(control.events)
     while True:
         for event in events:
             if isinstance(event, Finished):
                 return event
-            if isinstance(event, InjectFailure):
+            if isinstance(event, InjectFailure) and event.unit == DATA_LINK:
+                tap.blackout = event.type != "ok"
+                control.send(FailureInjected("SUCCESS"))
+            elif isinstance(event, InjectFailure):
                 control.send(FailureInjected(session.inject_failure(event.unit, event.type)))
         if time.monotonic() > deadline or control.closed or not alive():
             return None

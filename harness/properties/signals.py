@@ -20,8 +20,12 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from harness.scenario.logical import DATA_LINK
 from sim_bridge.spec import WorldSpec
 from simlink.failures import UNIT_BY_NAME
+
+# Every unit a scenario fails: the sensors, and the ground station's data link.
+FAILING_UNITS = (*UNIT_BY_NAME, DATA_LINK)
 
 Recorded = Callable[[Sequence[str]], Iterable[tuple[str, int, Any]]]
 
@@ -64,8 +68,8 @@ SIGNALS: dict[str, Signal] = {
     "distance_from_route_m": Signal("m", "horizontal distance from the route (take-off point, waypoints, landing point)"),
     "armed": Signal("1/0", "1 while the SUT reports itself armed"),
     **{f"mode_{mode}": Signal("1/0", f"1 while the SUT reports its {mode} mode") for mode in MODES},
-    **{_failure_signal(unit): Signal("1/0", f"1 while a failure of the {unit} is injected") for unit in UNIT_BY_NAME},
-    **{_loss_signal(unit): Signal("1/0", f"1 while an injected failure stops the {unit}'s readings altogether (type off)") for unit in UNIT_BY_NAME},
+    **{_failure_signal(unit): Signal("1/0", f"1 while a failure of the {unit} is injected") for unit in FAILING_UNITS},
+    **{_loss_signal(unit): Signal("1/0", f"1 while an injected failure stops the {unit}'s readings altogether (type off)") for unit in FAILING_UNITS},
 }
 
 
@@ -180,7 +184,7 @@ def _heartbeat_signals(api_from_sut: Iterable[tuple[int, bytes]], time_s: np.nda
 
 
 def _failure_signals(recorded: Recorded, time_s: np.ndarray) -> dict[str, np.ndarray]:
-    values = {name(unit): np.zeros(len(time_s)) for unit in UNIT_BY_NAME for name in (_failure_signal, _loss_signal)}
+    values = {name(unit): np.zeros(len(time_s)) for unit in FAILING_UNITS for name in (_failure_signal, _loss_signal)}
     for _topic, _ns, event in recorded(["/events"]):
         if event.get("event") in ("failure", "failure_cleared"):
             detail = event["detail"]

@@ -118,6 +118,15 @@ LIBRARY: dict[str, Property] = {p.name: p for p in (
              "PX4: the EKF reports no horizontal position after EKF2_NOAID_TOUT (5 s) without aiding; a mode that needs one falls back "
              "(failsafe.cpp checkModeFallback): Position to Altitude mode, the others to Land, else Descend, both reported as AUTO/LAND. "
              "ArduCopter: the EKF failsafe, FS_EKF_ACTION (1: Land, 2: AltHold), after the EKF's variance passes FS_EKF_THRESH for a second"),
+    Property("datalink_loss_acts",
+             "always(historically[0:loss_s](lost_data_link >= 0.5) -> eventually[0:react_s]((mode_hold >= 0.5) or (mode_rtl >= 0.5) or (mode_land >= 0.5) or (armed <= 0.5) or (lost_data_link <= 0.5)))", "1/0",
+             "once the ground station's link has been lost for loss_s, within react_s the vehicle holds, returns or lands (or is disarmed, or has its link back); "
+             "for a SUT set to act on it (PX4's NAV_DLL_ACT 0, its default, does nothing)",
+             {"loss_s": 10.0, "react_s": 5.0},
+             "PX4: the GCS connection loss failsafe after COM_DL_LOSS_T (10 s) without a heartbeat, NAV_DLL_ACT 1 Hold, 2 Return, 3 Land "
+             "(failsafe.cpp fromNavDllOrRclActParam; Return and Land after Hold for COM_FAIL_ACT_T), not while landing. "
+             "react_s allows PX4's own link timeout: its MAVLink link keeps a ground station for 2.5 s after its last heartbeat "
+             "(HEARTBEAT_TIMEOUT_US) and reports it at 1 Hz, so PX4 holds about 12 s after the last heartbeat"),
     Property("range_loss_stops",
              "always((historically[0:stop_s](lost_distance_sensor * mode_position)) * (horizontal_speed_m_s - creep_m_s) <= 0)", "m/s",
              "in Position mode, stop_s after the range sensor goes silent the vehicle is no faster than creep_m_s: it moves nowhere it cannot see "

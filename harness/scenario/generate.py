@@ -25,6 +25,7 @@ import numpy as np
 
 from harness.scenario.covering import covering_array, tuple_count, valid_tuples
 from harness.scenario.documents import schema
+from harness.scenario.logical import DATA_LINK
 
 EMPTY = "-"
 MAX_OBSTACLES = 4
@@ -43,6 +44,9 @@ def _enums() -> dict[str, list[str]]:
     enums.update({name: environment["weather"]["properties"][name]["enum"] for name in ("wind force", "reduced visibility", "gusts")})
     enums.update({f"obstacle {name}": obstacle[name]["enum"] for name in ("kind", "size", "form", "motion", "encounter", "path")})
     enums.update({f"failure {name}": failure[name]["enum"] for name in ("unit", "type")})
+    # The data link fails one way only (off), which a failure slot's factors cannot say: the
+    # generated scenarios fail sensors, and a data-link loss is written by hand.
+    enums["failure unit"] = [unit for unit in enums["failure unit"] if unit != DATA_LINK]
     return enums
 
 

@@ -11,6 +11,10 @@ from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.plan import Plan, load_plan, plan_from_document, plan_problems
 from harness.scenario.profile import WEATHER_PARAMETERS, Interval, Profile
 
+# The ground station's link to the SUT, failed by the harness, which silences the API tap
+# (harness/flight/evaluation.py); lost ("off") or not.
+DATA_LINK = "data link"
+
 SIZE_DIMENSIONS = {
     "cuboid": ("length_m", "width_m", "height_m"),
     "sphere": ("diameter_m",),
@@ -165,6 +169,8 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             problems.append(Problem(file, f"/failures/{index}/unit", f'{failure["unit"]!r} already fails in /failures/{seen_units[failure["unit"]]}: '
                                                                       "one failure per unit"))
         seen_units.setdefault(failure["unit"], index)
+        if failure["unit"] == DATA_LINK and failure["type"] != "off":
+            problems.append(Problem(file, f"/failures/{index}/type", f'the data link is lost ("off") or not: {failure["type"]!r} is no failure of it'))
     mission = document.get("mission", {})
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
     if "move to waypoint" not in maneuvers and "waypoints" not in mission and "plan" not in mission:
