@@ -308,3 +308,13 @@ def test_arducopters_gps_loss_timing_accepts_its_documented_eight_seconds_and_no
     for after_s, verdict in ((8.08, "kept"), (10.0, "violated")):
         landing = trace(lost_gps=steps(600, 25), mode_land=steps(600, 25 + round(after_s / PERIOD_S)), armed=[1.0] * 600)
         assert verdicts([prop], landing)[prop.name]["verdict"] == verdict
+
+
+def test_arducopters_data_link_timing_accepts_its_gcs_failsafe_and_not_a_mission_carrying_on():
+    from harness.properties.spec import load_property
+
+    prop = load_property(str(ROOT / "scenarios" / "properties" / "datalink_loss_acts_arducopter.json"))
+    # the link lost from 1 s: RTL 5.07 s later (the latest of the campaign in docs/failsafe_campaigns.md) keeps it, 7.5 s later does not
+    for after_s, verdict in ((5.07, "kept"), (7.5, "violated")):
+        returning = trace(lost_data_link=steps(600, 25), mode_rtl=steps(600, 25 + round(after_s / PERIOD_S)), armed=[1.0] * 600)
+        assert verdicts([prop], returning)[prop.name]["verdict"] == verdict
