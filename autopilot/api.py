@@ -24,6 +24,10 @@ from simlink.failures import MAV_CMD_INJECT_FAILURE, SUPPORTED_TYPES, SUPPORTED_
 log = logging.getLogger(__name__)
 
 FORCE_DISARM_MAGIC = 21196
+# PX4's MAVLink link counts a ground station present until 2.5 s after its last heartbeat
+# (telemetry_status HEARTBEAT_TIMEOUT_US), and its commander starts COM_DL_LOSS_T only then:
+# PX4 holds 11.9-12.9 s after the link went silent (docs/failsafe_campaigns.md).
+LINK_HEARTBEAT_TIMEOUT_S = 2.5
 SENSOR_INSTANCES = 1  # of each unit failures can be injected into (MAV_CMD_INJECT_FAILURE's param3: 0 all, 1 the first)
 
 
@@ -139,11 +143,12 @@ class ApiLink:
             handler(msg)
 
     def check_link(self, timeout_s: float) -> None:
-        """The ground station's link lost after timeout_s of simulated time without its heartbeat:
-        the commander's NAV_DLL_ACT failsafe acts."""
+        """The ground station's link lost after timeout_s (COM_DL_LOSS_T) of simulated time
+        without it, counted as PX4 counts it: from when the link gave the ground station up,
+        LINK_HEARTBEAT_TIMEOUT_S after its last heartbeat. The commander's NAV_DLL_ACT acts."""
         if self.last_gcs_heartbeat is None or self.link_lost_reported:
             return
-        if self.ap.now_s - self.last_gcs_heartbeat > timeout_s:
+        if self.ap.now_s - self.last_gcs_heartbeat > LINK_HEARTBEAT_TIMEOUT_S + timeout_s:
             self.link_lost_reported = True
             self.statustext("Data link lost", mavlink.MAV_SEVERITY_WARNING)
             self.ap.commander.data_link_lost(self.ap.now_s, self.ap.vehicle_estimate())

@@ -78,7 +78,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("MIS_TAKEOFF_ALT", 2.5, 0.0, 80.0, "m", "Takeoff altitude when none is given."),
     _f("RTL_RETURN_ALT", 15.0, 0.0, 150.0, "m", "Lowest altitude above home on the way back in return-to-launch."),
     _f("COM_DISARM_LAND", 1.0, -1.0, 20.0, "s", "Disarm this long after landing is detected."),
-    _i("COM_DL_LOSS_T", 10, 5, 300, "s", "The ground station's link counts as lost after this long (simulated time) without its heartbeat."),
+    _i("COM_DL_LOSS_T", 10, 5, 300, "s", "The ground station's link counts as lost after this long (simulated time) without it, from 2.5 s after its last heartbeat, as PX4 counts it."),
     _i("NAV_DLL_ACT", 0, 0, 6, "", "What a lost ground-station link does, as in PX4: 0 nothing (PX4's default), 1 Hold, 2 Return, 3 Land (5 and 6, terminate and disarm in PX4, land here); not in Land mode."),
     _f("COM_FAIL_ACT_T", 5.0, 0.0, 25.0, "s", "Before a failsafe's Return or Land, Hold this long (PX4's delay for the user to react; 0: none)."),
     _f("EKF2_MAG_DECL", 3.0, -180.0, 180.0, "deg", "Magnetic declination at the flying site (PX4's default home, Zurich: 3 deg)."),
