@@ -21,6 +21,7 @@ import numpy as np
 
 from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
+from harness.campaigns.screen import Screen, ScreenSettings
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
@@ -72,6 +73,8 @@ class CampaignConfig:
     # Safety properties scored on every flight (harness/properties); the search then minimises the
     # least of their robustness instead of f.
     properties: tuple[Property, ...] = ()
+    # Each batch flown on a cheap model first, the real SUT only where it pays (harness/campaigns/screen.py).
+    screen: ScreenSettings | None = None
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
@@ -132,6 +135,8 @@ class CampaignConfig:
             overrides["stop_at_reveal"] = True
         if self.properties:  # another objective: the optimizer hears other values
             overrides["properties"] = [prop.as_dict() for prop in self.properties]
+        if self.screen is not None:  # other candidates flown for real
+            overrides["screen"] = self.screen.identity()
         return {
             "scenarios": scenarios,
             "algorithms": list(self.algorithms),
@@ -211,10 +216,11 @@ class RunSummary:
     best_fitness: float | None
     revealing: int | None = None  # a differential campaign's candidates that reveal a difference; None in others
     property_violations: int | None = None  # flights that violated a safety property asked; None where none was
+    screen: dict[str, Any] | None = None  # a screened campaign's cheap flights and the screen's error (Screen.summary); None in others
 
     def as_dict(self) -> dict[str, Any]:
         document = asdict(self)
-        for optional in ("revealing", "property_violations"):
+        for optional in ("revealing", "property_violations", "screen"):
             if document[optional] is None:
                 del document[optional]
         return document
@@ -224,9 +230,18 @@ def run_line(run: RunSummary) -> str:
     """One line on a finished run, for a console."""
     best = run.best_fitness if run.best_fitness is not None else float("nan")
     if run.property_violations is not None:
-        return (f"{run.scenario} {run.algorithm} run {run.run}: least robustness {best:.3f}, {run.property_violations} flights violating a property, "
+        line = (f"{run.scenario} {run.algorithm} run {run.run}: least robustness {best:.3f}, {run.property_violations} flights violating a property, "
                 f"{run.violations} violations of the safety distance in {run.evaluations} evaluations")
-    return f"{run.scenario} {run.algorithm} run {run.run}: best fitness {best:.3f}, {run.violations} violations in {run.evaluations} evaluations"
+    else:
+        line = f"{run.scenario} {run.algorithm} run {run.run}: best fitness {best:.3f}, {run.violations} violations in {run.evaluations} evaluations"
+    return line + (f"; {screen_line(run.screen)}" if run.screen else "")
+
+
+def screen_line(screen: dict[str, Any]) -> str:
+    correlation = screen["rank_correlation"]
+    return (f"screen: {screen['flights']} cheap flights, {screen['screened_out']} not flown for real, rank correlation "
+            + (f"{correlation:.2f}" if correlation is not None else "not yet known") + f" over {screen['pairs']} flown both ways, "
+            + f"{screen['false_negatives']} false negatives" + (", fell back to flying every candidate" if screen["fell_back"] else ""))
 
 
 @dataclass
@@ -253,7 +268,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     of every run as it finishes. A differential campaign keeps its reference flights in its store
     unless given another ReferenceCache (a mutation run's, shared)."""
     options = replace(options, sut=config.sut, warm=options.warm and executor.keeps_stacks, properties=config.properties)
-    for sut in filter(None, (config.sut, config.reference)):
+    for sut in filter(None, (config.sut, config.reference, config.screen.sut if config.screen else None)):
         executor.check_sut(sut)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     documents = config.read()
@@ -275,15 +290,18 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                                              scenario_key=content_key(logical.document))
                 if finished:
                     continue
+                screen = None if config.screen is None else Screen(config.screen, executor, store, run_id, seed, out_dir / f"run{run_id}" / "screen",
+                                                                  options, config.properties)
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
-                                          each_property=config.objective == "properties")
+                                          each_property=config.objective == "properties", screen=screen)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)
                 best = problem.best
                 run = RunSummary(run_id, space.logical.name, algorithm.upper(), run_index, seed, problem.spent, problem.flown, problem.replayed,
                                  problem.violations, store.failures_refused(run_id), problem.objective_of(best) if best else None,
-                                 problem.revealing if pairs else None, problem.property_violations if config.properties else None)
+                                 problem.revealing if pairs else None, problem.property_violations if config.properties else None,
+                                 screen.summary() if screen else None)
                 summary.runs.append(run)
                 on_run(run)
     return summary

@@ -21,13 +21,14 @@ from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
 from harness.flight.evaluation import infeasible
 from harness.flight.results import EvaluationResult, RunOptions
-from harness.flight.fitness import Status
+from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.scenario.space import SearchSpace
 from harness.search.termination import Progress, Termination
 
 if TYPE_CHECKING:
     from harness.campaigns.diversity import FailureModes
     from harness.campaigns.pairs import PairedFlights
+    from harness.campaigns.screen import CheapOutcome, Screen
 
 
 class StopSearch(Exception):
@@ -94,6 +95,7 @@ class CampaignProblem:
     pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
     diversity: FailureModes | None = None  # the optimizer is told fitness shared over failure modes (--objective diverse)
     each_property: bool = False  # the optimizer is told one objective per property (--objective properties)
+    screen: Screen | None = None  # each batch flown on a cheap model first, the real SUT only where it pays (--screen)
 
     def __post_init__(self) -> None:
         self._stored = self.store.evaluations(self.run_id)
@@ -109,6 +111,7 @@ class CampaignProblem:
         self._pending = 0
         self._batches_s = 0.0  # wall time spent flying batches
         self._batched = 0  # candidates those batches flew
+        self._screened_out: dict[str, CheapOutcome] = {}  # candidates flown on the screen only, by key
 
     @property
     def progress(self) -> Progress:
@@ -175,13 +178,17 @@ class CampaignProblem:
     def evaluate(self, vectors: list[np.ndarray]) -> list[float] | list[list[float]]:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
         candidates = [self._candidate(index, raw) for index, raw in enumerate(vectors)]
+        screened_out = self._screen(candidates) if self.screen is not None else set()
         to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
         ids: dict[int, int] = {}  # the store's evaluation id by ordinal
         stop: StopSearch | None = None
         self._pending = 0
         for candidate in candidates:
             # Known already, or a duplicate inside this batch: answered from its first one's outcome.
-            if candidate.key in self._trials or any(candidate.key == flying.key for flying, _job in to_fly.values()):
+            if candidate.key in self._trials or candidate.key in self._screened_out or any(candidate.key == flying.key for flying, _job in to_fly.values()):
+                continue
+            if candidate.key in screened_out:  # no budget: not flown for real
+                self._screened_out[candidate.key] = self.screen.cheap(candidate.key)
                 continue
             try:
                 self._check_budgets()
@@ -195,6 +202,7 @@ class CampaignProblem:
                 self.replayed += 1
                 self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path,
                                    least_robustness(stored.properties), self._robustness_each(stored.properties)))
+                self._learn(candidate.key)
                 continue
             # Its id in the store, known now so that its log carries it: one number for an
             # evaluation in its log's name and in every command that shows or takes it.
@@ -221,9 +229,38 @@ class CampaignProblem:
             self._batches_s += time.monotonic() - flying_since
             self._batched += len(to_fly)
         self._pending = 0
-        if stop is not None or any(c.key not in self._trials for c in candidates):
+        for candidate, _job in to_fly.values():
+            self._learn(candidate.key)
+        if stop is not None or any(c.key not in self._trials and c.key not in self._screened_out for c in candidates):
             raise stop or StopSearch(campaign_done=True)
-        return [self._told(self._trials[c.key]) for c in candidates]
+        return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(self._screened_out[c.key]) for c in candidates]
+
+    def _learn(self, key: str) -> None:
+        """The screen hears the real outcome of a candidate it flew cheaply (a flight that could
+        not finish tells nothing of the screen's error)."""
+        trial = self._trials.get(key)
+        if self.screen is not None and trial is not None and trial.status not in COULD_NOT_FINISH and self.screen.knows(key):
+            self.screen.learn(key, self.objective_of(trial))
+
+    def _screen(self, candidates: list[_Candidate]) -> set[str]:
+        """The keys of this batch's candidates to screen out: of those that would fly (new to the
+        run and the store, feasible), the ones their cheap flights rank not worth a real one."""
+        new: dict[str, _Candidate] = {}
+        for candidate in candidates:
+            if (candidate.key in self._trials or candidate.key in self._screened_out or candidate.key in self._stored or candidate.key in new
+                    or infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name) is not None):
+                continue
+            new[candidate.key] = candidate
+        if not new:
+            return set()
+        self.screen.fly(self.space, [(key, candidate.vector) for key, candidate in new.items()])
+        return set(new) - self.screen.choose(list(new))
+
+    def _told_cheap(self, cheap: CheapOutcome) -> float | list[float]:
+        """What the optimizer hears of a candidate flown on the screen only: its cheap outcome."""
+        if self.each_property:
+            return [cheap.fitness if value is None else value for value in self._robustness_each(cheap.properties)]
+        return cheap.objective
 
     def _told(self, trial: Trial) -> float | list[float]:
         """The fitness the optimizer hears of (the stored one is the flight's own): with one

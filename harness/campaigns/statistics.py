@@ -47,6 +47,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
     flaky: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     revealing: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     refused: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    flown: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    screened: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for run in store.runs():
         if run.best_fitness is None:
             continue
@@ -56,6 +58,8 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
         flaky[run.scenario][run.algorithm] += run.flaky
         revealing[run.scenario][run.algorithm] += run.revealing
         refused[run.scenario][run.algorithm] += run.failures_refused
+        flown[run.scenario][run.algorithm] += run.flown
+        screened[run.scenario][run.algorithm] += run.screen_flights
     baseline = baseline.upper()
     rows = []
     pooled: dict[str, list[float]] = defaultdict(list)
@@ -66,7 +70,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
             median = statistics.median(values)
             row = {"scenario": scenario, "algorithm": algorithm, "runs": len(values), "median_best_fitness": median,
                    "violations": violations[scenario][algorithm], "contacts": contacts[scenario][algorithm], "flaky": flaky[scenario][algorithm], "revealing": revealing[scenario][algorithm],
-                   "failures_refused": refused[scenario][algorithm],
+                   "failures_refused": refused[scenario][algorithm], "flown": flown[scenario][algorithm], "screen_flights": screened[scenario][algorithm],
                    "relative_performance_pct": None, "p_value": None, "a12": None}
             pooled[algorithm].extend(values)
             if base and algorithm != baseline:
@@ -83,6 +87,7 @@ def compare(store: Store, baseline: str = "NSGAII") -> dict[str, Any]:
                  "violations": sum(violations[s][algorithm] for s in violations), "contacts": sum(contacts[s][algorithm] for s in contacts),
                  "flaky": sum(flaky[s][algorithm] for s in flaky),
                  "revealing": sum(revealing[s][algorithm] for s in revealing), "failures_refused": sum(refused[s][algorithm] for s in refused),
+                 "flown": sum(flown[s][algorithm] for s in flown), "screen_flights": sum(screened[s][algorithm] for s in screened),
                  "relative_performance_pct": None, "p_value": None, "a12": None}
         if base and algorithm != baseline:
             entry["relative_performance_pct"] = statistics.mean(relative[algorithm]) if relative[algorithm] else None
@@ -111,6 +116,9 @@ def table(report: dict[str, Any]) -> str:
                                             "every --confirm re-flight" for row in report["overall"] if row["flaky"]))
     if any(row["failures_refused"] for row in report["overall"]):
         lines.append(refused_text(report))
+    if any(row["screen_flights"] for row in report["overall"]):
+        lines.append("screened: " + ", ".join(f"{row['algorithm']} {row['flown']} flights of the SUT, {row['screen_flights']} of the cheap model"
+                                              for row in report["overall"] if row["screen_flights"]))
     return "\n".join(lines)
 
 

@@ -79,3 +79,5 @@ class StoredRun:
     first_revealing: int | None  # the ordinal of the first revealing candidate
     first_created: float | None  # when its first and last evaluations were stored
     last_created: float | None
+    flown: int = 0  # its evaluations the SUT flew (not refused as infeasible)
+    screen_flights: int = 0  # a screened run's flights on the cheap model (harness/campaigns/screen.py)

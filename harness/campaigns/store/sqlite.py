@@ -80,6 +80,17 @@ CREATE TABLE IF NOT EXISTS checkpoints (
     created REAL NOT NULL,
     PRIMARY KEY (run_id, step)
 );
+CREATE TABLE IF NOT EXISTS screen_flights (
+    run_id INTEGER NOT NULL REFERENCES runs(id),
+    vector_key TEXT NOT NULL,
+    fitness REAL NOT NULL,
+    status TEXT NOT NULL,
+    properties TEXT,
+    log_path TEXT,
+    chosen INTEGER,
+    created REAL NOT NULL,
+    PRIMARY KEY (run_id, vector_key)
+);
 """
 
 
@@ -279,6 +290,28 @@ class Store:
                 ),
             )
 
+    # -- a screened campaign's cheap flights (harness/campaigns/screen.py) ----------------------
+
+    def add_screen_flight(self, run_id: int, key: str, result: EvaluationResult) -> None:
+        with self.db:
+            self.db.execute("INSERT OR REPLACE INTO screen_flights (run_id, vector_key, fitness, status, properties, log_path, created) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                            (run_id, key, result.fitness, str(result.status), json.dumps(result.properties) if result.properties else None,
+                             result.log_path, time.time()))
+
+    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool]) -> None:
+        """Which cheaply flown candidates the screen chose for a real flight: kept, so that a
+        resumed run decides as the first did."""
+        with self.db:
+            self.db.executemany("UPDATE screen_flights SET chosen = ? WHERE run_id = ? AND vector_key = ?",
+                                [(int(flag), run_id, key) for key, flag in chosen.items()])
+
+    def screen_flights(self, run_id: int) -> dict[str, dict[str, Any]]:
+        """A run's cheap flights by their vector's key: fitness, status, properties, and whether
+        the screen chose it for a real flight (None: not decided yet)."""
+        return {key: {"fitness": fitness, "status": status, "properties": _json(properties) or {}, "chosen": None if chosen is None else bool(chosen)}
+                for key, fitness, status, properties, chosen in self.db.execute(
+                    "SELECT vector_key, fitness, status, properties, chosen FROM screen_flights WHERE run_id = ?", (run_id,))}
+
     def rejudge(self, evaluation_id: int, differential: Mapping[str, Any]) -> None:
         """Replace a pair's verdict and flights (harness/campaigns/rejudge.py)."""
         with self.db:
@@ -322,10 +355,12 @@ class Store:
             f" MIN({SEARCHED}), COUNT(e.id), COALESCE(SUM(e.status = :violation), 0), COALESCE(SUM(e.status = :violation AND e.min_clearance_m <= 0), 0),"
             " COALESCE(SUM(e.status = :violation AND json_extract(e.confirmations, '$.violations') < json_extract(e.confirmations, '$.repeats')), 0),"
             " COALESCE(SUM(e.failures_refused IS NOT NULL), 0), COALESCE(SUM(e.reveals IS NOT NULL), 0), COALESCE(SUM(e.reveals = :unsafe), 0),"
-            " MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END), MIN(e.created), MAX(e.created)"
+            " MIN(CASE WHEN e.reveals IS NOT NULL THEN e.ordinal END), MIN(e.created), MAX(e.created),"
+            " COALESCE(SUM(e.status != :infeasible), 0), (SELECT COUNT(*) FROM screen_flights s WHERE s.run_id = r.id)"
             " FROM runs r LEFT JOIN evaluations e ON e.run_id = r.id GROUP BY r.id ORDER BY r.id"
         )
-        return [StoredRun(*row) for row in self.db.execute(query, {"violation": str(Status.VIOLATION), "unsafe": str(Reveal.UNSAFE)})]
+        return [StoredRun(*row) for row in self.db.execute(query, {"violation": str(Status.VIOLATION), "unsafe": str(Reveal.UNSAFE),
+                                                                   "infeasible": str(Status.INFEASIBLE)})]
 
     def campaign_sut(self) -> dict[str, Any]:
         """The SUT the store's campaign flew (stores from before it was recorded flew the bundled one)."""

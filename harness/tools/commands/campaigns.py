@@ -7,16 +7,18 @@ import argparse
 import subprocess
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution import registry as executors
+from harness.campaigns.screen import SCREENS
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
-from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int
+from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int, share
 from harness.tools.commands.sut_options import add_reference_options, add_sut_logs_option, add_sut_options, check_transport, mission_plan, reference_spec, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
 
@@ -63,6 +65,12 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
                    help="score this safety property on every flight and search for the least robustness among those given instead of f "
                         "(`stella properties` names them; or a JSON property file); repeatable")
     add_reference_options(p, campaign=True)
+    p.add_argument("--screen", choices=SCREENS, default="none",
+                   help="fly each batch on the bundled autopilot configured like the SUT first, and the SUT only where those flights rank it worth it "
+                        "(--evaluations then counts the SUT's flights); default none")
+    p.add_argument("--screen-share", type=share, default=0.3, help="with --screen: the share of each batch flown for real as the most promising (default 0.3)")
+    p.add_argument("--screen-explore", type=share, default=0.1,
+                   help="with --screen: the chance that each of the others is flown for real all the same, so the screen's blind spots are sampled (default 0.1)")
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
 
@@ -70,6 +78,7 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     """The campaign a `stella campaign` command line asks for, every option checked before anything
     starts: what the command runs, and how the campaign page checks a campaign set up on it."""
     from harness.campaigns.campaign import CampaignConfig
+    from harness.campaigns.screen import ScreenSettings, screen_sut
     from harness.properties.spec import load_property
     from harness.search.optimizers import parse_algorithm
 
@@ -91,6 +100,10 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
                                                     "(a differential campaign then compares the properties of both sides too)")])
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
+    if args.screen != "none":
+        if config.reference is not None:
+            raise InputError([Problem("--screen", "", "screens a campaign of one SUT; a differential campaign (--reference-...) flies every candidate on both")])
+        config = replace(config, screen=ScreenSettings(screen_sut(sut), args.screen_share, args.screen_explore))
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config
@@ -136,7 +149,7 @@ class UnflownFlights:
 
 @command("campaign", "search logical scenarios for worst cases; resumable from its store", _campaign_options)
 def cmd_campaign(args: argparse.Namespace) -> int:
-    from harness.campaigns.campaign import run_campaign
+    from harness.campaigns.campaign import run_campaign, screen_line
     from harness.flight.results import EvaluationResult, RunOptions
     from harness.execution.registry import make_executor
     from harness.campaigns.store import Store
@@ -180,6 +193,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                      + f"{r.violations} violations, "
                      + (f"{r.revealing} revealing, " if r.revealing is not None else "")
                      + f"{r.flown} flown, {r.replayed} from the store"
+                     + (f"; {screen_line(r.screen)}" if r.screen else "")
                      + (f"; warning: the SUT refused a failure injection in {r.failures_refused} flights, which flew without it"
                         if r.failures_refused else "") for r in summary.runs) or "every run was already finished"
     emit(args, {"store": str(store_path), "runs": [r.as_dict() for r in summary.runs]}, text)

@@ -103,3 +103,4 @@ seed_int = _bounded("seed_int", int, lambda v: 0 <= v < 2**32, "a seed: give a w
 port_int = _bounded("port_int", int, lambda v: 1 <= v <= 65535, "a TCP port: give 1 to 65535")
 positive_float = _bounded("positive_float", float, lambda v: 0 < v < math.inf, "a positive number")
 non_negative_float = _bounded("non_negative_float", float, lambda v: 0 <= v < math.inf, "a number of zero or more")
+share = _bounded("share", float, lambda v: 0 <= v <= 1, "a share: give a number from 0 to 1")
