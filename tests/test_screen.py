@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
-from harness.campaigns.screen import Screen, ScreenSettings
+from harness.campaigns.screen import Screen, ScreenSettings, screen_sut
 from harness.campaigns.store import Store
 from harness.execution.local import SequentialExecutor
 from harness.flight.fitness import Status
@@ -65,6 +65,12 @@ def test_a_screen_that_stops_predicting_falls_back_to_flying_every_candidate(tmp
     assert screen.choose([f"k{i}" for i in range(10, 20)]) == {f"k{i}" for i in range(10, 20)}
     assert screen.summary() == {"flights": 20, "screened_out": 0, "pairs": 10, "rank_correlation": pytest.approx(-1.0), "false_negatives": 1,
                                 "fell_back": True}
+
+
+def test_the_cheap_model_takes_the_subjects_px4_parameters_and_never_its_seeded_fault():
+    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x")) == SutConfig("bundled", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0})
+    assert screen_sut(SutConfig("bundled", {"CP_DIST": 2.0}, fault="cp_ignores_delay")) == SutConfig("bundled", {"CP_DIST": 2.0})
+    assert screen_sut(SutConfig("ardupilot", {"AVOID_MARGIN": 3.0})) == SutConfig("bundled", {})  # ArduPilot's names not mapped yet
 
 
 def screened_campaign(tmp_path: Path, capsys, store: Path) -> dict:

@@ -4,6 +4,7 @@ and what is read from its store afterwards."""
 from __future__ import annotations
 
 import argparse
+import logging
 import subprocess
 import sys
 from collections import Counter
@@ -25,6 +26,8 @@ from sim_bridge.sut_link import TRANSPORTS
 if TYPE_CHECKING:
     from harness.campaigns.campaign import CampaignConfig, RunSummary
     from harness.flight.results import EvaluationResult
+
+log = logging.getLogger(__name__)
 
 
 def _campaign_options(p: argparse.ArgumentParser) -> None:
@@ -104,6 +107,8 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
         if config.reference is not None:
             raise InputError([Problem("--screen", "", "screens a campaign of one SUT; a differential campaign (--reference-...) flies every candidate on both")])
         config = replace(config, screen=ScreenSettings(screen_sut(sut), args.screen_share, args.screen_explore))
+        if sut.params and not config.screen.sut.params:
+            log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it yet", sut.name)
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config
