@@ -93,19 +93,25 @@ def flown(tmp_path: Path, capsys, concrete: Path, *argv: str) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
-def wall_with_the_range_sensor_off(tmp_path: Path) -> Path:
-    """The wall moved 25 m east, off the route, the route 150 m long, and the range sensor going
-    silent 6 s into the run for good: whatever the vehicle does, it hits nothing, and a vehicle
-    that flies on blind is still in Position mode well past the 6 s of range_loss_holds (on the
-    wall's 60 m route it could reach the goal just then)."""
+def wall_off_the_route(tmp_path: Path, failure: dict, route_north_m: float | None = None) -> Path:
+    """The wall moved 25 m east, off the route, so that whatever the vehicle does it hits nothing,
+    with one failure (and its logical declaration), and the route made longer where asked."""
     document = json.loads(WALL_CONCRETE.read_text())
     document["obstacles"][0]["position"]["east_m"] = 25.0
-    document["logical_scenario"]["mission"] = {"waypoints": [{"north_m": 150.0, "east_m": 0.0, "altitude_m": 8.0}]}
-    document["failures"] = [{"unit": "distance sensor", "type": "off", "onset_s": 6.0, "duration_s": 60.0}]
-    document["logical_scenario"]["failures"] = [{"unit": "distance sensor", "type": "off"}]
-    path = tmp_path / "wall_range_off.json"
+    if route_north_m is not None:
+        document["logical_scenario"]["mission"] = {"waypoints": [{"north_m": route_north_m, "east_m": 0.0, "altitude_m": 8.0}]}
+    document["failures"] = [failure]
+    document["logical_scenario"]["failures"] = [{"unit": failure["unit"], "type": failure["type"]}]
+    path = tmp_path / f"wall_{failure['unit'].replace(' ', '_')}_{failure['type']}.json"
     path.write_text(json.dumps(document))
     return path
+
+
+def wall_with_the_range_sensor_off(tmp_path: Path) -> Path:
+    """The range sensor going silent 6 s into the run for good, on a 150 m route: a vehicle that
+    flies on blind is still in Position mode well past the 6 s of range_loss_holds (on the
+    wall's 60 m route it could reach the goal just then)."""
+    return wall_off_the_route(tmp_path, {"unit": "distance sensor", "type": "off", "onset_s": 6.0, "duration_s": 60.0}, route_north_m=150.0)
 
 
 @pytest.mark.slow
@@ -167,15 +173,9 @@ def test_a_property_campaigns_findings_are_triaged_by_what_broke_and_exported_wi
     assert "--property gps_loss_lands --property clearance" in finding and "--out shrunk --sut-fault noaid_timeout_ms --property gps_loss_lands" in finding
 
 
-def with_the_data_link_lost(tmp_path: Path, onset_s: float = 8.0, duration_s: float = 30.0) -> Path:
-    """The wall moved off the route, and the ground station's link lost 8 s into the run for 30 s."""
-    document = json.loads(WALL_CONCRETE.read_text())
-    document["obstacles"][0]["position"]["east_m"] = 25.0
-    document["failures"] = [{"unit": "data link", "type": "off", "onset_s": onset_s, "duration_s": duration_s}]
-    document["logical_scenario"]["failures"] = [{"unit": "data link", "type": "off"}]
-    path = tmp_path / "link_lost.json"
-    path.write_text(json.dumps(document))
-    return path
+def with_the_data_link_lost(tmp_path: Path) -> Path:
+    """The ground station's link lost 8 s into the run for 30 s."""
+    return wall_off_the_route(tmp_path, {"unit": "data link", "type": "off", "onset_s": 8.0, "duration_s": 30.0})
 
 
 @pytest.mark.slow
