@@ -8,18 +8,33 @@ import json
 import sqlite3
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, stored_result
+from harness.campaigns.residual import Pair, ResidualModel
 from harness.campaigns.screen import Screen, ScreenSettings, screen_sut
 from harness.campaigns.store import Store
+from harness.campaigns.store.rows import vector_key
 from harness.execution.local import SequentialExecutor
 from harness.flight.fitness import Status
 from harness.flight.results import EvaluationResult, RunOptions
+from harness.scenario.logical import load_logical
+from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
 from sut_adapter import SutConfig
 
 WALL = str(ROOT / "scenarios" / "examples" / "wall.json")
+
+
+@pytest.fixture(scope="module")
+def space(profile) -> SearchSpace:
+    return SearchSpace(load_logical(Path(WALL), profile), profile)
+
+
+def spread_over(space: SearchSpace, count: int, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [space.lower + rng.random(len(space.lower)) * (space.upper - space.lower) for _ in range(count)]
 
 
 def cheap_flight(fitness: float) -> EvaluationResult:
@@ -28,43 +43,104 @@ def cheap_flight(fitness: float) -> EvaluationResult:
                             seed=0, log_path=None, scenario="s", sut="bundled")
 
 
-def screen_with(tmp_path: Path, cheap: dict[str, float], **settings) -> Screen:
+def screen_with(tmp_path: Path, space: SearchSpace, cheap: dict[str, float], run: int = 0, **settings) -> Screen:
     """A screen over a real store that already holds these candidates' cheap flights (as a
     resumed run's would): nothing to fly."""
     store = Store(tmp_path / "c.db")
     campaign = store.campaign({"test": True})
-    run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", 0, 7)
+    run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", run, 7, scenario_key="sha256:s")
     for key, fitness in cheap.items():
         store.add_screen_flight(run_id, key, cheap_flight(fitness))
-    return Screen(ScreenSettings(SutConfig(), **settings), SequentialExecutor(), store, run_id, 7, tmp_path, RunOptions())
+    return Screen(ScreenSettings(SutConfig(), **settings), SequentialExecutor(), store, run_id, 7, tmp_path, RunOptions(), space)
 
 
-def test_the_most_promising_share_is_flown_and_the_rest_only_by_the_explore_chance_alike_every_time(tmp_path):
+def test_the_most_promising_share_is_flown_and_the_rest_only_by_the_explore_chance_alike_every_time(tmp_path, space):
     cheap = {f"k{i}": float(i) for i in range(10)}  # k0 the most promising: the least clearance
-    screen = screen_with(tmp_path, cheap, share=0.3, explore=0.0)
-    assert screen.choose(list(cheap)) == {"k0", "k1", "k2"}
+    batch = list(zip(cheap, spread_over(space, 10)))
+    screen = screen_with(tmp_path, space, cheap, share=0.3, explore=0.0)
+    assert screen.choose(batch) == {"k0", "k1", "k2"}
     assert screen.screened_out == 7
-    everyone = screen_with(tmp_path / "explore", cheap, share=0.3, explore=1.0)
-    assert everyone.choose(list(cheap)) == set(cheap)
+    everyone = screen_with(tmp_path / "explore", space, cheap, share=0.3, explore=1.0)
+    assert everyone.choose(batch) == set(cheap)
     # some: a seeded draw, the same for the same run and batch, and kept in the store for a resumed run
-    some = screen_with(tmp_path / "some", cheap, share=0.3, explore=0.5).choose(list(cheap))
+    some = screen_with(tmp_path / "some", space, cheap, share=0.3, explore=0.5).choose(batch)
     assert {"k0", "k1", "k2"} < some < set(cheap)
     resumed = Screen(ScreenSettings(SutConfig(), share=0.3, explore=0.5), SequentialExecutor(), Store(tmp_path / "some" / "c.db"), 1, 7,
-                     tmp_path, RunOptions())
-    assert resumed.choose(list(cheap)) == some and resumed.screened_out == 10 - len(some)
+                     tmp_path, RunOptions(), space)
+    assert resumed.choose(batch) == some and resumed.screened_out == 10 - len(some)
 
 
-def test_a_screen_that_stops_predicting_falls_back_to_flying_every_candidate(tmp_path):
+def test_a_screen_that_stops_predicting_falls_back_to_flying_every_candidate(tmp_path, space):
     cheap = {f"k{i}": float(i) for i in range(20)}
-    screen = screen_with(tmp_path, cheap, share=0.3, explore=0.0, min_pairs=10, min_correlation=0.3)
+    vectors = dict(zip(cheap, spread_over(space, 20)))
+    screen = screen_with(tmp_path, space, cheap, share=0.3, explore=0.0, min_pairs=10, min_correlation=0.3, correction="none")
     for i in range(9):  # the real clearance the reverse of the cheap one
-        screen.learn(f"k{i}", 10.0 - i)
+        screen.learn(f"k{i}", vectors[f"k{i}"], 10.0 - i)
     assert not screen.fell_back and screen.rank_correlation == pytest.approx(-1.0)
-    screen.learn("k9", -0.5)  # a violation the cheap flight called safe
+    screen.learn("k9", vectors["k9"], -0.5)  # a violation the cheap flight called safe
     assert screen.fell_back and screen.false_negatives == 1
-    assert screen.choose([f"k{i}" for i in range(10, 20)]) == {f"k{i}" for i in range(10, 20)}
+    assert screen.choose([(f"k{i}", vectors[f"k{i}"]) for i in range(10, 20)]) == {f"k{i}" for i in range(10, 20)}
     assert screen.summary() == {"flights": 20, "screened_out": 0, "pairs": 10, "rank_correlation": pytest.approx(-1.0), "false_negatives": 1,
                                 "fell_back": True}
+
+
+def parted(space: SearchSpace, x: np.ndarray, cheap: float) -> float:
+    """A subject that parts from the cheap model by where the candidate lies: 3 m closer at one end
+    of the first coordinate, 3 m farther at the other (as PX4's collision prevention stops a pilot
+    the bundled autopilot lets past, in one part of a scenario)."""
+    return cheap + 6.0 * ((x[0] - space.lower[0]) / (space.upper[0] - space.lower[0]) - 0.5)
+
+
+def test_the_residual_model_learns_where_the_subject_parts_from_the_cheap_model_whatever_the_order_it_hears_them(space):
+    rng = np.random.default_rng(3)
+    xs = spread_over(space, 60, seed=1)
+    cheap = rng.uniform(1.0, 3.0, 60)
+    pairs = [Pair(f"k{i:02d}", x, c, parted(space, x, c)) for i, (x, c) in enumerate(zip(xs[:30], cheap[:30]))]
+    model = ResidualModel(space.lower, space.upper, pairs, seed=7)
+    predicted = [p.objective for p in model.predict(np.array(xs[30:]), cheap[30:])]
+    real = [parted(space, x, c) for x, c in zip(xs[30:], cheap[30:])]
+    from scipy.stats import spearmanr
+
+    # THEN on candidates it never heard of, the corrected objective ranks as the subject does and the cheap one does not
+    assert spearmanr(predicted, real).statistic > 0.9 > spearmanr(cheap[30:], real).statistic + 0.2
+    assert np.median(np.abs(np.array(predicted) - real)) < 0.5
+    # AND the same pairs heard in another order give the same model to the bit (a resumed run decides alike)
+    again = ResidualModel(space.lower, space.upper, list(reversed(pairs)), seed=7)
+    assert [p.objective for p in again.predict(np.array(xs[30:]), cheap[30:])] == predicted
+
+
+def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_optimizer_hears_its_prediction(tmp_path, space):
+    # GIVEN a store's earlier run of the scenario: 12 candidates flown both ways, the subject parting from the cheap model
+    store_path = tmp_path / "c.db"
+    earlier = screen_with(tmp_path, space, {}, run=0)
+    store = earlier.store
+    xs = spread_over(space, 32, seed=2)
+    for i, x in enumerate(xs[:12]):
+        store.add_screen_flight(earlier.run_id, vector_key(x), cheap_flight(3.0))
+        store.add_evaluation(earlier.run_id, ordinal=i, step=0, optimizer="RANDOM", vector=x, result=stored_result(parted(space, x, 3.0), "ok"), concrete=None)
+    # AND this run's batch, all alike on the cheap model
+    batch = {f"k{i}": x for i, x in enumerate(xs[12:])}
+    campaign = store.campaign({"test": True})
+    run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", 1, 8, scenario_key="sha256:s")
+    for key in batch:
+        store.add_screen_flight(run_id, key, cheap_flight(3.0))
+    screen = Screen(ScreenSettings(SutConfig(), share=0.25, explore=0.0), SequentialExecutor(), store, run_id, 8, tmp_path, RunOptions(), space)
+    # WHEN the screen chooses
+    chosen = screen.choose(list(batch.items()))
+    # THEN it chose the candidates where the subject comes closest, which the cheap flights cannot tell apart
+    real = {key: parted(space, x, 3.0) for key, x in batch.items()}
+    assert chosen == set(sorted(real, key=real.get)[:5])
+    # AND the optimizer hears the predicted real objective of those screened out, kept in the store for a resumed run
+    out = next(key for key in batch if key not in chosen)
+    assert screen.told(out) == pytest.approx(real[out], abs=0.5) and screen.told(out) != 3.0
+    resumed = Screen(ScreenSettings(SutConfig(), share=0.25, explore=0.0), SequentialExecutor(), Store(store_path), run_id, 8, tmp_path, RunOptions(), space)
+    assert resumed.choose(list(batch.items())) == chosen and resumed.told(out) == screen.told(out)
+    # AND the error is measured both ways on what is flown: the correction's prediction ranks, the cheap flights cannot
+    for key in sorted(chosen) + [out, *[k for k in batch if k not in chosen][1:4]]:
+        screen.learn(key, batch[key], real[key])
+    summary = screen.summary()
+    assert summary["rank_correlation"] is None and summary["corrected_rank_correlation"] > 0.9
+    assert summary["training_pairs"] == 12 + 9
 
 
 def test_the_cheap_model_takes_the_subjects_px4_parameters_and_never_its_seeded_fault():
@@ -75,7 +151,7 @@ def test_the_cheap_model_takes_the_subjects_px4_parameters_and_never_its_seeded_
 
 def screened_campaign(tmp_path: Path, capsys, store: Path) -> dict:
     capsys.readouterr()
-    assert main(["campaign", WALL, "--algorithm", "RANDOM", "--evaluations", "6", "--batch", "8", "--seed", "4", "--workers", "2",
+    assert main(["campaign", WALL, "--algorithm", "RANDOM", "--evaluations", "8", "--batch", "8", "--seed", "4", "--workers", "2",
                  "--sut-fault", "cp_ignores_delay", "--screen", "bundled", "--screen-share", "0.25", "--screen-explore", "0.1",
                  "--store", str(store), "--json"]) == 0
     return json.loads(capsys.readouterr().out)["runs"][0]
@@ -93,7 +169,7 @@ def test_a_screened_campaign_flies_the_subject_only_where_the_cheap_model_ranks_
     run = screened_campaign(tmp_path, capsys, tmp_path / "a.db")
     real = real_flights(tmp_path / "a.db")
     flown = [row for row in real if row[1] != "infeasible"]
-    assert run["evaluations"] == 6 and run["flown"] == len(flown)
+    assert run["evaluations"] == 8 and run["flown"] == len(flown)
     screen = run["screen"]
     # THEN more candidates were judged than the subject flew, each flown for real was chosen by the screen
     assert screen["flights"] > len(flown) and screen["screened_out"] > 0
@@ -102,6 +178,10 @@ def test_a_screened_campaign_flies_the_subject_only_where_the_cheap_model_ranks_
         cheap = dict(db.execute("SELECT vector_key, fitness FROM screen_flights"))
     assert {key for key, _status, _fitness in flown} <= chosen
     assert screen["pairs"] == len(flown) and screen["false_negatives"] == sum(f < 0 <= cheap[k] for k, _s, f in flown)
+    # AND once five were flown both ways, the correction trained on them predicted the rest
+    with sqlite3.connect(tmp_path / "a.db") as db:
+        predicted = db.execute("SELECT COUNT(*) FROM screen_flights WHERE predicted_mean IS NOT NULL").fetchone()[0]
+    assert screen["training_pairs"] == len(flown) >= 5 and predicted > 0
     # AND compare counts the SUT's flights and the cheap model's apart
     capsys.readouterr()
     assert main(["compare", str(tmp_path / "a.db"), "--json"]) == 0
@@ -111,7 +191,7 @@ def test_a_screened_campaign_flies_the_subject_only_where_the_cheap_model_ranks_
     assert screened_campaign(tmp_path, capsys, tmp_path / "b.db")["screen"] == screen
     assert real_flights(tmp_path / "b.db") == real
     with sqlite3.connect(tmp_path / "b.db") as db:
-        db.execute("DELETE FROM evaluations WHERE ordinal >= 3")
+        db.execute("DELETE FROM evaluations WHERE ordinal >= 4")
         db.execute("UPDATE runs SET finished = NULL")
     resumed = screened_campaign(tmp_path, capsys, tmp_path / "b.db")
-    assert resumed["replayed"] == 3 and real_flights(tmp_path / "b.db") == real and resumed["screen"] == screen
+    assert resumed["replayed"] == 4 and real_flights(tmp_path / "b.db") == real and resumed["screen"] == screen

@@ -238,10 +238,15 @@ def run_line(run: RunSummary) -> str:
 
 
 def screen_line(screen: dict[str, Any]) -> str:
-    correlation = screen["rank_correlation"]
+    def known(correlation: float | None) -> str:
+        return f"{correlation:.2f}" if correlation is not None else "not yet known"
+
+    corrected = "corrected_rank_correlation" in screen
     return (f"screen: {screen['flights']} cheap flights, {screen['screened_out']} not flown for real, rank correlation "
-            + (f"{correlation:.2f}" if correlation is not None else "not yet known") + f" over {screen['pairs']} flown both ways, "
-            + f"{screen['false_negatives']} false negatives" + (", fell back to flying every candidate" if screen["fell_back"] else ""))
+            + known(screen["rank_correlation"]) + (f" (corrected {known(screen['corrected_rank_correlation'])})" if corrected else "")
+            + f" over {screen['pairs']} flown both ways, {screen['false_negatives']} false negatives"
+            + (f" (corrected {screen['corrected_false_negatives']}; trained on {screen['training_pairs']})" if corrected else "")
+            + (", fell back to flying every candidate" if screen["fell_back"] else ""))
 
 
 @dataclass
@@ -291,7 +296,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 screen = None if config.screen is None else Screen(config.screen, executor, store, run_id, seed, out_dir / f"run{run_id}" / "screen",
-                                                                  options, config.properties)
+                                                                  options, space, config.properties)
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
                                           each_property=config.objective == "properties", screen=screen)

@@ -233,14 +233,14 @@ class CampaignProblem:
             self._learn(candidate.key)
         if stop is not None or any(c.key not in self._trials and c.key not in self._screened_out for c in candidates):
             raise stop or StopSearch(campaign_done=True)
-        return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(self._screened_out[c.key]) for c in candidates]
+        return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(c.key) for c in candidates]
 
     def _learn(self, key: str) -> None:
         """The screen hears the real outcome of a candidate it flew cheaply (a flight that could
         not finish tells nothing of the screen's error)."""
         trial = self._trials.get(key)
         if self.screen is not None and trial is not None and trial.status not in COULD_NOT_FINISH and self.screen.knows(key):
-            self.screen.learn(key, self.objective_of(trial))
+            self.screen.learn(key, trial.vector, self.objective_of(trial))
 
     def _screen(self, candidates: list[_Candidate]) -> set[str]:
         """The keys of this batch's candidates to screen out: of those that would fly (new to the
@@ -253,14 +253,17 @@ class CampaignProblem:
             new[candidate.key] = candidate
         if not new:
             return set()
-        self.screen.fly(self.space, [(key, candidate.vector) for key, candidate in new.items()])
-        return set(new) - self.screen.choose(list(new))
+        flying = [(key, candidate.vector) for key, candidate in new.items()]
+        self.screen.fly(flying)
+        return set(new) - self.screen.choose(flying)
 
-    def _told_cheap(self, cheap: CheapOutcome) -> float | list[float]:
-        """What the optimizer hears of a candidate flown on the screen only: its cheap outcome."""
+    def _told_cheap(self, key: str) -> float | list[float]:
+        """What the optimizer hears of a candidate flown on the screen only: the real objective the
+        screen predicts, or with one objective per property, each one's cheap robustness."""
+        cheap = self._screened_out[key]
         if self.each_property:
             return [cheap.fitness if value is None else value for value in self._robustness_each(cheap.properties)]
-        return cheap.objective
+        return self.screen.told(key)
 
     def _told(self, trial: Trial) -> float | list[float]:
         """The fitness the optimizer hears of (the stored one is the flight's own): with one

@@ -4,10 +4,17 @@ promising, with a random share of the others so that the screen's blind spots ar
 sampled. The optimizer hears the real outcome of what was flown for real and the cheap one of
 what was screened out; the budget counts real flights only.
 
+With the learned correction (harness/campaigns/residual.py), the candidates flown both ways so
+far, in this run and in the store's earlier runs of the same scenario, train a model of the real
+objective on top of the cheap one; the screen then ranks by the real objective to be expected
+with some luck (two standard deviations below the prediction), and the optimizer hears the
+predicted real objective of what was screened out.
+
 The screen's error is measured on the candidates flown both ways: the rank correlation between
-the cheap and the real objective (Spearman), and its false negatives, real violations the cheap
-flight called safe. Once enough candidates were flown both ways and the correlation is too low,
-the screen has stopped predicting: the run says so and flies every candidate for real.
+the cheap (and the corrected) objective and the real one (Spearman), and the false negatives,
+real violations that the cheap flight (and the correction) called safe. Once enough candidates
+were flown both ways and the correlation of what the screen ranks by is too low, the screen has
+stopped predicting: the run says so and flies every candidate for real.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from harness.campaigns.problem import least_robustness
+from harness.campaigns.residual import Pair, Prediction, ResidualModel
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor, Job
 from harness.flight.results import RunOptions
@@ -31,23 +39,29 @@ from sut_adapter import SutConfig
 log = logging.getLogger(__name__)
 
 SCREENS = ("none", "bundled")
+CORRECTIONS = ("gp", "none")
 
 
 @dataclass(frozen=True)
 class ScreenSettings:
     """How a campaign screens: the cheap SUT, the share of each batch flown for real as the most
-    promising, the chance that each of the others is flown all the same, and when the screen
-    counts as no longer predicting (min_correlation over at least min_pairs candidates)."""
+    promising, the chance that each of the others is flown all the same, when the screen counts
+    as no longer predicting (min_correlation over at least min_pairs candidates), and the learned
+    correction ("gp", trained once min_train candidates were flown both ways, or "none")."""
 
     sut: SutConfig
     share: float = 0.3
     explore: float = 0.1
     min_pairs: int = 10
     min_correlation: float = 0.3
+    correction: str = "gp"
+    min_train: int = 5
 
     def identity(self) -> dict[str, Any]:
+        # Stores screened before the correction existed resume with --screen-correction none.
+        corrected = {"correction": self.correction, "min_train": self.min_train} if self.correction != "none" else {}
         return {"sut": self.sut.identity(), "share": self.share, "explore": self.explore,
-                "min_pairs": self.min_pairs, "min_correlation": self.min_correlation}
+                "min_pairs": self.min_pairs, "min_correlation": self.min_correlation, **corrected}
 
 
 def screen_sut(subject: SutConfig) -> SutConfig:
@@ -68,6 +82,16 @@ class CheapOutcome:
     objective: float
 
 
+@dataclass(frozen=True)
+class _FlownBothWays:
+    """A candidate's cheap objective, what the screen predicted of it when it chose it (the cheap
+    objective where no correction was trained yet) and its real objective."""
+
+    cheap: float
+    predicted: float
+    real: float
+
+
 @dataclass
 class Screen:
     settings: ScreenSettings
@@ -77,10 +101,13 @@ class Screen:
     seed: int
     out_dir: Path
     options: RunOptions
+    space: SearchSpace
     properties: Sequence[Any] = ()  # the campaign's safety properties (their least robustness is the objective)
     _cheap: dict[str, CheapOutcome] = field(default_factory=dict)
     _chosen: dict[str, bool] = field(default_factory=dict)  # the screen's decision on each candidate it ranked
-    _pairs: list[tuple[float, float]] = field(default_factory=list)  # (cheap, real) objective of candidates flown both ways
+    _predicted: dict[str, Prediction] = field(default_factory=dict)  # the correction's prediction where one was trained
+    _pairs: dict[str, _FlownBothWays] = field(default_factory=dict)  # by key, in the order they were learned
+    _training: list[Pair] = field(default_factory=list)  # this run's pairs and the store's earlier runs' of the scenario
     fell_back: bool = False
 
     def __post_init__(self) -> None:
@@ -88,6 +115,13 @@ class Screen:
             self._cheap[key] = self._outcome(row["fitness"], row["status"], row["properties"])
             if row["chosen"] is not None:
                 self._chosen[key] = row["chosen"]
+            if row["predicted"] is not None:
+                self._predicted[key] = Prediction(*row["predicted"])
+        if self.settings.correction != "none":
+            self._training = [Pair(f"{row['run_id']}:{row['key']}", np.asarray(row["vector"], dtype=float),
+                                   objective(row["cheap_fitness"], row["cheap_properties"], self.properties),
+                                   objective(row["fitness"], row["properties"], self.properties))
+                              for row in self.store.earlier_screen_pairs(self.run_id)]
 
     def _outcome(self, fitness: float, status: str, properties: Mapping[str, Any]) -> CheapOutcome:
         return CheapOutcome(fitness, status, properties, objective(fitness, properties, self.properties))
@@ -102,44 +136,66 @@ class Screen:
     def knows(self, key: str) -> bool:
         return key in self._cheap
 
-    def fly(self, space: SearchSpace, candidates: Sequence[tuple[str, np.ndarray]]) -> None:
+    def told(self, key: str) -> float:
+        """What the optimizer hears of a candidate screened out: the real objective the correction
+        predicted, or the cheap one where none was trained."""
+        return self._predicted[key].objective if key in self._predicted else self._cheap[key].objective
+
+    def fly(self, candidates: Sequence[tuple[str, np.ndarray]]) -> None:
         """The cheap flight of each candidate not flown cheaply yet, stored with the run."""
         todo = [(key, x) for key, x in candidates if key not in self._cheap]
         options = replace(self.options, sut=self.settings.sut)
-        jobs = [Job.of(index, space, x, seed=self.seed, out_dir=self.out_dir, name=f"screen-{key[:16]}", options=options)
+        jobs = [Job.of(index, self.space, x, seed=self.seed, out_dir=self.out_dir, name=f"screen-{key[:16]}", options=options)
                 for index, (key, x) in enumerate(todo)]
         for job, result in self.executor.run(jobs):
             key = todo[job.key][0]
             self._cheap[key] = self._outcome(result.fitness, str(result.status), result.properties or {})
             self.store.add_screen_flight(self.run_id, key, result)
 
-    def choose(self, keys: Sequence[str]) -> set[str]:
+    def choose(self, candidates: Sequence[tuple[str, np.ndarray]]) -> set[str]:
         """Of these candidates, all flown cheaply, the ones to fly for real: the most promising
-        share by the cheap objective, and each of the others with the explore chance; every one
-        once the screen has fallen back. A batch decided before (a resumed run) is decided alike;
-        a new one by a generator seeded with the run's seed and the batch's candidates."""
+        share, and each of the others with the explore chance; every one once the screen has
+        fallen back. Promising is the least cheap objective, or with a correction trained, the
+        least real objective to be expected with some luck (Prediction.optimistic). A batch decided before (a resumed run) is decided
+        alike; a new one by a generator seeded with the run's seed and the batch's candidates."""
+        keys = [key for key, _x in candidates]
         if all(key in self._chosen for key in keys):
             return {key for key in keys if self._chosen[key]}
+        predicted: dict[str, Prediction] = {}
         if self.fell_back:
             decided = {key: True for key in keys}
         else:
+            model = self._model()
+            if model is not None:
+                predicted = dict(zip(keys, model.predict(np.array([x for _key, x in candidates]), np.array([self._cheap[key].objective for key in keys]))))
             batch = hashlib.sha256("".join(sorted(keys)).encode()).digest()
             rng = np.random.default_rng([self.seed, int.from_bytes(batch[:8], "little")])
-            ranked = sorted(keys, key=lambda key: (self._cheap[key].objective, key))
+            ranked = sorted(keys, key=lambda key: (predicted[key].optimistic, key) if predicted
+                            else (self._cheap[key].objective, key))
             promising = max(1, math.ceil(self.settings.share * len(ranked)))
             decided = {key: index < promising or rng.random() < self.settings.explore for index, key in enumerate(ranked)}
         self._chosen.update(decided)
-        self.store.screen_decisions(self.run_id, decided)
+        self._predicted.update(predicted)
+        self.store.screen_decisions(self.run_id, decided, {key: (p.mean, p.sd) for key, p in predicted.items()})
         return {key for key, chosen in decided.items() if chosen}
+
+    def _model(self) -> ResidualModel | None:
+        if self.settings.correction == "none" or len(self._training) < self.settings.min_train:
+            return None
+        return ResidualModel(self.space.lower, self.space.upper, self._training, self.seed)
 
     @property
     def screened_out(self) -> int:
         return sum(not chosen for chosen in self._chosen.values())
 
-    def learn(self, key: str, real_objective: float) -> None:
-        """A candidate flown both ways; the screen falls back once it stops predicting."""
-        self._pairs.append((self._cheap[key].objective, real_objective))
-        correlation = self.rank_correlation
+    def learn(self, key: str, x: np.ndarray, real_objective: float) -> None:
+        """A candidate flown both ways: training for the correction; the screen falls back once
+        what it ranks by stops predicting."""
+        cheap = self._cheap[key].objective
+        self._pairs[key] = _FlownBothWays(cheap, self._predicted[key].objective if key in self._predicted else cheap, real_objective)
+        if self.settings.correction != "none":
+            self._training.append(Pair(f"{self.run_id}:{key}", np.asarray(x, dtype=float), cheap, real_objective))
+        correlation = self.corrected_rank_correlation if self.settings.correction != "none" else self.rank_correlation
         if not self.fell_back and len(self._pairs) >= self.settings.min_pairs and correlation is not None and correlation < self.settings.min_correlation:
             self.fell_back = True
             log.warning("the screen stopped predicting: rank correlation %.2f with the real SUT over %d candidates flown both ways "
@@ -149,23 +205,39 @@ class Screen:
     def rank_correlation(self) -> float | None:
         """Spearman's rank correlation of the cheap and the real objective over the candidates flown
         both ways (None: fewer than three, or one side constant)."""
-        if len(self._pairs) < 3:
-            return None
-        from scipy.stats import spearmanr  # here: the command line need not import scipy to start
+        return _spearman([(pair.cheap, pair.real) for pair in self._pairs.values()])
 
-        cheap, real = zip(*self._pairs)
-        if len(set(cheap)) < 2 or len(set(real)) < 2:
-            return None
-        return float(spearmanr(cheap, real).statistic)
+    @property
+    def corrected_rank_correlation(self) -> float | None:
+        """The same of what the screen predicted when it chose each candidate."""
+        return _spearman([(pair.predicted, pair.real) for pair in self._pairs.values()])
 
     @property
     def false_negatives(self) -> int:
         """Real violations among the candidates flown both ways that the cheap flight called safe."""
-        return sum(real < 0 <= cheap for cheap, real in self._pairs)
+        return sum(pair.real < 0 <= pair.cheap for pair in self._pairs.values())
+
+    @property
+    def corrected_false_negatives(self) -> int:
+        """Real violations among them that the screen's prediction called safe."""
+        return sum(pair.real < 0 <= pair.predicted for pair in self._pairs.values())
 
     def summary(self) -> dict[str, Any]:
+        corrected = ({"corrected_rank_correlation": self.corrected_rank_correlation, "corrected_false_negatives": self.corrected_false_negatives,
+                      "training_pairs": len(self._training)} if self.settings.correction != "none" else {})
         return {"flights": self.flights, "screened_out": self.screened_out, "pairs": len(self._pairs), "rank_correlation": self.rank_correlation,
-                "false_negatives": self.false_negatives, "fell_back": self.fell_back}
+                "false_negatives": self.false_negatives, **corrected, "fell_back": self.fell_back}
+
+
+def _spearman(pairs: Sequence[tuple[float, float]]) -> float | None:
+    if len(pairs) < 3:
+        return None
+    from scipy.stats import spearmanr  # here: the command line need not import scipy to start
+
+    first, second = zip(*pairs)
+    if len(set(first)) < 2 or len(set(second)) < 2:
+        return None
+    return float(spearmanr(first, second).statistic)
 
 
 def objective(fitness: float, properties: Mapping[str, Any], asked: Sequence[Any]) -> float:

@@ -19,7 +19,7 @@ import numpy as np
 from harness.campaigns.store.rows import StoredEvaluation, StoredRun, vector_key
 from harness.errors import InputError, Problem
 from harness.flight.differential import Reveal
-from harness.flight.fitness import Status
+from harness.flight.fitness import COULD_NOT_FINISH, Status
 
 if TYPE_CHECKING:
     from harness.flight.results import EvaluationResult
@@ -89,6 +89,8 @@ CREATE TABLE IF NOT EXISTS screen_flights (
     log_path TEXT,
     chosen INTEGER,
     created REAL NOT NULL,
+    predicted_mean REAL,
+    predicted_sd REAL,
     PRIMARY KEY (run_id, vector_key)
 );
 """
@@ -183,6 +185,9 @@ class Store:
             self.db.execute("ALTER TABLE campaigns ADD COLUMN sources TEXT")
         if "scenario_key" not in {row[1] for row in self.db.execute("PRAGMA table_info(runs)")}:
             self.db.execute("ALTER TABLE runs ADD COLUMN scenario_key TEXT")
+        if "predicted_mean" not in {row[1] for row in self.db.execute("PRAGMA table_info(screen_flights)")}:  # screened before the correction
+            self.db.execute("ALTER TABLE screen_flights ADD COLUMN predicted_mean REAL")
+            self.db.execute("ALTER TABLE screen_flights ADD COLUMN predicted_sd REAL")
         self.db.commit()
 
     def close(self) -> None:
@@ -298,19 +303,36 @@ class Store:
                             (run_id, key, result.fitness, str(result.status), json.dumps(result.properties) if result.properties else None,
                              result.log_path, time.time()))
 
-    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool]) -> None:
-        """Which cheaply flown candidates the screen chose for a real flight: kept, so that a
-        resumed run decides as the first did."""
+    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool], predicted: Mapping[str, tuple[float, float]]) -> None:
+        """Which cheaply flown candidates the screen chose for a real flight, and what its
+        correction predicted of them (mean and standard deviation, where one was trained): kept,
+        so that a resumed run decides as the first did and measures the correction alike."""
         with self.db:
-            self.db.executemany("UPDATE screen_flights SET chosen = ? WHERE run_id = ? AND vector_key = ?",
-                                [(int(flag), run_id, key) for key, flag in chosen.items()])
+            self.db.executemany("UPDATE screen_flights SET chosen = ?, predicted_mean = ?, predicted_sd = ? WHERE run_id = ? AND vector_key = ?",
+                                [(int(flag), *predicted.get(key, (None, None)), run_id, key) for key, flag in chosen.items()])
 
     def screen_flights(self, run_id: int) -> dict[str, dict[str, Any]]:
-        """A run's cheap flights by their vector's key: fitness, status, properties, and whether
-        the screen chose it for a real flight (None: not decided yet)."""
-        return {key: {"fitness": fitness, "status": status, "properties": _json(properties) or {}, "chosen": None if chosen is None else bool(chosen)}
-                for key, fitness, status, properties, chosen in self.db.execute(
-                    "SELECT vector_key, fitness, status, properties, chosen FROM screen_flights WHERE run_id = ?", (run_id,))}
+        """A run's cheap flights by their vector's key: fitness, status, properties, whether the
+        screen chose it for a real flight (None: not decided yet) and what its correction
+        predicted (mean and standard deviation; None: no correction trained)."""
+        return {key: {"fitness": fitness, "status": status, "properties": _json(properties) or {}, "chosen": None if chosen is None else bool(chosen),
+                      "predicted": None if mean is None else (mean, sd)}
+                for key, fitness, status, properties, chosen, mean, sd in self.db.execute(
+                    "SELECT vector_key, fitness, status, properties, chosen, predicted_mean, predicted_sd FROM screen_flights WHERE run_id = ?", (run_id,))}
+
+    def earlier_screen_pairs(self, run_id: int) -> list[dict[str, Any]]:
+        """The candidates flown both ways, cheaply and for real to the end, in the store's runs
+        of the same scenario before this one: what the screen's correction learns from first."""
+        query = (
+            "SELECT s.run_id, s.vector_key, e.vector, s.fitness, s.properties, e.fitness, e.properties FROM runs this"
+            " JOIN runs r ON r.scenario_key = this.scenario_key AND r.id < this.id"
+            " JOIN screen_flights s ON s.run_id = r.id JOIN evaluations e ON e.run_id = s.run_id AND e.vector_key = s.vector_key"
+            f" WHERE this.id = ? AND e.status NOT IN ({', '.join('?' * len(COULD_NOT_FINISH | {Status.INFEASIBLE}))}) ORDER BY s.run_id, s.vector_key"
+        )
+        return [{"run_id": earlier, "key": key, "vector": json.loads(vector), "cheap_fitness": cheap, "cheap_properties": _json(cheap_properties) or {},
+                 "fitness": fitness, "properties": _json(properties) or {}}
+                for earlier, key, vector, cheap, cheap_properties, fitness, properties in self.db.execute(
+                    query, (run_id, *sorted(str(status) for status in COULD_NOT_FINISH | {Status.INFEASIBLE})))]
 
     def rejudge(self, evaluation_id: int, differential: Mapping[str, Any]) -> None:
         """Replace a pair's verdict and flights (harness/campaigns/rejudge.py)."""

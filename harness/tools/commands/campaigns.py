@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Sequence
 
 from harness.errors import InfrastructureError, InputError, Problem
 from harness.execution import registry as executors
-from harness.campaigns.screen import SCREENS
+from harness.campaigns.screen import CORRECTIONS, SCREENS
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
@@ -74,6 +74,9 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screen-share", type=share, default=0.3, help="with --screen: the share of each batch flown for real as the most promising (default 0.3)")
     p.add_argument("--screen-explore", type=share, default=0.1,
                    help="with --screen: the chance that each of the others is flown for real all the same, so the screen's blind spots are sampled (default 0.1)")
+    p.add_argument("--screen-correction", choices=CORRECTIONS, default="gp",
+                   help="with --screen: gp trains a Gaussian process on the candidates flown both ways (this run's and the store's earlier runs' "
+                        "of the scenario) to correct the cheap model; none ranks by the cheap flights alone (default gp)")
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
 
@@ -106,7 +109,7 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     if args.screen != "none":
         if config.reference is not None:
             raise InputError([Problem("--screen", "", "screens a campaign of one SUT; a differential campaign (--reference-...) flies every candidate on both")])
-        config = replace(config, screen=ScreenSettings(screen_sut(sut), args.screen_share, args.screen_explore))
+        config = replace(config, screen=ScreenSettings(screen_sut(sut), args.screen_share, args.screen_explore, correction=args.screen_correction))
         if sut.params and not config.screen.sut.params:
             log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it yet", sut.name)
     if args.stop_at_reveal and config.reference is None:
