@@ -74,6 +74,54 @@ DEFAULT_PARAMS: dict[str, float] = {
 }
 
 
+# ArduCopter's own defaults (4.7, read from its source) of the parameters that have a counterpart
+# in the bundled autopilot: what the subject flies with where neither the adapter nor the user
+# sets them. Speeds and accelerations in cm/s and cm/s^2, angles in centidegrees, as ArduPilot has them.
+ARDUCOPTER_DEFAULTS: dict[str, float] = {
+    "AVOID_ENABLE": 3, "AVOID_MARGIN": 2.0, "AVOID_BEHAVE": 0, "OA_TYPE": 0, "OA_MARGIN_MAX": 5.0,
+    "LOIT_SPEED": 1250, "LOIT_ACC_MAX": 500, "WPNAV_SPEED": 1000, "WPNAV_ACCEL": 250, "WPNAV_SPEED_UP": 250, "WPNAV_SPEED_DN": 150,
+    "WPNAV_RADIUS": 200, "ANGLE_MAX": 3000, "LAND_SPEED": 50, "RTL_ALT": 1500, "FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5,
+}
+AVOID_USE_PROXIMITY = 2  # AVOID_ENABLE's bit for proximity sensors
+# FS_GCS_ENABLE's actions as PX4's NAV_DLL_ACT: RTL (and SmartRTL, Auto-RTL) as Return, Land as Land, Brake as Hold.
+GCS_FAILSAFE_AS_NAV_DLL_ACT = {0: 0, 1: 2, 2: 2, 3: 2, 4: 3, 5: 3, 6: 2, 7: 1}
+
+
+def bundled_equivalent(params: Mapping[str, float], drive: str) -> dict[str, float]:
+    """The PX4 parameters that make the bundled autopilot fly as ArduCopter would with `params`
+    (over the adapter's defaults and ArduCopter's), where it has a counterpart: the screen's cheap
+    model of an ArduPilot subject (harness/campaigns/screen.py).
+
+    Simple avoidance acts on the pilot's sticks in Loiter and not in Auto, where only the path
+    planner (OA_TYPE) steers round obstacles: in the mission drive the cheap model has collision
+    prevention only with a path planner, keeping its largest margin. Avoidance that stops
+    (AVOID_BEHAVE 1) rather than slides has no guidance towards free space. The GCS failsafe's
+    timeout counts from the last heartbeat, the bundled autopilot's (as PX4's) from 2.5 s after
+    it, and acts at once."""
+    given = {**ARDUCOPTER_DEFAULTS, **DEFAULT_PARAMS, **params}
+    proximity = int(given["AVOID_ENABLE"]) & AVOID_USE_PROXIMITY
+    if drive == "pilot":
+        keeps = given["AVOID_MARGIN"] if proximity else -1.0
+    else:
+        keeps = given["OA_MARGIN_MAX"] if int(given["OA_TYPE"]) else -1.0
+    loss_action = GCS_FAILSAFE_AS_NAV_DLL_ACT.get(int(given["FS_GCS_ENABLE"]), 2)
+    return {
+        "CP_DIST": keeps,
+        **({"CP_GUIDE_ANG": 0.0} if drive == "pilot" and int(given["AVOID_BEHAVE"]) == 1 else {}),
+        "MPC_VEL_MANUAL": given["LOIT_SPEED"] / 100.0,
+        "MPC_ACC_HOR": (given["LOIT_ACC_MAX"] if drive == "pilot" else given["WPNAV_ACCEL"]) / 100.0,
+        "MPC_XY_CRUISE": given["WPNAV_SPEED"] / 100.0,
+        "MPC_Z_VEL_MAX_UP": given["WPNAV_SPEED_UP"] / 100.0,
+        "MPC_Z_VEL_MAX_DN": given["WPNAV_SPEED_DN"] / 100.0,
+        "NAV_ACC_RAD": given["WPNAV_RADIUS"] / 100.0,
+        "MPC_TILTMAX_AIR": given["ANGLE_MAX"] / 100.0,
+        "MPC_LAND_SPEED": given["LAND_SPEED"] / 100.0,
+        "RTL_RETURN_ALT": given["RTL_ALT"] / 100.0,
+        "NAV_DLL_ACT": loss_action,
+        **({"COM_DL_LOSS_T": max(5, round(given["FS_GCS_TIMEOUT"] - 2.5)), "COM_FAIL_ACT_T": 0.0} if loss_action else {}),
+    }
+
+
 def resolve_binary(given: str | None) -> Path:
     """The arducopter binary from a binary, a build folder (build/sitl) or a source tree, or
     STELLA_ARDUPILOT_BIN's where none is given."""

@@ -144,9 +144,41 @@ def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_opti
 
 
 def test_the_cheap_model_takes_the_subjects_px4_parameters_and_never_its_seeded_fault():
-    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x")) == SutConfig("bundled", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0})
-    assert screen_sut(SutConfig("bundled", {"CP_DIST": 2.0}, fault="cp_ignores_delay")) == SutConfig("bundled", {"CP_DIST": 2.0})
-    assert screen_sut(SutConfig("ardupilot", {"AVOID_MARGIN": 3.0})) == SutConfig("bundled", {})  # ArduPilot's names not mapped yet
+    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x"), "pilot") == SutConfig("bundled", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0})
+    assert screen_sut(SutConfig("bundled", {"CP_DIST": 2.0}, fault="cp_ignores_delay"), "mission") == SutConfig("bundled", {"CP_DIST": 2.0})
+
+
+def test_an_ardupilot_subject_is_screened_by_the_bundled_autopilot_with_its_counterparts_of_arducopters_parameters():
+    loiter = screen_sut(SutConfig("ardupilot", {"AVOID_MARGIN": 3.0, "LOIT_SPEED": 500, "FS_GCS_ENABLE": 1}), "pilot").params
+    # simple avoidance's margin in Loiter, its speed and acceleration in m/s, the GCS failsafe's RTL acting at once
+    assert (loiter["CP_DIST"], loiter["MPC_VEL_MANUAL"], loiter["MPC_ACC_HOR"]) == (3.0, 5.0, 5.0)
+    assert (loiter["NAV_DLL_ACT"], loiter["COM_FAIL_ACT_T"], loiter["MPC_TILTMAX_AIR"]) == (2, 0.0, 30.0)
+    # the adapter's margin (1 m) over ArduCopter's (2 m); avoidance that stops has no guidance; no proximity, no avoidance
+    assert screen_sut(SutConfig("ardupilot", {"AVOID_BEHAVE": 1}), "pilot").params["CP_DIST"] == 1.0
+    assert screen_sut(SutConfig("ardupilot", {"AVOID_BEHAVE": 1}), "pilot").params["CP_GUIDE_ANG"] == 0.0
+    assert screen_sut(SutConfig("ardupilot", {"AVOID_ENABLE": 1}), "pilot").params["CP_DIST"] == -1.0
+    # Auto avoids nothing without a path planner, and keeps the planner's margin with one
+    assert screen_sut(SutConfig("ardupilot", {}), "mission").params["CP_DIST"] == -1.0
+    assert screen_sut(SutConfig("ardupilot", {"OA_TYPE": 1, "OA_MARGIN_MAX": 3.0}), "mission").params["CP_DIST"] == 3.0
+    # every counterpart is a parameter the bundled autopilot models, within its range
+    from autopilot.params import BY_NAME
+
+    for drive in ("pilot", "mission"):
+        for name, value in screen_sut(SutConfig("ardupilot", {"FS_GCS_ENABLE": 5}), drive).params.items():
+            assert BY_NAME[name].min <= value <= BY_NAME[name].max, name
+
+
+def test_an_ardupilot_campaign_of_both_drives_is_not_screened_with_one_mapping(tmp_path, capsys):
+    pilot = tmp_path / "pilot.json"
+    document = json.loads(Path(WALL).read_text())
+    pilot.write_text(json.dumps({**document, "mission": {**document.get("mission", {}), "drive": "pilot"}}))
+    # an executable where the build should be: the options are refused before anything would run it
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "arducopter").write_text("#!/bin/sh\nexit 1\n")
+    (tmp_path / "bin" / "arducopter").chmod(0o755)
+    assert main(["campaign", WALL, str(pilot), "--algorithm", "RANDOM", "--evaluations", "2", "--sut", "ardupilot", "--ardupilot-bin", str(tmp_path),
+                 "--screen", "bundled", "--store", str(tmp_path / "c.db")]) == 2
+    assert "--screen: maps ArduPilot's parameters onto the cheap model by drive" in capsys.readouterr().err
 
 
 def screened_campaign(tmp_path: Path, capsys, store: Path) -> dict:

@@ -64,12 +64,17 @@ class ScreenSettings:
                 "min_pairs": self.min_pairs, "min_correlation": self.min_correlation, **corrected}
 
 
-def screen_sut(subject: SutConfig) -> SutConfig:
-    """The bundled autopilot configured like the subject: PX4's parameter names as the subject's
-    (the bundled autopilot takes PX4's names, and accepts those it does not model without effect);
-    none of the subject's seeded fault, which the cheap model is not to know of."""
-    params = dict(subject.params) if subject.name in ("px4", "bundled") else {}
-    return SutConfig("bundled", params)
+def screen_sut(subject: SutConfig, drive: str) -> SutConfig:
+    """The bundled autopilot configured like the subject: a PX4 subject's parameters as given (the
+    bundled autopilot takes PX4's names, and accepts those it does not model without effect); an
+    ArduPilot subject's mapped onto their counterparts, which depend on the drive
+    (sut_adapter/ardupilot.py: bundled_equivalent); none of the subject's seeded fault, which the
+    cheap model is not to know of."""
+    if subject.name == "ardupilot":
+        from sut_adapter.ardupilot import bundled_equivalent
+
+        return SutConfig("bundled", bundled_equivalent(subject.params, drive))
+    return SutConfig("bundled", dict(subject.params) if subject.name in ("px4", "bundled") else {})
 
 
 @dataclass(frozen=True)

@@ -93,8 +93,7 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
             parse_algorithm(algorithm)
         except ValueError as error:
             raise InputError([Problem("--algorithm", "", str(error))]) from None
-    for scenario in args.scenarios:
-        load_logical(Path(scenario), load_profile(args.profile), args.drive, mission_plan(args))
+    drives = {load_logical(Path(scenario), load_profile(args.profile), args.drive, mission_plan(args)).drive for scenario in args.scenarios}
     sut = sut_spec(args)
     check_transport(args.transport, sut)
     config = CampaignConfig(tuple(args.scenarios), tuple(a.upper() for a in args.algorithm), args.evaluations, args.runs, args.seed,
@@ -109,9 +108,13 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     if args.screen != "none":
         if config.reference is not None:
             raise InputError([Problem("--screen", "", "screens a campaign of one SUT; a differential campaign (--reference-...) flies every candidate on both")])
-        config = replace(config, screen=ScreenSettings(screen_sut(sut), args.screen_share, args.screen_explore, correction=args.screen_correction))
-        if sut.params and not config.screen.sut.params:
-            log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it yet", sut.name)
+        if sut.name == "ardupilot" and len(drives) > 1:
+            raise InputError([Problem("--screen", "", "maps ArduPilot's parameters onto the cheap model by drive (simple avoidance acts in Loiter, "
+                                                      "not in Auto): give --drive, or screen the scenarios of each drive in a campaign of their own")])
+        config = replace(config, screen=ScreenSettings(screen_sut(sut, drives.pop()), args.screen_share, args.screen_explore,
+                                                       correction=args.screen_correction))
+        if sut.params and sut.name not in ("px4", "bundled", "ardupilot"):
+            log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it", sut.name)
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config
