@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -234,6 +235,16 @@ def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_pa
     survived = quiet["id"] in {m["id"] for m in report["survivors"]}
     assert table["harness_only"] == [braking["id"]] and not table["neither"]
     assert table["other_only" if survived else "both"] == [quiet["id"]]
+
+    # AND searched with a screen, in a copy of the folder: the unmutated bundled autopilot flies
+    # each of a survivor's candidates first, and a folder searched without one says so
+    screened = tmp_path / "screened"
+    shutil.copytree(folder, screened, ignore=shutil.ignore_patterns("search", mutation.RUN))
+    assert main([*argv[:2], str(screened), *argv[3:], "--screen", "bundled"]) == 0
+    for search in (screened / "search" / quiet["id"]).glob("*.db"):
+        with contextlib.closing(sqlite3.connect(search)) as store:
+            assert store.execute("SELECT COUNT(*) FROM screen_flights").fetchone()[0] >= 1
+    assert main([*argv, "--screen", "bundled"]) == 2
 
 
 @pytest.mark.slow

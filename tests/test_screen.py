@@ -227,3 +227,23 @@ def test_a_screened_campaign_flies_the_subject_only_where_the_cheap_model_ranks_
         db.execute("UPDATE runs SET finished = NULL")
     resumed = screened_campaign(tmp_path, capsys, tmp_path / "b.db")
     assert resumed["replayed"] == 4 and real_flights(tmp_path / "b.db") == real and resumed["screen"] == screen
+
+
+@pytest.mark.slow
+def test_a_differential_campaign_is_screened_once_the_correction_has_learned_what_the_cheap_clearance_means_for_the_difference(tmp_path, capsys):
+    # GIVEN a subject with the seeded fault against the bundled autopilot without it, searched for
+    # the difference of their clearances, which one cheap flight's clearance does not measure
+    store = tmp_path / "d.db"
+    assert main(["campaign", WALL, "--algorithm", "RANDOM", "--evaluations", "12", "--batch", "6", "--seed", "5", "--workers", "2",
+                 "--sut-fault", "cp_ignores_delay", "--reference-sut", "bundled", "--objective", "difference",
+                 "--screen", "bundled", "--store", str(store), "--json"]) == 0
+    screen = json.loads(capsys.readouterr().out)["runs"][0]["screen"]
+    with sqlite3.connect(store) as db:
+        decided = db.execute("SELECT chosen, predicted_mean IS NOT NULL FROM screen_flights WHERE chosen IS NOT NULL ORDER BY created").fetchall()
+        pairs = db.execute("SELECT COUNT(*) FROM evaluations WHERE differential IS NOT NULL").fetchone()[0]
+        flown = db.execute("SELECT COUNT(*) FROM evaluations WHERE status != 'infeasible'").fetchone()[0]
+    # THEN every candidate was flown as a pair until the correction was trained, and only then screened
+    untrained = [chosen for chosen, predicted in decided if not predicted]
+    assert untrained and all(untrained)
+    assert any(predicted and not chosen for chosen, predicted in decided)
+    assert pairs == flown and screen["pairs"] == flown and screen["corrected_rank_correlation"] is not None

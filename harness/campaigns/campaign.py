@@ -296,7 +296,8 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                 if finished:
                     continue
                 screen = None if config.screen is None else Screen(config.screen, executor, store, run_id, seed, out_dir / f"run{run_id}" / "screen",
-                                                                  options, space, config.properties)
+                                                                  options, space, config.properties,
+                                                                  comparable=config.reference is None or config.objective != "difference")
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
                                           each_property=config.objective == "properties", screen=screen)

@@ -108,6 +108,9 @@ class Screen:
     options: RunOptions
     space: SearchSpace
     properties: Sequence[Any] = ()  # the campaign's safety properties (their least robustness is the objective)
+    # Whether the cheap objective means what the real one does; the clearance of one cheap flight
+    # does not mean the difference of a subject's and a reference's (--objective difference).
+    comparable: bool = True
     _cheap: dict[str, CheapOutcome] = field(default_factory=dict)
     _chosen: dict[str, bool] = field(default_factory=dict)  # the screen's decision on each candidate it ranked
     _predicted: dict[str, Prediction] = field(default_factory=dict)  # the correction's prediction where one was trained
@@ -160,17 +163,18 @@ class Screen:
     def choose(self, candidates: Sequence[tuple[str, np.ndarray]]) -> set[str]:
         """Of these candidates, all flown cheaply, the ones to fly for real: the most promising
         share, and each of the others with the explore chance; every one once the screen has
-        fallen back. Promising is the least cheap objective, or with a correction trained, the
+        fallen back, and, where the cheap objective is not comparable with the real one, until a
+        correction is trained to translate it. Promising is the least cheap objective, or with a correction trained, the
         least real objective to be expected with some luck (Prediction.optimistic). A batch decided before (a resumed run) is decided
         alike; a new one by a generator seeded with the run's seed and the batch's candidates."""
         keys = [key for key, _x in candidates]
         if all(key in self._chosen for key in keys):
             return {key for key in keys if self._chosen[key]}
         predicted: dict[str, Prediction] = {}
-        if self.fell_back:
+        model = None if self.fell_back else self._model()
+        if self.fell_back or (model is None and not self.comparable):
             decided = {key: True for key in keys}
         else:
-            model = self._model()
             if model is not None:
                 predicted = dict(zip(keys, model.predict(np.array([x for _key, x in candidates]), np.array([self._cheap[key].objective for key in keys]))))
             batch = hashlib.sha256("".join(sorted(keys)).encode()).digest()

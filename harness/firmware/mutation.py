@@ -35,6 +35,7 @@ from scipy.stats import fisher_exact
 from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
 from harness.campaigns.rejudge import Rejudgement, complete_references, rejudge as rejudge_store
+from harness.campaigns.screen import ScreenSettings
 from harness.campaigns.regression import suite_cases
 from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
@@ -65,6 +66,7 @@ class MutationPlan:
     objective: str = "difference"
     sut_params: Mapping[str, float] = field(default_factory=dict)
     sut_logs: str = "all"  # RunOptions.sut_logs: which flights keep the SUT's own logs
+    screen: ScreenSettings | None = None  # the searches' candidates flown on a cheap model first (harness/campaigns/screen.py)
 
     def screening(self) -> dict[str, Any]:
         """What decides the suite's verdicts: a folder's mutants are screened once with these.
@@ -73,7 +75,8 @@ class MutationPlan:
                 "sut_params": dict(self.sut_params)}
 
     def searching(self) -> dict[str, Any]:
-        return {"evaluations": self.evaluations, "population": self.population, "objective": self.objective}
+        screened = {"screen": self.screen.identity()} if self.screen is not None else {}
+        return {"evaluations": self.evaluations, "population": self.population, "objective": self.objective, **screened}
 
 
 def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
@@ -200,7 +203,7 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     """One differential campaign of the algorithm on the scenario against the mutant: when it
     first revealed a difference, and at which level."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
-                            confirm=plan.confirm, reference=reference, objective=plan.objective)
+                            confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen)
     store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,

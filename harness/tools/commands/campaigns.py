@@ -25,7 +25,9 @@ from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
     from harness.campaigns.campaign import CampaignConfig, RunSummary
+    from harness.campaigns.screen import ScreenSettings
     from harness.flight.results import EvaluationResult
+    from sut_adapter import SutConfig
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +70,13 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
                    help="score this safety property on every flight and search for the least robustness among those given instead of f "
                         "(`stella properties` names them; or a JSON property file); repeatable")
     add_reference_options(p, campaign=True)
+    add_screen_options(p)
+    p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
+
+
+
+def add_screen_options(p: argparse.ArgumentParser) -> None:
+    """Screening (harness/campaigns/screen.py), for campaigns and mutants' searches alike."""
     p.add_argument("--screen", choices=SCREENS, default="none",
                    help="fly each batch on the bundled autopilot configured like the SUT first, and the SUT only where those flights rank it worth it "
                         "(--evaluations then counts the SUT's flights); default none")
@@ -77,14 +86,29 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screen-correction", choices=CORRECTIONS, default="gp",
                    help="with --screen: gp trains a Gaussian process on the candidates flown both ways (this run's and the store's earlier runs' "
                         "of the scenario) to correct the cheap model; none ranks by the cheap flights alone (default gp)")
-    p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
+
+
+def screen_settings(args: argparse.Namespace, sut: SutConfig, drives: set[str], objective: str) -> ScreenSettings | None:
+    """What --screen and its options ask for, checked; None without a screen."""
+    from harness.campaigns.screen import ScreenSettings, screen_sut
+
+    if args.screen == "none":
+        return None
+    if objective == "difference" and args.screen_correction == "none":
+        raise InputError([Problem("--screen-correction", "", "none ranks by the cheap flights' clearance, which is not the difference of two SUTs "
+                                                              "that --objective difference searches: use the correction (gp)")])
+    if sut.name == "ardupilot" and len(drives) > 1:
+        raise InputError([Problem("--screen", "", "maps ArduPilot's parameters onto the cheap model by drive (simple avoidance acts in Loiter, "
+                                                  "not in Auto): give --drive, or screen the scenarios of each drive in a campaign of their own")])
+    if sut.params and sut.name not in ("px4", "bundled", "ardupilot"):
+        log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it", sut.name)
+    return ScreenSettings(screen_sut(sut, next(iter(drives), "mission")), args.screen_share, args.screen_explore, correction=args.screen_correction)
 
 
 def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     """The campaign a `stella campaign` command line asks for, every option checked before anything
     starts: what the command runs, and how the campaign page checks a campaign set up on it."""
     from harness.campaigns.campaign import CampaignConfig
-    from harness.campaigns.screen import ScreenSettings, screen_sut
     from harness.properties.spec import load_property
     from harness.search.optimizers import parse_algorithm
 
@@ -105,16 +129,7 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
                                                     "(a differential campaign then compares the properties of both sides too)")])
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
-    if args.screen != "none":
-        if config.reference is not None:
-            raise InputError([Problem("--screen", "", "screens a campaign of one SUT; a differential campaign (--reference-...) flies every candidate on both")])
-        if sut.name == "ardupilot" and len(drives) > 1:
-            raise InputError([Problem("--screen", "", "maps ArduPilot's parameters onto the cheap model by drive (simple avoidance acts in Loiter, "
-                                                      "not in Auto): give --drive, or screen the scenarios of each drive in a campaign of their own")])
-        config = replace(config, screen=ScreenSettings(screen_sut(sut, drives.pop()), args.screen_share, args.screen_explore,
-                                                       correction=args.screen_correction))
-        if sut.params and sut.name not in ("px4", "bundled", "ardupilot"):
-            log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it", sut.name)
+    config = replace(config, screen=screen_settings(args, sut, drives, config.objective))
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config

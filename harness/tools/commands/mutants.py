@@ -11,9 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import InputError, Problem
+from harness.tools.commands.campaigns import add_screen_options, screen_settings
 from harness.tools.commands.common import command, command_with_actions, emit, non_negative_int, positive_float, positive_int
 from harness.tools.commands.sut import worktree_option
 from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
+from sut_adapter import SutConfig
 
 command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, rejudge, report",
                      description="Mutants of one C/C++ or Python file, built as cached variants, each attacked by differential "
@@ -69,6 +71,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--drive", choices=["mission", "pilot"], help="fly every case and scenario with this drive (PX4's CP acts in pilot only)")
     p.add_argument("--objective", choices=["subject", "difference"], default="difference", help="what the searches minimise (default difference)")
+    add_screen_options(p)
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
     add_sut_logs_option(p)
@@ -89,7 +92,9 @@ def mutants_run(args: argparse.Namespace) -> int:
     params.update(sut_param_values(args.sut_param))
     plan = mutation.MutationPlan(_suite(args.suite), tuple(args.scenario), tuple(a.upper() for a in (args.algorithm or ["NSGAII", "RANDOM"])),
                                  args.evaluations, args.population, args.confirm, args.seed, args.drive, args.objective, params,
-                                 sut_logs=args.sut_logs)
+                                 sut_logs=args.sut_logs,
+                                 # the cheap model: the bundled autopilot unmutated, with the parameters of both sides
+                                 screen=screen_settings(args, SutConfig("bundled", params), {args.drive or "mission"}, args.objective))
     executor = LocalExecutor(args.workers or len(os.sched_getaffinity(0)))
     try:
         document = mutation.run(Path(args.folder), plan, executor, only=args.only, progress=lambda line: print(line, file=sys.stderr))
