@@ -12,7 +12,7 @@ import time
 from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.api import ApiLink
-from autopilot.collision import STALE_HOLD_S, ObstacleMap, constrain_velocity
+from autopilot.collision import STALE_HOLD_S, ObstacleMap, constrain_velocity, px4_stick_acceleration
 from autopilot.commander import MAIN_AUTO, SUB_AUTO_LOITER, Commander, MissionItem, VehicleEstimate
 from autopilot.control import (
     PositionControl,
@@ -221,6 +221,9 @@ class Autopilot:
             if sticks is not None:
                 self.commander.on_sticks(sticks, self.vehicle_estimate())
 
+    def _stick_collision_prevention(self, accel_ne: tuple, velocity_ne: tuple) -> tuple:
+        return px4_stick_acceleration(self.params, self.obstacles, self.now_s, accel_ne, velocity_ne)
+
     def _hold_without_range_data(self, estimate: VehicleEstimate) -> None:
         """PX4's collision prevention in Position mode: once range data has been stale for
         STALE_HOLD_S (TIMEOUT_HOLD_US), with the module active that long, it switches to Hold."""
@@ -282,16 +285,20 @@ class Autopilot:
             horizontal = altitude_mode_thrust(params, commander.manual, estimate.yaw_rad)
         else:
             horizontal = (0.0, 0.0)
+        # PX4 since v1.15 (CP_STICK_ACCEL): collision prevention reshapes the sticks' acceleration
+        # in Position mode, instead of limiting the velocity setpoint.
+        stick_cp = manual and positioned and not commander.landed and params["CP_STICK_ACCEL"] > 0 and params["CP_DIST"] >= 0.0
         if manual:
             if not self._manual_active:
                 self.position_mode.reset(est.vel[0], est.vel[1], est.pos, estimate.yaw_rad)
-            north, east, down, vn, ve, vd, yaw = self.position_mode.update(dt, commander.manual, est.pos, estimate.yaw_rad)
+            north, east, down, vn, ve, vd, yaw = self.position_mode.update(dt, commander.manual, est.pos, estimate.yaw_rad,
+                                                                           self._stick_collision_prevention if stick_cp else None)
             sp = Setpoint(north_m=north, east_m=east, down_m=down, v_north_m_s=vn, v_east_m_s=ve, v_down_m_s=vd, yaw_rad=yaw)
             if positioned:
                 self._hold_without_range_data(estimate)
         self._manual_active = manual
         vel_sp = self.position_control.velocity_setpoint(sp, est.pos, params["MPC_XY_VEL_MAX"])
-        if not commander.landed and positioned:
+        if not commander.landed and positioned and not stick_cp:
             vn, ve = constrain_velocity(params, self.obstacles, self.now_s, (vel_sp[0], vel_sp[1]), (est.vel[0], est.vel[1]))
             vel_sp = (vn, ve, vel_sp[2])
             if manual and self.position_mode.hold_ne is None:

@@ -4,7 +4,7 @@ import cython
 
 cdef class ObstacleMap:
     cdef public object fault
-    cdef public list distances, occupied, unknown
+    cdef public list distances, occupied, unknown, clear
     cdef public double updated_s, max_range_m
 
     @cython.locals(bins=list, step=cython.double, offset=cython.double, reference=cython.double, sign=cython.double, index=cython.Py_ssize_t,
@@ -27,3 +27,17 @@ cpdef double guided_direction(ObstacleMap obstacles, double direction_rad, doubl
                narrow_view=cython.bint, braking_m=cython.double, direction=cython.double, bin_n=cython.double, bin_e=cython.double,
                distance=cython.double, towards=cython.double, stop_distance=cython.double, allowed=cython.double, along=cython.double, changed=cython.bint)
 cpdef constrain_velocity(params, ObstacleMap obstacles, double now_s, setpoint_ne, velocity_ne)
+
+cpdef double _stick_scale(double distance, double keep, double scale_distance)
+
+@cython.locals(best_cost=cython.double, best=cython.int, span=cython.int, i=cython.int, j=cython.int, mean=cython.double, cost=cython.double)
+cpdef int px4_guided_bin(list view, int home, double keep, double guide_angle_deg)
+
+@cython.locals(a_n=cython.double, a_e=cython.double, length=cython.double, reach=cython.double, keep=cython.double, scale_distance=cython.double,
+               closest_n=cython.double, closest_e=cython.double, closest=cython.double, dir_n=cython.double, dir_e=cython.double,
+               new_n=cython.double, new_e=cython.double, towards=cython.double, normal_n=cython.double, normal_e=cython.double,
+               tangential_n=cython.double, tangential_e=cython.double, along=cython.double, normal_scale=cython.double,
+               tangential_scale=cython.double, delay=cython.double, age=cython.double, gain=cython.double, braking=cython.double,
+               brake_n=cython.double, brake_e=cython.double, bin_n=cython.double, bin_e=cython.double, distance=cython.double,
+               parallel=cython.double, delay_m=cython.double, stop_distance=cython.double, constraint=cython.double, index=cython.int, view=list)
+cpdef tuple px4_stick_acceleration(params, ObstacleMap obstacles, double now_s, tuple accel_ne, tuple velocity_ne)

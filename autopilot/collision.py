@@ -44,6 +44,7 @@ class ObstacleMap:
         # and the directions without data.
         self.occupied: list[tuple[float, float, float]] = []
         self.unknown: list[tuple[float, float]] = list(BIN_DIRECTIONS)
+        self.clear: list[tuple[float, float]] = []  # directions with nothing within range
 
     def update(self, now_s: float, yaw_rad: float, distances_cm: list[int], increment_deg: float, angle_offset_deg: float,
                min_cm: int, max_cm: int) -> None:
@@ -71,6 +72,7 @@ class ObstacleMap:
         self.max_range_m = max_cm / 100.0
         self.occupied = [(*BIN_DIRECTIONS[i], d) for i, d in enumerate(bins) if d is not None and not math.isinf(d)]
         self.unknown = [BIN_DIRECTIONS[i] for i, d in enumerate(bins) if d is None]
+        self.clear = [BIN_DIRECTIONS[i] for i, d in enumerate(bins) if d is not None and math.isinf(d)]
 
     def fresh(self, now_s: float) -> bool:
         return now_s - self.updated_s <= STALE_AFTER_S
@@ -161,3 +163,105 @@ def constrain_velocity(
         if not changed:
             break
     return vn, ve
+
+
+def _stick_scale(distance: float, keep: float, scale_distance: float) -> float:
+    """PX4's CollisionPrevention::_getScale: 1 far away, quadratically less within scale_distance
+    beyond the distance to keep, negative (away) inside it."""
+    scale = distance - keep
+    return min(1.0, (scale / scale_distance) ** 2 if scale > 0.0 else scale)
+
+
+def px4_guided_bin(view: list, home: int, keep: float, guide_angle_deg: float) -> int:
+    """The sector PX4's CollisionPrevention::_adaptSetpointDirection turns a setpoint in sector
+    `home` into: of the sectors with data within CP_GUIDE_ANG, the one with the least cost, in
+    centimetres, 50 CP_DIST per sector turned less the sector's distance and the mean over it and
+    its neighbours (a neighbour without data counting as CP_DIST). view: metres or None per sector."""
+    best_cost, best = 9999.0, home
+    span = int(guide_angle_deg // 5.0)
+    for i in range(home - span, home + span + 1):
+        mean = 0.0
+        for j in (i - 1, i, i + 1):
+            near = view[j % BINS]
+            mean += keep * 100.0 if near is None else near * 100.0
+        here = view[i % BINS]
+        if here is None:
+            continue
+        cost = keep * 50.0 * abs(i - home) - mean / 3.0 - here * 100.0
+        if cost < best_cost:
+            best_cost, best = cost, i % BINS
+    return best
+
+
+def px4_stick_acceleration(params, obstacles: ObstacleMap, now_s: float, accel_ne: tuple[float, float], velocity_ne: tuple[float, float]) -> tuple[float, float]:
+    """The stick's acceleration setpoint in Position mode as PX4's collision prevention leaves it
+    since v1.15 (CollisionPrevention::modifySetpoint on StickAccelerationXY, MPC_POS_MODE 4), for
+    CP_STICK_ACCEL 1:
+
+    * A direction the sensor sees nothing in holds an obstacle at the sensor's reach
+      (_addDistanceSensorData clamps a reading to max_distance): in fog, the vehicle sees a wall
+      a few metres ahead wherever it looks.
+    * The acceleration towards the closest obstacle, and along it by the obstacle in that
+      direction, is scaled by ((d - CP_DIST) / max(CP_DIST, MPC_VEL_MANUAL / MPC_XY_P))^2, at most
+      1: PX4 slows down from about 11 m before anything it sees, not only where it must brake.
+    * A direction without data is refused unless CP_GO_NO_DATA.
+    * A braking acceleration MPC_XY_VEL_P_ACC (v_max - v) in the direction where the velocity
+      setpoint most exceeds the speed v_max from which a stop (MPC_ACC_HOR, MPC_JERK_MAX) still
+      keeps CP_DIST, after CP_DELAY and the data's age.
+
+    * The setpoint's direction turned by up to CP_GUIDE_ANG into the sector PX4's
+      _adaptSetpointDirection picks (px4_guided_bin)."""
+    a_n, a_e = accel_ne
+    length = math.hypot(a_n, a_e)
+    if length <= 0.001:  # PX4's is_stick_deflected
+        return accel_ne
+    if not obstacles.fresh(now_s):
+        return 0.0, 0.0
+    reach = obstacles.max_range_m
+    seen = obstacles.occupied + [(bin_n, bin_e, reach) for bin_n, bin_e in obstacles.clear]
+    if not seen:
+        return accel_ne
+    keep = params["CP_DIST"]
+    scale_distance = max(keep, params["MPC_VEL_MANUAL"] / params["MPC_XY_P"])
+    view = [None if d is None else min(d, reach) for d in obstacles.distances]
+    closest_n, closest_e, closest = seen[0]
+    for bin_n, bin_e, distance in seen:
+        if distance < closest:
+            closest_n, closest_e, closest = bin_n, bin_e, distance
+    index = px4_guided_bin(view, _bin_of(math.atan2(a_e, a_n)), keep, params["CP_GUIDE_ANG"])
+    if index == _bin_of(math.atan2(a_e, a_n)):
+        dir_n, dir_e = a_n / length, a_e / length
+    else:
+        dir_n, dir_e = BIN_DIRECTIONS[index]
+    new_n = new_e = 0.0
+    if view[index] is not None or params["CP_GO_NO_DATA"] >= 1:
+        towards = dir_n * closest_n + dir_e * closest_e
+        if towards > 0.0:
+            normal_n, normal_e = closest_n * towards, closest_e * towards
+            tangential_n, tangential_e = dir_n - normal_n, dir_e - normal_e
+            along = math.inf
+            if math.hypot(tangential_n, tangential_e) > 1e-6:
+                found = view[_bin_of(math.atan2(tangential_e, tangential_n))]
+                along = math.inf if found is None else found
+            normal_scale = _stick_scale(closest, keep, scale_distance)
+            tangential_scale = _stick_scale(along, keep, scale_distance)
+            new_n = (tangential_n * tangential_scale + normal_n * normal_scale) * length
+            new_e = (tangential_e * tangential_scale + normal_e * normal_scale) * length
+        else:
+            new_n, new_e = a_n, a_e
+    delay = params["CP_DELAY"]
+    age = max(0.0, now_s - obstacles.updated_s)
+    gain = params["MPC_XY_VEL_P_ACC"]
+    braking, brake_n, brake_e = math.inf, 0.0, 0.0
+    for bin_n, bin_e, distance in seen:
+        parallel = max(0.0, velocity_ne[0] * bin_n + velocity_ne[1] * bin_e)
+        delay_m = parallel * (delay + (age if distance < reach else 0.0))
+        stop_distance = distance - keep - delay_m
+        if stop_distance >= 0.0:
+            constraint = gain * min(max_speed_from_distance(params["MPC_JERK_MAX"], params["MPC_ACC_HOR"], stop_distance) - parallel, 0.0)
+        else:
+            constraint = -gain * parallel
+        if constraint < braking:
+            braking, brake_n, brake_e = constraint, bin_n, bin_e
+    return new_n + braking * brake_n, new_e + braking * brake_e
+

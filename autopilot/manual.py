@@ -9,7 +9,8 @@
   drag term limits the speed to MPC_VEL_MANUAL and brakes when the sticks are released, the
   jerk is limited by MPC_JERK_MAX, and the position and altitude are locked when the vehicle
   stands still. Collision prevention constrains the velocity setpoint this produces (app.py),
-  and `constrained` feeds the constrained value back, as PX4's CP modifies the stick setpoint.
+  and `constrained` feeds the constrained value back; or, with CP_STICK_ACCEL, it reshapes the
+  sticks' acceleration before the drag, as PX4's does since v1.15.
 
 Pure logic over floats with time passed in.
 """
@@ -124,7 +125,9 @@ class PositionMode:
         """Collision prevention's velocity setpoint replaces the one the sticks built up."""
         self.v_north, self.v_east = v_north, v_east
 
-    def update(self, dt: float, sticks: Sticks, position: tuple[float, float, float], yaw: float):
+    def update(self, dt: float, sticks: Sticks, position: tuple[float, float, float], yaw: float, collision_prevention=None):
+        """collision_prevention, where given, reshapes the sticks' acceleration (north, east) given
+        the velocity setpoint, as PX4's acts in StickAccelerationXY (collision.px4_stick_acceleration)."""
         p = self.params
         dz = p["MPC_HOLD_DZ"]
         vel_manual = p["MPC_VEL_MANUAL"]
@@ -137,6 +140,8 @@ class PositionMode:
         cos_y, sin_y = math.cos(yaw), math.sin(yaw)
         stick_n, stick_e = forward * cos_y - right * sin_y, forward * sin_y + right * cos_y
         a_n, a_e = stick_n * acc_scale, stick_e * acc_scale
+        if collision_prevention is not None:
+            a_n, a_e = collision_prevention((a_n, a_e), (self.v_north, self.v_east))
         stick_released = forward == 0.0 and right == 0.0
         alpha = dt / (BRAKE_BOOST_TAU_S + dt)
         boost_target = max(2.0, math.sqrt(vel_manual)) if stick_released else 1.0

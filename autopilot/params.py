@@ -44,6 +44,7 @@ SPECS: tuple[ParamSpec, ...] = (
     _f("CP_DELAY", 0.4, 0.0, 1.0, "s", "Sensor and estimation delay the stopping distance accounts for."),
     _f("CP_GUIDE_ANG", 30.0, 0.0, 90.0, "deg", "Largest angle by which collision prevention turns a blocked velocity setpoint towards free space."),
     _i("CP_GO_NO_DATA", 1, 0, 1, "", "1: allow moving in directions without range data (outside the sensor's field of view). The bundled sensor looks forward only and missions yaw into the direction of travel, so the default is 1 (PX4's is 0)."),
+    _i("CP_STICK_ACCEL", 0, 0, 1, "", "1: in Position mode, collision prevention acts on the sticks' acceleration as PX4's does since v1.15 (autopilot/collision.py: px4_stick_acceleration): slowing down quadratically within MPC_VEL_MANUAL / MPC_XY_P of anything seen, a direction the sensor sees nothing in counting as an obstacle at its reach (in fog, slowly everywhere). 0 (the default): the bundled autopilot's velocity limits, in every mode. Not a PX4 parameter: the screen sets it for a PX4 subject (docs/screening.md)."),
     _f("MPC_XY_CRUISE", 5.0, 0.5, 20.0, "m/s", "Horizontal speed in missions."),
     _f("MPC_XY_VEL_MAX", 12.0, 0.5, 20.0, "m/s", "Largest horizontal velocity setpoint."),
     _f("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "Largest climb rate."),

@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20.common import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_LAND, MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT
 
 from autopilot.app import Autopilot
-from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction
+from autopilot.collision import BINS, ObstacleMap, constrain_velocity, guided_direction, px4_stick_acceleration
 from autopilot.commander import MAIN_AUTO, SUB_AUTO_MISSION, Commander, MissionItem, VehicleEstimate
 from autopilot.control import QUAD_X_MIX, attitude_from_thrust, euler_from_quat, mix, quat_from_euler, quat_rotate
 from autopilot.estimator import Estimator, GpsFix
@@ -133,6 +133,55 @@ def test_directions_without_data_block_only_when_cp_go_no_data_is_0():
     assert constrain_velocity(params, m, 0.0, (-2.0, 0.0), (0.0, 0.0)) == pytest.approx((-2.0, 0.0))
     params.set("CP_GO_NO_DATA", 0)
     assert constrain_velocity(params, m, 0.0, (-2.0, 0.0), (0.0, 0.0)) == pytest.approx((0.0, 0.0), abs=0.01)
+
+
+def sees_nothing(reach_m: float) -> ObstacleMap:
+    """The forward sensor seeing nothing within its reach (OBSTACLE_DISTANCE's max + 1)."""
+    distances = [UNKNOWN] * BINS
+    for sector in range(-10, 11):
+        distances[sector % BINS] = int(reach_m * 100) + 1
+    m = ObstacleMap()
+    m.update(0.0, 0.0, distances, 5.0, 0.0, 20, int(reach_m * 100))
+    return m
+
+
+def test_px4s_stick_collision_prevention_crawls_in_fog_and_slows_down_long_before_an_obstacle():
+    params = Params()
+    params.set("CP_STICK_ACCEL", 1)
+    push = (6.0, 0.0)  # full stick forward: 2 MPC_ACC_HOR
+    # In clear air nothing seen within 20 m leaves the stick alone; in thick fog, a sensor that
+    # reaches 2.5 m holds an obstacle there wherever it looks: ((2.5 - 1) / (10 / 0.95))^2 of the stick
+    assert px4_stick_acceleration(params, sees_nothing(20.0), 0.0, push, (0.0, 0.0)) == pytest.approx(push)
+    fog_n, fog_e = px4_stick_acceleration(params, sees_nothing(2.5), 0.0, push, (0.0, 0.0))
+    assert fog_n == pytest.approx(6.0 * (1.5 / (10.0 / 0.95)) ** 2, rel=0.01) and fog_e == pytest.approx(0.0, abs=1e-9)
+    # A wall 5 m ahead: the push towards it scaled down, a push along it not
+    ahead = wall_ahead(5.0)
+    toward_n, _ = px4_stick_acceleration(params, ahead, 0.0, push, (0.0, 0.0))
+    assert toward_n == pytest.approx(6.0 * (4.0 / (10.0 / 0.95)) ** 2, rel=0.01)
+    assert px4_stick_acceleration(params, ahead, 0.0, (0.0, 6.0), (0.0, 0.0)) == pytest.approx((0.0, 6.0))
+    # Flying at 4 m/s at it from 2.5 m, it brakes whatever the stick says; a released stick is PX4's own business
+    brake_n, _ = px4_stick_acceleration(params, obstacle_ahead(2.5), 0.0, push, (4.0, 0.0))
+    assert brake_n < -3.0
+    assert px4_stick_acceleration(params, obstacle_ahead(2.5), 0.0, (0.0, 0.0), (4.0, 0.0)) == (0.0, 0.0)
+
+
+def test_px4s_stick_collision_prevention_turns_into_a_gap_and_refuses_directions_without_data():
+    params = Params()
+    params.set("CP_STICK_ACCEL", 1)
+    # An obstacle 4 m ahead in sectors -3..3, free beyond: PX4's guidance turns the push 25 degrees
+    # into the gap, whose part along the obstacle is kept and the rest scaled down
+    gap = obstacle_ahead(4.0, sectors=range(-3, 4))
+    a_n, a_e = px4_stick_acceleration(params, gap, 0.0, (6.0, 0.0), (0.0, 0.0))
+    assert a_e == pytest.approx(-6.0 * math.sin(math.radians(25.0)), rel=0.01)
+    assert a_n == pytest.approx(6.0 * math.cos(math.radians(25.0)) * (3.0 / (10.0 / 0.95)) ** 2, rel=0.01)
+    params.set("CP_GUIDE_ANG", 0.0)
+    assert px4_stick_acceleration(params, gap, 0.0, (6.0, 0.0), (0.0, 0.0))[1] == pytest.approx(0.0, abs=1e-9)
+    params.set("CP_GUIDE_ANG", 30.0)
+    # Backwards, where the forward sensor has no data: refused as PX4 refuses it (CP_GO_NO_DATA 0), allowed with 1
+    params.set("CP_GO_NO_DATA", 0)
+    assert px4_stick_acceleration(params, obstacle_ahead(10.0), 0.0, (-6.0, 0.0), (0.0, 0.0)) == pytest.approx((0.0, 0.0), abs=1e-9)
+    params.set("CP_GO_NO_DATA", 1)
+    assert px4_stick_acceleration(params, obstacle_ahead(10.0), 0.0, (-6.0, 0.0), (0.0, 0.0)) == pytest.approx((-6.0, 0.0))
 
 
 def test_mixer_turns_torques_into_px4_quad_x_motor_commands():

@@ -25,9 +25,9 @@ EXAMPLES = ROOT / "scenarios" / "examples"
 MAIN_POSCTL = 3
 
 
-def fly(tmp_path: Path, concrete: str, name: str, drive: str = "pilot"):
+def fly(tmp_path: Path, concrete: str | Path, name: str, drive: str = "pilot", params: dict | None = None):
     space, x = load_concrete(EXAMPLES / concrete, drive)
-    return evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2), name=name)
+    return evaluate(space, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=2, sut=SutConfig("bundled", params or {})), name=name)
 
 
 def frames(log: Path, topic: str, direction: str) -> list:
@@ -66,6 +66,25 @@ def test_a_wall_too_wide_to_pass_holds_the_pilot_back_until_the_flight_ends_bloc
     assert result.status == "mission_failed" and result.why == f"blocked: no progress for {BLOCKED_AFTER_S:.0f} s"
     assert 0.0 < result.min_clearance_m and result.fitness == pytest.approx(result.min_clearance_m - 1.0 + PENALTY)
     assert logs.json_metadata(Path(result.log_path), "bridge_summary")["end_reason"] == "blocked"
+
+
+def test_with_px4s_stick_collision_prevention_the_pilot_is_guided_past_the_wall_as_by_px4_and_crawls_in_thick_fog(tmp_path):
+    # PX4 main (02e73e3b) flew wall_concrete.json in the pilot drive past the wall's end at 2.72 m
+    # (docs/screening.md); the bundled autopilot's own collision prevention passes it at 1.43 m
+    px4_like = fly(tmp_path, "wall_concrete.json", "px4-like", params={"CP_STICK_ACCEL": 1})
+    assert px4_like.status == "ok" and px4_like.min_clearance_m > 2.0, px4_like.why
+    # In thick fog its sensor reaches 2 m: PX4's collision prevention holds an obstacle there
+    # wherever it looks and the pilot crawls, far from the wall; the bundled one's lets the pilot
+    # fly on at full speed into the wall it sees too late to stop
+    document = json.loads((EXAMPLES / "wall_concrete.json").read_text())
+    foggy = tmp_path / "foggy_wall.json"
+    logical = document["logical_scenario"]
+    weather = {**logical["environment"]["weather"], "reduced visibility": "thick fog"}
+    foggy.write_text(json.dumps({**document, "environment": {**document["environment"], "visibility_m": 60.0},
+                                 "logical_scenario": {**logical, "environment": {**logical["environment"], "weather": weather}}}))
+    crawling = fly(tmp_path, foggy, "fog-px4-like", params={"CP_STICK_ACCEL": 1})
+    assert crawling.status == "mission_failed" and crawling.min_clearance_m > 10.0, crawling.why
+    assert fly(tmp_path, foggy, "fog-bundled").status == "violation"
 
 
 def test_the_same_wall_in_a_mission_is_no_pilot_flight(tmp_path):

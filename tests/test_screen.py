@@ -143,8 +143,11 @@ def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_opti
     assert summary["training_pairs"] == 12 + 9
 
 
-def test_the_cheap_model_takes_the_subjects_px4_parameters_and_never_its_seeded_fault():
-    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x"), "pilot") == SutConfig("bundled", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0})
+def test_the_cheap_model_takes_the_subjects_px4_parameters_calibrated_by_drive_and_never_its_seeded_fault():
+    # PX4's collision prevention as it acts: on the pilot's sticks' acceleration, and not in missions
+    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x"), "pilot") == SutConfig(
+        "bundled", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0, "CP_STICK_ACCEL": 1})
+    assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0}, px4_bin="/x"), "mission") == SutConfig("bundled", {"CP_DIST": -1.0})
     assert screen_sut(SutConfig("bundled", {"CP_DIST": 2.0}, fault="cp_ignores_delay"), "mission") == SutConfig("bundled", {"CP_DIST": 2.0})
 
 
@@ -178,7 +181,7 @@ def test_an_ardupilot_campaign_of_both_drives_is_not_screened_with_one_mapping(t
     (tmp_path / "bin" / "arducopter").chmod(0o755)
     assert main(["campaign", WALL, str(pilot), "--algorithm", "RANDOM", "--evaluations", "2", "--sut", "ardupilot", "--ardupilot-bin", str(tmp_path),
                  "--screen", "bundled", "--store", str(tmp_path / "c.db")]) == 2
-    assert "--screen: maps ArduPilot's parameters onto the cheap model by drive" in capsys.readouterr().err
+    assert "--screen: configures the cheap model by drive, as ardupilot's collision avoidance acts on the pilot's sticks" in capsys.readouterr().err
 
 
 def screened_campaign(tmp_path: Path, capsys, store: Path) -> dict:

@@ -21,7 +21,7 @@ from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
 from harness.flight.evaluation import infeasible
 from harness.flight.results import EvaluationResult, RunOptions
-from harness.flight.fitness import COULD_NOT_FINISH, Status
+from harness.flight.fitness import COULD_NOT_FINISH, Status, unpenalized
 from harness.scenario.space import SearchSpace
 from harness.search.termination import Progress, Termination
 
@@ -240,7 +240,8 @@ class CampaignProblem:
         not finish tells nothing of the screen's error)."""
         trial = self._trials.get(key)
         if self.screen is not None and trial is not None and trial.status not in COULD_NOT_FINISH and self.screen.knows(key):
-            self.screen.learn(key, trial.vector, self.objective_of(trial))
+            properties_scored = self.options.properties and trial.robustness is not None
+            self.screen.learn(key, trial.vector, trial.robustness if properties_scored else unpenalized(trial.fitness, trial.status))
 
     def _screen(self, candidates: list[_Candidate]) -> set[str]:
         """The keys of this batch's candidates to screen out: of those that would fly (new to the

@@ -6,12 +6,13 @@ what was screened out; the budget counts real flights only.
 
 With the learned correction (harness/campaigns/residual.py), the candidates flown both ways so
 far, in this run and in the store's earlier runs of the same scenario, train a model of the real
-objective on top of the cheap one; the screen then ranks by the real objective to be expected
+clearance on top of the cheap one; the screen then ranks by the real clearance to be expected
 with some luck (two standard deviations below the prediction), and the optimizer hears the
-predicted real objective of what was screened out.
+prediction of what was screened out.
 
-The screen's error is measured on the candidates flown both ways: the rank correlation between
-the cheap (and the corrected) objective and the real one (Spearman), and the false negatives,
+The screen ranks by clearance, the objective without the penalty of a mission not performed.
+Its error is measured on the candidates flown both ways: the rank correlation between the cheap
+(and the corrected) clearance and the real one (Spearman), and the false negatives,
 real violations that the cheap flight (and the correction) called safe. Once enough candidates
 were flown both ways and the correlation of what the screen ranks by is too low, the screen has
 stopped predicting: the run says so and flies every candidate for real.
@@ -32,6 +33,7 @@ from harness.campaigns.problem import least_robustness
 from harness.campaigns.residual import Pair, Prediction, ResidualModel
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor, Job
+from harness.flight.fitness import unpenalized
 from harness.flight.results import RunOptions
 from harness.scenario.space import SearchSpace
 from sut_adapter import SutConfig
@@ -65,32 +67,41 @@ class ScreenSettings:
 
 
 def screen_sut(subject: SutConfig, drive: str) -> SutConfig:
-    """The bundled autopilot configured like the subject: a PX4 subject's parameters as given (the
-    bundled autopilot takes PX4's names, and accepts those it does not model without effect); an
-    ArduPilot subject's mapped onto their counterparts, which depend on the drive
-    (sut_adapter/ardupilot.py: bundled_equivalent); none of the subject's seeded fault, which the
-    cheap model is not to know of."""
+    """The bundled autopilot configured like the subject, none of the subject's seeded fault,
+    which the cheap model is not to know of:
+
+    * a PX4 subject's parameters as given (the bundled autopilot takes PX4's names, and accepts
+      those it does not model without effect), calibrated to PX4's collision prevention: in the
+      pilot drive it acts on the sticks' acceleration as PX4's does since v1.15 (CP_STICK_ACCEL),
+      and in a mission not at all, as PX4's acts in Position mode only (docs/screening.md);
+    * an ArduPilot subject's mapped onto their counterparts, by drive
+      (sut_adapter/ardupilot.py: bundled_equivalent);
+    * a bundled subject's as given; another SUT's none."""
     if subject.name == "ardupilot":
         from sut_adapter.ardupilot import bundled_equivalent
 
         return SutConfig("bundled", bundled_equivalent(subject.params, drive))
-    return SutConfig("bundled", dict(subject.params) if subject.name in ("px4", "bundled") else {})
+    if subject.name == "px4":
+        return SutConfig("bundled", {**subject.params, **({"CP_STICK_ACCEL": 1} if drive == "pilot" else {"CP_DIST": -1.0})})
+    return SutConfig("bundled", dict(subject.params) if subject.name == "bundled" else {})
 
 
 @dataclass(frozen=True)
 class CheapOutcome:
-    """A candidate's cheap flight: what it scored, and the objective the search would hear."""
+    """A candidate's cheap flight: what it scored, the objective the search would hear of it, and
+    its clearance (the objective without a mission's penalty), which the screen ranks by."""
 
     fitness: float
     status: str
     properties: Mapping[str, Any]
     objective: float
+    clearance: float
 
 
 @dataclass(frozen=True)
 class _FlownBothWays:
-    """A candidate's cheap objective, what the screen predicted of it when it chose it (the cheap
-    objective where no correction was trained yet) and its real objective."""
+    """A candidate's cheap clearance, what the screen predicted of its real one when it chose it
+    (the cheap one where no correction was trained yet) and its real clearance."""
 
     cheap: float
     predicted: float
@@ -127,12 +138,13 @@ class Screen:
                 self._predicted[key] = Prediction(*row["predicted"])
         if self.settings.correction != "none":
             self._training = [Pair(f"{row['run_id']}:{row['key']}", np.asarray(row["vector"], dtype=float),
-                                   objective(row["cheap_fitness"], row["cheap_properties"], self.properties),
-                                   objective(row["fitness"], row["properties"], self.properties))
+                                   clearance(row["cheap_fitness"], row["cheap_status"], row["cheap_properties"], self.properties),
+                                   clearance(row["fitness"], row["status"], row["properties"], self.properties))
                               for row in self.store.earlier_screen_pairs(self.run_id)]
 
     def _outcome(self, fitness: float, status: str, properties: Mapping[str, Any]) -> CheapOutcome:
-        return CheapOutcome(fitness, status, properties, objective(fitness, properties, self.properties))
+        return CheapOutcome(fitness, status, properties, objective(fitness, properties, self.properties),
+                            clearance(fitness, status, properties, self.properties))
 
     @property
     def flights(self) -> int:
@@ -145,9 +157,14 @@ class Screen:
         return key in self._cheap
 
     def told(self, key: str) -> float:
-        """What the optimizer hears of a candidate screened out: the real objective the correction
-        predicted, or the cheap one where none was trained."""
-        return self._predicted[key].objective if key in self._predicted else self._cheap[key].objective
+        """What the optimizer hears of a candidate screened out: the cheap flight's objective, or
+        where a correction was trained, the real clearance it predicted, with the penalty of the
+        cheap flight's mission not performed unless it predicts a violation."""
+        cheap = self._cheap[key]
+        if key not in self._predicted:
+            return cheap.objective
+        predicted = self._predicted[key].objective
+        return predicted + (cheap.objective - cheap.clearance if predicted >= 0.0 else 0.0)
 
     def fly(self, candidates: Sequence[tuple[str, np.ndarray]]) -> None:
         """The cheap flight of each candidate not flown cheaply yet, stored with the run."""
@@ -176,11 +193,11 @@ class Screen:
             decided = {key: True for key in keys}
         else:
             if model is not None:
-                predicted = dict(zip(keys, model.predict(np.array([x for _key, x in candidates]), np.array([self._cheap[key].objective for key in keys]))))
+                predicted = dict(zip(keys, model.predict(np.array([x for _key, x in candidates]), np.array([self._cheap[key].clearance for key in keys]))))
             batch = hashlib.sha256("".join(sorted(keys)).encode()).digest()
             rng = np.random.default_rng([self.seed, int.from_bytes(batch[:8], "little")])
             ranked = sorted(keys, key=lambda key: (predicted[key].optimistic, key) if predicted
-                            else (self._cheap[key].objective, key))
+                            else (self._cheap[key].clearance, key))
             promising = max(1, math.ceil(self.settings.share * len(ranked)))
             decided = {key: index < promising or rng.random() < self.settings.explore for index, key in enumerate(ranked)}
         self._chosen.update(decided)
@@ -197,13 +214,13 @@ class Screen:
     def screened_out(self) -> int:
         return sum(not chosen for chosen in self._chosen.values())
 
-    def learn(self, key: str, x: np.ndarray, real_objective: float) -> None:
-        """A candidate flown both ways: training for the correction; the screen falls back once
-        what it ranks by stops predicting."""
-        cheap = self._cheap[key].objective
-        self._pairs[key] = _FlownBothWays(cheap, self._predicted[key].objective if key in self._predicted else cheap, real_objective)
+    def learn(self, key: str, x: np.ndarray, real_clearance: float) -> None:
+        """A candidate flown both ways, with its real clearance: training for the correction; the
+        screen falls back once what it ranks by stops predicting."""
+        cheap = self._cheap[key].clearance
+        self._pairs[key] = _FlownBothWays(cheap, self._predicted[key].objective if key in self._predicted else cheap, real_clearance)
         if self.settings.correction != "none":
-            self._training.append(Pair(f"{self.run_id}:{key}", np.asarray(x, dtype=float), cheap, real_objective))
+            self._training.append(Pair(f"{self.run_id}:{key}", np.asarray(x, dtype=float), cheap, real_clearance))
         correlation = self.corrected_rank_correlation if self.settings.correction != "none" else self.rank_correlation
         if not self.fell_back and len(self._pairs) >= self.settings.min_pairs and correlation is not None and correlation < self.settings.min_correlation:
             self.fell_back = True
@@ -212,7 +229,7 @@ class Screen:
 
     @property
     def rank_correlation(self) -> float | None:
-        """Spearman's rank correlation of the cheap and the real objective over the candidates flown
+        """Spearman's rank correlation of the cheap and the real clearance over the candidates flown
         both ways (None: fewer than three, or one side constant)."""
         return _spearman([(pair.cheap, pair.real) for pair in self._pairs.values()])
 
@@ -254,3 +271,12 @@ def objective(fitness: float, properties: Mapping[str, Any], asked: Sequence[Any
     asked where any was scored, else the flight's f (as CampaignProblem.objective_of)."""
     least = least_robustness(properties)
     return least if asked and least is not None else fitness
+
+
+def clearance(fitness: float, status: str, properties: Mapping[str, Any], asked: Sequence[Any]) -> float:
+    """What the screen ranks, predicts and measures its error by: the objective without the
+    penalty of a mission not performed. A pilot that collision prevention held back 1.6 m from an
+    obstacle came close, whatever became of the mission, and the real SUT may come closer still;
+    a violation is never behind a penalty (harness/flight/fitness.py), so f < 0 means the same."""
+    least = least_robustness(properties)
+    return least if asked and least is not None else unpenalized(fitness, status)

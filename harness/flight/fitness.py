@@ -125,5 +125,10 @@ def judge(clearance: Clearance | None, safety_distance_m: float, failure: tuple[
     return Status.OK, f, None
 
 
+def unpenalized(fitness: float, status: str) -> float:
+    """A flight's f without the penalty of a mission not performed (how close it came)."""
+    return fitness - PENALTY if status == Status.MISSION_FAILED else fitness
+
+
 def infeasible_fitness(total_violation_m: float) -> float:
     return PENALTY + total_violation_m

@@ -324,14 +324,14 @@ class Store:
         """The candidates flown both ways, cheaply and for real to the end, in the store's runs
         of the same scenario before this one: what the screen's correction learns from first."""
         query = (
-            "SELECT s.run_id, s.vector_key, e.vector, s.fitness, s.properties, e.fitness, e.properties FROM runs this"
+            "SELECT s.run_id, s.vector_key, e.vector, s.fitness, s.status, s.properties, e.fitness, e.status, e.properties FROM runs this"
             " JOIN runs r ON r.scenario_key = this.scenario_key AND r.id < this.id"
             " JOIN screen_flights s ON s.run_id = r.id JOIN evaluations e ON e.run_id = s.run_id AND e.vector_key = s.vector_key"
             f" WHERE this.id = ? AND e.status NOT IN ({', '.join('?' * len(COULD_NOT_FINISH | {Status.INFEASIBLE}))}) ORDER BY s.run_id, s.vector_key"
         )
-        return [{"run_id": earlier, "key": key, "vector": json.loads(vector), "cheap_fitness": cheap, "cheap_properties": _json(cheap_properties) or {},
-                 "fitness": fitness, "properties": _json(properties) or {}}
-                for earlier, key, vector, cheap, cheap_properties, fitness, properties in self.db.execute(
+        return [{"run_id": earlier, "key": key, "vector": json.loads(vector), "cheap_fitness": cheap, "cheap_status": cheap_status,
+                 "cheap_properties": _json(cheap_properties) or {}, "fitness": fitness, "status": status, "properties": _json(properties) or {}}
+                for earlier, key, vector, cheap, cheap_status, cheap_properties, fitness, status, properties in self.db.execute(
                     query, (run_id, *sorted(str(status) for status in COULD_NOT_FINISH | {Status.INFEASIBLE})))]
 
     def rejudge(self, evaluation_id: int, differential: Mapping[str, Any]) -> None:

@@ -97,9 +97,9 @@ def screen_settings(args: argparse.Namespace, sut: SutConfig, drives: set[str], 
     if objective == "difference" and args.screen_correction == "none":
         raise InputError([Problem("--screen-correction", "", "none ranks by the cheap flights' clearance, which is not the difference of two SUTs "
                                                               "that --objective difference searches: use the correction (gp)")])
-    if sut.name == "ardupilot" and len(drives) > 1:
-        raise InputError([Problem("--screen", "", "maps ArduPilot's parameters onto the cheap model by drive (simple avoidance acts in Loiter, "
-                                                  "not in Auto): give --drive, or screen the scenarios of each drive in a campaign of their own")])
+    if sut.name in ("px4", "ardupilot") and len(drives) > 1:
+        raise InputError([Problem("--screen", "", f"configures the cheap model by drive, as {sut.name}'s collision avoidance acts on the pilot's sticks "
+                                                  "and not in missions: give --drive, or screen the scenarios of each drive in a campaign of their own")])
     if sut.params and sut.name not in ("px4", "bundled", "ardupilot"):
         log.warning("--screen: the cheap model flies with the bundled autopilot's defaults; %s's parameters are not mapped onto it", sut.name)
     return ScreenSettings(screen_sut(sut, next(iter(drives), "mission")), args.screen_share, args.screen_explore, correction=args.screen_correction)
