@@ -116,6 +116,21 @@ def test_a_kept_simulator_flies_whichever_sut_process_each_evaluation_names(tmp_
 
 
 @pytest.mark.slow
+def test_a_worker_keeps_two_stacks_warm_for_the_two_kinds_of_flight_a_screened_campaign_alternates(tmp_path, profile):
+    """A screened campaign's worker flies the cheap model (the bundled autopilot in memory) and the
+    subject (its own process) batch by batch: both simulators stay warm; a third kind of flight
+    closes the least recently used."""
+    wall = point(profile, "table3/scenario_31.json", 4)
+    kinds = {"cheap": WARM, "subject": RunOptions(transport="tcp", warm=True), "third": RunOptions(transport="unix", warm=True)}
+    order = ("cheap", "subject", "cheap", "subject", "third", "subject", "cheap")
+    kept = [evaluate(*wall, seed=4, out_dir=tmp_path, options=kinds[name], name=f"{index}-{name}") for index, name in enumerate(order)]
+    pids = [simulator_pid(result) for result in kept]
+    assert pids[0] == pids[2] and pids[1] == pids[3] == pids[5] and len({pids[0], pids[1], pids[4]}) == 3
+    assert pids[6] not in pids[:6]  # the cheap one's was the least recently used when the third came
+    assert all(simulated(result) == simulated(kept[0]) for result in kept)
+
+
+@pytest.mark.slow
 def test_a_flight_that_went_wrong_is_followed_by_a_fresh_process(tmp_path, profile, monkeypatch):
     wall = point(profile, "table3/scenario_31.json", 4)
     first = evaluate(*wall, seed=4, out_dir=tmp_path, options=WARM, name="first")
@@ -260,7 +275,7 @@ def test_a_sut_that_does_not_start_leaves_nothing_kept(tmp_path, profile):
     for warm in (False, True):
         result = evaluate(*wall, seed=4, out_dir=tmp_path, options=RunOptions(transport="tcp", warm=warm, sut=missing), name=f"warm-{warm}")
         assert result.status == "sut_crashed" and "no-such-autopilot" in result.why
-        assert stack._kept is None
+        assert stack._kept == []
 
 
 @pytest.mark.slow

@@ -7,9 +7,10 @@ imports before the flight begins, and MAVSDK a connection; a campaign pays that 
 evaluation. A process that flies evaluation after evaluation with the same options (but for
 which SUT, where the SUT runs in a process of its own) keeps one stack (the simulator serving
 flight after flight, with the SUT inside it or a fresh SUT process connecting to it for each)
-and hands it to the next evaluation if the last flight ended cleanly. One stack per process: a
-warm evaluation with other options closes the kept one first. The owner of the process closes
-what is kept (`close_kept`) before it exits or when its campaign ends.
+and hands it to the next evaluation if the last flight ended cleanly. Up to two stacks per
+process (KEPT_STACKS), for the two kinds of flight a screened campaign alternates; a third
+closes the least recently used. The owner of the process closes what is kept (`close_kept`)
+before it exits or when its campaign ends.
 """
 
 from __future__ import annotations
@@ -327,33 +328,40 @@ class _ServingStack:
         self._contexts.close()
 
 
-_kept: tuple[str, "_ServingStack"] | None = None  # (the options it was started for, the stack)
+# Stacks kept warm in this process, the most recently used last: two, as a screened campaign's
+# worker alternates the subject and the cheap model batch by batch (harness/campaigns/screen.py),
+# and a differential one's may alternate a bundled reference and a PX4 subject.
+KEPT_STACKS = 2
+_kept: list[tuple[str, "_ServingStack"]] = []  # (the options it was started for, the stack)
 
 
 @contextmanager
 def _reuse(key: str, start: Callable[[], "_ServingStack"]) -> Iterator["_ServingStack"]:
     """The stack kept for key if it is still fit, else a new one from start(); kept again
-    afterwards if it is still fit then. Whatever is not kept is closed, however the body ends
-    (an executor's time limit arrives as an exception at any point)."""
-    global _kept
-    kept, _kept = _kept, None
+    afterwards if it is still fit then, closing the least recently used beyond KEPT_STACKS.
+    Whatever is not kept is closed, however the body ends (an executor's time limit arrives as
+    an exception at any point)."""
     stack = None
     try:
-        if kept is not None:
-            if kept[0] == key and kept[1].reusable():
-                stack = kept[1]
-            else:
-                _close(kept[1])
-            kept = None
+        for index, (kept_key, kept) in enumerate(_kept):
+            if kept_key == key:
+                del _kept[index]
+                if kept.reusable():
+                    stack = kept
+                else:
+                    _close(kept)
+                break
         if stack is None:
             stack = start()
         yield stack
         if stack.reusable():
-            _kept, stack = (key, stack), None
+            _kept.append((key, stack))
+            stack = None
+            while len(_kept) > KEPT_STACKS:
+                _close(_kept.pop(0)[1])
     finally:
-        for leftover in (kept[1] if kept is not None else None, stack):
-            if leftover is not None:
-                _close(leftover)
+        if stack is not None:
+            _close(stack)
 
 
 def start_kept(options: RunOptions) -> None:
@@ -370,11 +378,9 @@ def start_kept(options: RunOptions) -> None:
 
 
 def close_kept() -> None:
-    """Close the stack this process kept warm, if any."""
-    global _kept
-    kept, _kept = _kept, None
-    if kept is not None:
-        _close(kept[1])
+    """Close the stacks this process kept warm, if any."""
+    while _kept:
+        _close(_kept.pop()[1])
 
 
 def _close(stack: "_ServingStack") -> None:
