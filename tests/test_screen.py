@@ -17,7 +17,7 @@ from harness.campaigns.screen import Screen, ScreenSettings, screen_sut
 from harness.campaigns.store import Store
 from harness.campaigns.store.rows import vector_key
 from harness.execution.local import SequentialExecutor
-from harness.flight.fitness import Status
+from harness.flight.fitness import PENALTY, Status
 from harness.flight.results import EvaluationResult, RunOptions
 from harness.scenario.logical import load_logical
 from harness.scenario.space import SearchSpace
@@ -37,8 +37,10 @@ def spread_over(space: SearchSpace, count: int, seed: int = 0) -> list[np.ndarra
     return [space.lower + rng.random(len(space.lower)) * (space.upper - space.lower) for _ in range(count)]
 
 
-def cheap_flight(fitness: float) -> EvaluationResult:
-    return EvaluationResult(status=Status.VIOLATION if fitness < 0 else Status.OK, fitness=fitness, why=None, min_clearance_m=fitness + 1.0,
+def cheap_flight(fitness: float, blocked: bool = False) -> EvaluationResult:
+    """A cheap flight with this f; blocked: its mission not performed, its fitness f + PENALTY."""
+    status = Status.VIOLATION if fitness < 0 else Status.MISSION_FAILED if blocked else Status.OK
+    return EvaluationResult(status=status, fitness=fitness + (PENALTY if status == Status.MISSION_FAILED else 0.0), why=None, min_clearance_m=fitness + 1.0,
                             min_clearance_at_s=1.0, min_clearance_obstacle="obstacle_1", sim_time_s=20.0, wall_time_s=1.0, real_time_factor=20.0,
                             seed=0, log_path=None, scenario="s", sut="bundled")
 
@@ -122,8 +124,10 @@ def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_opti
     batch = {f"k{i}": x for i, x in enumerate(xs[12:])}
     campaign = store.campaign({"test": True})
     run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", 1, 8, scenario_key="sha256:s")
+    # (the candidate where the subject keeps farthest blocked on the cheap model: the same 3 m of clearance)
+    farthest = max(batch, key=lambda key: parted(space, batch[key], 3.0))
     for key in batch:
-        store.add_screen_flight(run_id, key, cheap_flight(3.0))
+        store.add_screen_flight(run_id, key, cheap_flight(3.0, blocked=key == farthest))
     screen = Screen(ScreenSettings(SutConfig(), share=0.25, explore=0.0), SequentialExecutor(), store, run_id, 8, tmp_path, RunOptions(), space)
     # WHEN the screen chooses
     chosen = screen.choose(list(batch.items()))
@@ -135,6 +139,8 @@ def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_opti
     assert screen.told(out) == pytest.approx(real[out], abs=0.5) and screen.told(out) != 3.0
     resumed = Screen(ScreenSettings(SutConfig(), share=0.25, explore=0.0), SequentialExecutor(), Store(store_path), run_id, 8, tmp_path, RunOptions(), space)
     assert resumed.choose(list(batch.items())) == chosen and resumed.told(out) == screen.told(out)
+    # and of a candidate whose cheap mission was not performed, with the penalty: no violation is predicted
+    assert screen.told(farthest) == pytest.approx(parted(space, batch[farthest], 3.0) + PENALTY, abs=0.5)
     # AND the error is measured both ways on what is flown: the correction's prediction ranks, the cheap flights cannot
     for key in sorted(chosen) + [out, *[k for k in batch if k not in chosen][1:4]]:
         screen.learn(key, batch[key], real[key])
