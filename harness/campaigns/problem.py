@@ -9,6 +9,7 @@ from memory and costs no budget.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -29,6 +30,13 @@ if TYPE_CHECKING:
     from harness.campaigns.diversity import FailureModes
     from harness.campaigns.pairs import PairedFlights
     from harness.campaigns.screen import CheapOutcome, Screen
+
+
+log = logging.getLogger(__name__)
+
+# A screened run ends when its optimizer asks this many infeasible candidates in a row: they cost
+# no budget there, so nothing else would end a search stuck outside the realism constraints.
+REFUSED_STREAK_LIMIT = 1000
 
 
 class StopSearch(Exception):
@@ -112,6 +120,10 @@ class CampaignProblem:
         self._batches_s = 0.0  # wall time spent flying batches
         self._batched = 0  # candidates those batches flew
         self._screened_out: dict[str, CheapOutcome] = {}  # candidates flown on the screen only, by key
+        # A screened run's infeasible candidates, by key: never flown, so not of the subject's
+        # flights that --evaluations counts, nor stored; told their constraint penalty.
+        self._refused: dict[str, float] = {}
+        self._refused_streak = 0
 
     @property
     def progress(self) -> Progress:
@@ -185,11 +197,23 @@ class CampaignProblem:
         self._pending = 0
         for candidate in candidates:
             # Known already, or a duplicate inside this batch: answered from its first one's outcome.
-            if candidate.key in self._trials or candidate.key in self._screened_out or any(candidate.key == flying.key for flying, _job in to_fly.values()):
+            if (candidate.key in self._trials or candidate.key in self._screened_out or candidate.key in self._refused
+                    or any(candidate.key == flying.key for flying, _job in to_fly.values())):
                 continue
             if candidate.key in screened_out:  # no budget: not flown for real
                 self._screened_out[candidate.key] = self.screen.cheap(candidate.key)
                 continue
+            if self.screen is not None:
+                refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
+                if refused is not None:
+                    self._refused[candidate.key] = refused.fitness
+                    self._refused_streak += 1
+                    if self._refused_streak >= REFUSED_STREAK_LIMIT:
+                        log.warning("%d candidates in a row broke the scenario's realism constraints: the run ends", self._refused_streak)
+                        stop = StopSearch(campaign_done=True)
+                        break
+                    continue
+                self._refused_streak = 0
             try:
                 self._check_budgets()
             except StopSearch as reached:
@@ -231,9 +255,14 @@ class CampaignProblem:
         self._pending = 0
         for candidate, _job in to_fly.values():
             self._learn(candidate.key)
-        if stop is not None or any(c.key not in self._trials and c.key not in self._screened_out for c in candidates):
+        if stop is not None or any(c.key not in self._trials and c.key not in self._screened_out and c.key not in self._refused for c in candidates):
             raise stop or StopSearch(campaign_done=True)
-        return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(c.key) for c in candidates]
+        return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(c.key) if c.key in self._screened_out
+                else self._told_refused(self._refused[c.key]) for c in candidates]
+
+    def _told_refused(self, fitness: float) -> float | list[float]:
+        """What the optimizer hears of a screened run's infeasible candidate: its penalty."""
+        return [fitness] * self.objectives if self.each_property else fitness
 
     def _learn(self, key: str) -> None:
         """The screen hears the real outcome of a candidate it flew cheaply (a flight that could
