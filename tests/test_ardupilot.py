@@ -8,6 +8,7 @@ import json
 import math
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -193,3 +194,16 @@ def test_kill_9_of_an_ardupilot_campaign_leaves_no_arducopter(tmp_path, moment):
     finally:
         if campaign.poll() is None:
             campaign.kill()
+
+
+def test_an_ardupilot_campaign_is_screened_by_the_bundled_autopilot_with_loiters_counterparts(capsys, tmp_path):
+    store = tmp_path / "screened.db"
+    assert main(["campaign", SCENARIO, "--algorithm", "NSGAII", "--evaluations", "3", "--population", "6", "--batch", "6", "--seed", "3",
+                 "--workers", "2", "--drive", "pilot", "--sut", "ardupilot", "--sut-param", "LOIT_SPEED=800", "--screen", "bundled",
+                 "--store", str(store), "--json"]) == 0
+    run = json.loads(capsys.readouterr().out)["runs"][0]
+    # ArduCopter flew 3 candidates, the cheap model every candidate of the first batch
+    assert run["flown"] == 3 and run["screen"]["flights"] >= 6 and run["screen"]["pairs"] == 3
+    # configured as Loiter flies: simple avoidance's margin (the adapter's 1 m) and the speed given, in m/s
+    cheap = json.loads(sqlite3.connect(store).execute("SELECT config FROM campaigns").fetchone()[0])["screen"]["sut"]
+    assert cheap["name"] == "bundled" and (cheap["params"]["CP_DIST"], cheap["params"]["MPC_VEL_MANUAL"]) == (1.0, 8.0)
