@@ -123,6 +123,7 @@ class CampaignProblem:
         # A screened run's infeasible candidates, by key: never flown, so not of the subject's
         # flights that --evaluations counts, nor stored; told their constraint penalty.
         self._refused: dict[str, float] = {}
+        self._refusals: dict[str, EvaluationResult | None] = {}  # this batch's, by key
         self._refused_streak = 0
 
     @property
@@ -190,6 +191,7 @@ class CampaignProblem:
     def evaluate(self, vectors: list[np.ndarray]) -> list[float] | list[list[float]]:
         """Fitness for each vector, in order; raises StopSearch once a budget is used up."""
         candidates = [self._candidate(index, raw) for index, raw in enumerate(vectors)]
+        self._refusals = {}
         screened_out = self._screen(candidates) if self.screen is not None else set()
         to_fly: dict[int, tuple[_Candidate, Job]] = {}  # by ordinal, the key of its job
         ids: dict[int, int] = {}  # the store's evaluation id by ordinal
@@ -204,7 +206,7 @@ class CampaignProblem:
                 self._screened_out[candidate.key] = self.screen.cheap(candidate.key)
                 continue
             if self.screen is not None:
-                refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
+                refused = self._refusal(candidate)
                 if refused is not None:
                     self._refused[candidate.key] = refused.fitness
                     self._refused_streak += 1
@@ -231,7 +233,7 @@ class CampaignProblem:
             # Its id in the store, known now so that its log carries it: one number for an
             # evaluation in its log's name and in every command that shows or takes it.
             ids[ordinal] = self.store.new_evaluation_id()
-            refused = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
+            refused = self._refusal(candidate)
             if refused is not None:
                 self._finish(ordinal, ids[ordinal], candidate, refused, None)
                 continue
@@ -260,6 +262,13 @@ class CampaignProblem:
         return [self._told(self._trials[c.key]) if c.key in self._trials else self._told_cheap(c.key) if c.key in self._screened_out
                 else self._told_refused(self._refused[c.key]) for c in candidates]
 
+    def _refusal(self, candidate: _Candidate) -> EvaluationResult | None:
+        """The outcome of a candidate that breaks the scenario's realism constraints (None if it
+        does not), worked out once a batch: the screen and the batch's loop both ask."""
+        if candidate.key not in self._refusals:
+            self._refusals[candidate.key] = infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name)
+        return self._refusals[candidate.key]
+
     def _told_refused(self, fitness: float) -> float | list[float]:
         """What the optimizer hears of a screened run's infeasible candidate: its penalty."""
         return [fitness] * self.objectives if self.each_property else fitness
@@ -278,7 +287,7 @@ class CampaignProblem:
         new: dict[str, _Candidate] = {}
         for candidate in candidates:
             if (candidate.key in self._trials or candidate.key in self._screened_out or candidate.key in self._stored or candidate.key in new
-                    or infeasible(self.space, candidate.vector, seed=self.seed, sut=self.options.sut.name) is not None):
+                    or self._refusal(candidate) is not None):
                 continue
             new[candidate.key] = candidate
         if not new:
