@@ -57,7 +57,13 @@ FRAMES_WITH_POSITION = {
 
 
 # The simulator's messages the autopilot reads besides HIL_SENSOR, by message id.
-_SIM_MESSAGES = {message.msgid: message for message in (codec.HIL_GPS, codec.HIL_STATE_QUATERNION, codec.OBSTACLE_DISTANCE, codec.RC_CHANNELS)}
+_SIM_MESSAGES = {message.msgid: message for message in (codec.HIL_GPS, codec.HIL_STATE_QUATERNION, codec.OBSTACLE_DISTANCE, codec.DISTANCE_SENSOR, codec.RC_CHANNELS)}
+# DISTANCE_SENSOR orientations (MAV_SENSOR_ORIENTATION) that face along the horizon, as yaw in
+# the body; the custom one takes the message's quaternion. PX4 leaves out the upward and
+# downward ones, and so does the autopilot.
+_SENSOR_YAW_DEG = {orientation: 45.0 * orientation for orientation in range(8)}
+_SENSOR_ROTATION_CUSTOM = 100
+_NORTH_FRAMES = (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_LOCAL_NED)
 
 
 class Autopilot:
@@ -87,7 +93,7 @@ class Autopilot:
         self._last_sensor_values: tuple | None = None
         self._last_gps_fix: GpsFix | None = None
         self._last_obstacle_reading: tuple | None = None
-        self._wanted_sim_messages = {codec.HIL_GPS.msgid, codec.OBSTACLE_DISTANCE.msgid, codec.RC_CHANNELS.msgid}
+        self._wanted_sim_messages = {codec.HIL_GPS.msgid, codec.OBSTACLE_DISTANCE.msgid, codec.DISTANCE_SENSOR.msgid, codec.RC_CHANNELS.msgid}
         if params["EKF2_GT_MODE"]:
             self._wanted_sim_messages.add(codec.HIL_STATE_QUATERNION.msgid)
 
@@ -214,12 +220,33 @@ class Autopilot:
                 if reading is None:
                     return
             distances, increment, angle_offset, min_cm, max_cm = reading
-            self.obstacles.update(self.now_s, self.yaw_rad(), distances, increment, angle_offset, min_cm, max_cm)
+            # Sectors from north (MAV_FRAME_LOCAL_NED, or GLOBAL as PX4 takes it too) or from the nose.
+            heading = 0.0 if message.frame in _NORTH_FRAMES else self.yaw_rad()
+            self.obstacles.update(self.now_s, heading, distances, increment, angle_offset, min_cm, max_cm)
+        elif kind is codec.DISTANCE_SENSOR:
+            self._distance_sensor(message)
         elif kind is codec.RC_CHANNELS and self.params["COM_RC_IN_MODE"] in (0, 2, 3):
             raw = [getattr(message, f"chan{n}_raw") for n in range(1, 9)]
             sticks = sticks_from_rc(self.params, self.now_s, message.chancount, raw)
             if sticks is not None:
                 self.commander.on_sticks(sticks, self.vehicle_estimate())
+
+    def _distance_sensor(self, message) -> None:
+        """One DISTANCE_SENSOR reading into the obstacle map, where it faces along the horizon."""
+        if message.orientation == _SENSOR_ROTATION_CUSTOM:
+            w, x, y, z = message.quaternion
+            sensor_yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        elif message.orientation in _SENSOR_YAW_DEG:
+            sensor_yaw = math.radians(_SENSOR_YAW_DEG[message.orientation])
+        else:
+            return
+        roll, pitch, yaw = self.euler()
+        # The vertical part of the sensor's direction in the world (ZYX Euler angles), which PX4's
+        # project_distance_on_horizontal_plane takes off a reading.
+        vertical = -math.sin(pitch) * math.cos(sensor_yaw) + math.sin(roll) * math.cos(pitch) * math.sin(sensor_yaw)
+        self.obstacles.update_distance_sensor(self.now_s, yaw, message.id, message.current_distance / 100.0, message.min_distance / 100.0,
+                                              message.max_distance / 100.0, sensor_yaw, message.horizontal_fov,
+                                              max(math.sqrt(max(0.0, 1.0 - vertical * vertical)), 1e-7))
 
     def _stick_collision_prevention(self, accel_ne: tuple, velocity_ne: tuple) -> tuple:
         return px4_stick_acceleration(self.params, self.obstacles, self.now_s, accel_ne, velocity_ne)

@@ -34,6 +34,14 @@ OFF_ABOVE_M_S = 4.0  # seeded fault cp_off_above_cruise
 
 
 class ObstacleMap:
+    """The range data in world-fixed bins, fused from every source as PX4's collision prevention
+    fuses them (CollisionPrevention::_updateObstacleMap): each source's latest reading, an
+    OBSTACLE_DISTANCE message's sectors or a DISTANCE_SENSOR's field of view, is binned at the
+    heading it was measured at, and each bin holds, of the sources heard within STALE_AFTER_S,
+    what PX4's _enterData leaves there once each has reported: an obstacle seen by the sensor of
+    the shortest reach that sees one (the latest of those), else nothing within the longest
+    reach, else no data. One source alone is its own reading, as before sources were fused."""
+
     def __init__(self, fault: str | None = None) -> None:
         self.fault = fault
         # None: no data for that direction; math.inf: nothing within range; else metres.
@@ -44,21 +52,32 @@ class ObstacleMap:
         # and the directions without data.
         self.occupied: list[tuple[float, float, float]] = []
         self.unknown: list[tuple[float, float]] = list(BIN_DIRECTIONS)
-        self.clear: list[tuple[float, float]] = []  # directions with nothing within range
+        # For PX4's Position-mode prevention, which takes nothing within range as an obstacle at
+        # the reach of the sensor that saw nothing: the distances clamped so, and (north, east,
+        # distance) of every bin seen.
+        self.view_at_reach: list[float | None] = [None] * BINS
+        self.seen_at_reach: list[tuple[float, float, float]] = []
+        # Each source's latest reading, by source: (when, its reach in metres, its bins).
+        self.sources: dict[tuple, tuple[float, float, list]] = {}
+
+    def _frame(self, yaw_rad: float) -> tuple[float, float]:
+        """Body angle a lies at reference + sign * a: the heading and +1, unless a seeded fault
+        takes north as the reference or mirrors the sectors."""
+        if self.fault == "range_frame_world":
+            return 0.0, 1.0
+        if self.fault == "cp_sector_mirrored" and yaw_rad % (2.0 * math.pi) > MIRRORED_PAST_RAD:
+            return yaw_rad, -1.0
+        return yaw_rad, 1.0
 
     def update(self, now_s: float, yaw_rad: float, distances_cm: list[int], increment_deg: float, angle_offset_deg: float,
                min_cm: int, max_cm: int) -> None:
-        """Fuse one OBSTACLE_DISTANCE message measured at heading yaw_rad."""
+        """Fuse one OBSTACLE_DISTANCE message (body FRD) measured at heading yaw_rad. A source is
+        told apart by its geometry: PX4's obstacle_distance topic has one instance, so sources
+        of one geometry are one source to it too."""
         bins: list[float | None] = [None] * BINS
         step = math.radians(increment_deg)
         offset = math.radians(angle_offset_deg)
-        # Sector i lies at reference + sign * (offset + i * step): the heading and +1, unless a
-        # seeded fault takes north as the reference or mirrors the sectors.
-        reference, sign = yaw_rad, 1.0
-        if self.fault == "range_frame_world":
-            reference = 0.0
-        elif self.fault == "cp_sector_mirrored" and yaw_rad % (2.0 * math.pi) > MIRRORED_PAST_RAD:
-            sign = -1.0
+        reference, sign = self._frame(yaw_rad)
         for index, raw in enumerate(distances_cm):
             if raw == UINT16_MAX:
                 continue
@@ -67,15 +86,80 @@ class ObstacleMap:
             value = math.inf if raw > max_cm else max(raw, min_cm) / 100.0
             current = bins[target]
             bins[target] = value if current is None else min(current, value)
+        self._enter(("obstacle_distance", increment_deg, angle_offset_deg, max_cm), now_s, max_cm / 100.0, bins)
+
+    def update_distance_sensor(self, now_s: float, yaw_rad: float, sensor_id: int, distance_m: float, min_m: float, max_m: float,
+                               sensor_yaw_rad: float, fov_rad: float, horizontal_scale: float) -> None:
+        """Fuse one DISTANCE_SENSOR reading as PX4's _addDistanceSensorData does: clamped at the
+        sensor's reach, which reads as nothing within range; dropped at or below its minimum; an
+        obstacle's distance projected on the horizontal plane (horizontal_scale, the horizontal
+        part of the sensor's direction in the world); every bin whose centre PX4 rounds into the
+        field of view gets it."""
+        reading = min(distance_m, max_m)
+        if reading <= min_m:
+            return
+        value = math.inf if reading >= max_m else reading * horizontal_scale
+        centre_deg = math.degrees(sensor_yaw_rad % (2.0 * math.pi))
+        half_deg = math.degrees(fov_rad) / 2.0
+        bin_deg = math.degrees(BIN_RAD)
+        reference, sign = self._frame(yaw_rad)
+        bins: list[float | None] = [None] * BINS
+        for body_bin in range(_round_half_away((centre_deg - half_deg) / bin_deg), _round_half_away((centre_deg + half_deg) / bin_deg) + 1):
+            world = (reference + sign * body_bin * BIN_RAD) % (2.0 * math.pi)
+            bins[int(round(world / BIN_RAD)) % BINS] = value
+        self._enter(("distance_sensor", sensor_id), now_s, max_m, bins)
+
+    def _enter(self, source: tuple, now_s: float, reach_m: float, bins: list) -> None:
+        self.sources[source] = (now_s, reach_m, bins)
+        if len(self.sources) > 1:
+            for key in [key for key, heard in self.sources.items() if now_s - heard[0] > STALE_AFTER_S]:
+                del self.sources[key]
+        heard = list(self.sources.values())
+        if len(heard) == 1:
+            reaches = [reach_m] * BINS
+        else:
+            bins, reaches = _fused(heard)
         self.distances = bins
-        self.updated_s = now_s
-        self.max_range_m = max_cm / 100.0
+        self.updated_s = max([when for when, _reach, _bins in heard])
+        self.max_range_m = max([reach for _when, reach, _bins in heard])
         self.occupied = [(*BIN_DIRECTIONS[i], d) for i, d in enumerate(bins) if d is not None and not math.isinf(d)]
         self.unknown = [BIN_DIRECTIONS[i] for i, d in enumerate(bins) if d is None]
-        self.clear = [BIN_DIRECTIONS[i] for i, d in enumerate(bins) if d is not None and math.isinf(d)]
+        self.view_at_reach = [None if d is None else min(d, reaches[i]) for i, d in enumerate(bins)]
+        self.seen_at_reach = self.occupied + [(*BIN_DIRECTIONS[i], reaches[i]) for i, d in enumerate(bins) if d is not None and math.isinf(d)]
 
     def fresh(self, now_s: float) -> bool:
         return now_s - self.updated_s <= STALE_AFTER_S
+
+
+def _fused(sources: list) -> tuple[list, list]:
+    """Each bin's reading and the reach of the sensor it came from, of several sources' (when,
+    reach, bins): what PX4's _enterData leaves once each has reported. An obstacle seen replaces
+    nothing-in-range and is replaced only by one seen by a sensor of the same or a shorter
+    reach; nothing-in-range replaces nothing-in-range of the same or a shorter reach."""
+    bins: list[float | None] = [None] * BINS
+    reaches = [0.0] * BINS
+    latest = [-math.inf] * BINS
+    for heard_s, reach_m, readings in sources:
+        for i, value in enumerate(readings):
+            if value is None:
+                continue
+            current = bins[i]
+            if current is None:
+                better = True
+            elif math.isinf(value):
+                better = math.isinf(current) and reach_m >= reaches[i]
+            elif math.isinf(current):
+                better = True
+            else:
+                better = reach_m < reaches[i] or (reach_m == reaches[i] and (heard_s > latest[i] or (heard_s == latest[i] and value < current)))
+            if better:
+                bins[i], reaches[i], latest[i] = value, reach_m, heard_s
+    return bins, reaches
+
+
+def _round_half_away(x: float) -> int:
+    """C's round(): halves away from zero (Python's round() takes them to the even integer)."""
+    return int(math.floor(x + 0.5)) if x >= 0.0 else -int(math.floor(-x + 0.5))
 
 
 def _bin_of(angle_rad: float) -> int:
@@ -218,18 +302,19 @@ def px4_stick_acceleration(params, obstacles: ObstacleMap, now_s: float, accel_n
     if not obstacles.fresh(now_s):
         return 0.0, 0.0
     reach = obstacles.max_range_m
-    seen = obstacles.occupied + [(bin_n, bin_e, reach) for bin_n, bin_e in obstacles.clear]
+    seen = obstacles.seen_at_reach
     if not seen:
         return accel_ne
     keep = params["CP_DIST"]
     scale_distance = max(keep, params["MPC_VEL_MANUAL"] / params["MPC_XY_P"])
-    view = [None if d is None else min(d, reach) for d in obstacles.distances]
+    view = obstacles.view_at_reach
     closest_n, closest_e, closest = seen[0]
     for bin_n, bin_e, distance in seen:
         if distance < closest:
             closest_n, closest_e, closest = bin_n, bin_e, distance
-    index = px4_guided_bin(view, _bin_of(math.atan2(a_e, a_n)), keep, params["CP_GUIDE_ANG"])
-    if index == _bin_of(math.atan2(a_e, a_n)):
+    home = _bin_of(math.atan2(a_e, a_n))
+    index = px4_guided_bin(view, home, keep, params["CP_GUIDE_ANG"])
+    if index == home:
         dir_n, dir_e = a_n / length, a_e / length
     else:
         dir_n, dir_e = BIN_DIRECTIONS[index]

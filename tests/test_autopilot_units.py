@@ -184,6 +184,59 @@ def test_px4s_stick_collision_prevention_turns_into_a_gap_and_refuses_directions
     assert px4_stick_acceleration(params, obstacle_ahead(10.0), 0.0, (-6.0, 0.0), (0.0, 0.0)) == pytest.approx((-6.0, 0.0))
 
 
+def lidar_360(m: ObstacleMap, now_s: float, reach_m: float, obstacle_m: float | None = None) -> None:
+    """A 360 degree lidar (OBSTACLE_DISTANCE, 72 sectors) seeing nothing within reach_m, or
+    obstacle_m straight ahead."""
+    distances = [int(reach_m * 100) + 1] * BINS
+    if obstacle_m is not None:
+        distances[0] = int(obstacle_m * 100)
+    m.update(now_s, 0.0, distances, 5.0, 0.0, 20, int(reach_m * 100))
+
+
+def front_rangefinder(m: ObstacleMap, now_s: float, reading_m: float, reach_m: float = 5.0, sensor_id: int = 1, scale: float = 1.0) -> None:
+    """A forward DISTANCE_SENSOR of 10 degrees field of view."""
+    m.update_distance_sensor(now_s, 0.0, sensor_id, reading_m, 0.1, reach_m, 0.0, math.radians(10.0), scale)
+
+
+def test_a_distance_sensor_fills_the_bins_px4_rounds_into_its_field_of_view():
+    m = ObstacleMap()
+    front_rangefinder(m, 0.0, 3.0)
+    # PX4's bins round((0 -+ 5) / 5): -1, 0 and 1, all at 3 m; nothing else known
+    assert [m.distances[i] for i in (71, 0, 1)] == [3.0, 3.0, 3.0]
+    assert sum(d is not None for d in m.distances) == 3 and m.max_range_m == 5.0
+    # Its reach reads as nothing within range; a reading at or below its minimum is dropped
+    front_rangefinder(m, 0.1, 5.0)
+    assert m.distances[0] == math.inf and m.updated_s == 0.1
+    front_rangefinder(m, 0.2, 0.05)
+    assert m.distances[0] == math.inf and m.updated_s == 0.1
+    # Pitched, the slant reading is projected onto the horizon as PX4 projects it
+    front_rangefinder(m, 0.3, 4.0, scale=math.cos(math.radians(30.0)))
+    assert m.distances[0] == pytest.approx(4.0 * math.cos(math.radians(30.0)))
+
+
+def test_sources_are_fused_as_px4s_enter_data_leaves_them():
+    m = ObstacleMap()
+    # A lidar reaching 30 m sees nothing; a rangefinder reaching 5 m sees 2 m ahead: the
+    # rangefinder's obstacle, and each bin clamped at the reach of the sensor that saw nothing
+    lidar_360(m, 0.0, 30.0)
+    front_rangefinder(m, 0.05, 2.0)
+    assert m.distances[0] == 2.0 and m.distances[36] == math.inf
+    assert m.view_at_reach[0] == 2.0 and m.view_at_reach[36] == 30.0 and m.max_range_m == 30.0
+    # Both see one: the shorter-reaching sensor's reading stays, whichever is closer and later
+    lidar_360(m, 0.1, 30.0, obstacle_m=1.5)
+    assert m.distances[0] == 2.0
+    # The rangefinder sees nothing any more: the lidar's obstacle comes through
+    front_rangefinder(m, 0.15, 5.0)
+    assert m.distances[0] == 1.5
+    # Nothing within range of either: the lidar's longer reach
+    lidar_360(m, 0.2, 30.0)
+    assert m.distances[0] == math.inf and m.view_at_reach[0] == 30.0
+    # A source not heard for more than 0.5 s no longer counts
+    front_rangefinder(m, 0.25, 2.0)
+    lidar_360(m, 0.9, 30.0)
+    assert m.distances[0] == math.inf and m.updated_s == 0.9
+
+
 def test_mixer_turns_torques_into_px4_quad_x_motor_commands():
     # Positive roll (right wing down) needs the left motors (1 aft-left, 2 front-left) faster.
     roll = mix(0.5, (0.1, 0.0, 0.0))
