@@ -30,7 +30,7 @@ from sim_bridge import ardupilot_link
 from sim_bridge.bridge import Bridge
 from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
-from sim_bridge.recording import COMPRESSIONS, Recorder
+from sim_bridge.recording import COMPRESSIONS, RIG_TOPIC, Recorder
 from sim_bridge.control import EXIT_CUT_SHORT, EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
 from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
@@ -293,6 +293,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
     optional_topics = ("/pilot",) if world.drive == "pilot" else ()
     if world.atmosphere.varies:
         optional_topics += ("/wind",)
+    optional_topics += tuple(f"{RIG_TOPIC}{sensor.name}" for sensor in world.rig or ())
     sut = None
     try:
         with ExitStack() as finishing, open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:

@@ -28,22 +28,25 @@ class FailureSchedule:
     def owns(self, unit: str) -> bool:
         return unit in self._owned
 
-    def reading(self, unit: str, run_time_s: float | None, reading: Any, wrong: Callable[[Any], Any]) -> Any | None:
+    def reading(self, unit: str, run_time_s: float | None, reading: Any, wrong: Callable[[Any], Any], instance: str | None = None) -> Any | None:
         """What the SUT receives of a reading of a unit the simulator owns at a run time (None
-        before the run): the reading itself, its failed form, or None when nothing is sent."""
+        before the run): the reading itself, its failed form, or None when nothing is sent. A unit
+        of several instances (a rig's range sensors) fails in each, from each one's last reading."""
         spec = self._owned[unit]
-        if run_time_s is None or run_time_s < spec.onset_s or unit in self._cleared:
-            self._last[unit] = reading
+        key = unit if instance is None else f"{unit}/{instance}"
+        named = {} if instance is None else {"sensor": instance}
+        if run_time_s is None or run_time_s < spec.onset_s or key in self._cleared:
+            self._last[key] = reading
             return reading
         if run_time_s >= spec.onset_s + spec.duration_s:
-            self._cleared.add(unit)
-            self._active.pop(unit, None)
-            self._on_event("failure_cleared", {"unit": unit, "type": spec.type, "delivery": "simulator"})
+            self._cleared.add(key)
+            self._active.pop(key, None)
+            self._on_event("failure_cleared", {"unit": unit, "type": spec.type, "delivery": "simulator", **named})
             return reading
-        failure = self._active.get(unit)
+        failure = self._active.get(key)
         if failure is None:
-            failure = self._active[unit] = Failure(TYPE_BY_NAME[spec.type], onset_s=spec.onset_s, last_reading=self._last.get(unit), wrong=wrong)
-            self._on_event("failure", {"unit": unit, "type": spec.type, "delivery": "simulator", "duration_s": spec.duration_s})
+            failure = self._active[key] = Failure(TYPE_BY_NAME[spec.type], onset_s=spec.onset_s, last_reading=self._last.get(key), wrong=wrong)
+            self._on_event("failure", {"unit": unit, "type": spec.type, "delivery": "simulator", "duration_s": spec.duration_s, **named})
         return failure.apply(run_time_s, reading)
 
     def command_due(self, run_time_s: float | None) -> tuple[FailureSpec, str] | None:

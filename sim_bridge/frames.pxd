@@ -6,7 +6,7 @@ from sim_bridge.world cimport World
 
 cdef class SensorFrames:
     cdef public World world
-    cdef public object range_messages, recorder, failures
+    cdef public object range_messages, recorder, failures, rig
     cdef public dict every
     cdef public int seq
     cdef public list wedges

@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sim_bridge.failures import FailureSchedule
 from sim_bridge.pilot import CHANNEL_COUNT
 from sim_bridge.recording import Recorder
+from sim_bridge.rig import RigFrames, wrong_rig_reading
 from sim_bridge.sensors import FIELDS_ALL, quaternion_from_euler
 from sim_bridge.world import SECTOR_DEG, World
 from simlink import codec
@@ -39,6 +40,10 @@ class SensorFrames:
         self.every = dict(every)
         self.seq = 0  # the simulator link's MAVLink sequence number
         self.wedges = _wedges(np.flatnonzero(world.sector_visible).tolist())
+        # A rig's sensors, each rendered into its own messages, instead of the profile's one sensor.
+        self.rig = None if world.spec.rig is None else RigFrames(
+            world.spec.rig, 1.0 / world.dt, world.hull_offset, world.nearest, self.encode,
+            lambda topic, time_us, message: recorder.write(topic, time_ns=time_us * 1000, message=message))
 
     def next_seq(self) -> int:
         seq = self.seq
@@ -81,7 +86,9 @@ class SensorFrames:
                 _milli_g(s.ay_m_s2),
                 _milli_g(s.az_m_s2),
             ))
-        if step % every["sensor"] == 0:
+        if self.rig is not None:
+            frames.extend(self.rig.step_frames(step, time_us, s.yaw_rad, self.rig_reading))
+        elif step % every["sensor"] == 0:
             frames.extend(self.obstacle_distance(time_us))
         if world.pilot is not None and step % every["rc"] == 0:
             frames.append(self.pilot_rc(time_us))
@@ -113,6 +120,13 @@ class SensorFrames:
                 return None
         self.recorder.write("/sensor/obstacle_distance", time_ns=time_us * 1000, message={"t": time_us / 1e6, "range_m": world.range_m, "distances_cm": distances})
         return distances
+
+    def rig_reading(self, name: str, readings_cm: list[int], reach_cm: int) -> list[int] | None:
+        """A rig sensor's reading as the "distance sensor" failure leaves it, which fails every
+        sensor of the rig, each from its own last reading (None: nothing is sent)."""
+        if not self.failures.owns("distance sensor"):
+            return readings_cm
+        return self.failures.reading("distance sensor", self.run_time(), readings_cm, lambda readings: wrong_rig_reading(readings, reach_cm), instance=name)
 
     def obstacle_distance(self, time_us: int):
         world = self.world

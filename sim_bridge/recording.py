@@ -184,6 +184,23 @@ OPTIONAL_SCHEMAS: dict[str, dict[str, Any]] = {
         "type": "object",
         "properties": {"t": {"type": "number"}, "wind_ned_m_s": {"type": "array", "items": {"type": "number"}}},
     },
+    "stella.RigReading": {
+        "title": "stella.RigReading",
+        "description": "One range sensor of the rig, as the SUT got it: an OBSTACLE_DISTANCE source's sectors (cm, from the hull; range + 1 cm: nothing within reach) or a DISTANCE_SENSOR's one reading.",
+        "type": "object",
+        "properties": {
+            "t": {"type": "number"},
+            "message": {"type": "string"},
+            "range_m": {"type": "number"},
+            "increment_deg": {"type": "number"},
+            "angle_offset_deg": {"type": "number"},
+            "frame": {"type": "string"},
+            "distances_cm": {"type": "array", "items": {"type": "integer"}},
+            "yaw_deg": {"type": "number"},
+            "fov_deg": {"type": "number"},
+            "distance_cm": {"type": "integer"},
+        },
+    },
     "stella.PilotSticks": {
         "title": "stella.PilotSticks",
         "description": "The simulated pilot's RC frame (sticks -1..1 in PX4's manual_control convention, mode-switch slot, raw channels) and where it aims.",
@@ -220,6 +237,11 @@ TOPICS = {
 }
 # Topics a log has only when the run needs them.
 OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks", "/wind": "stella.Wind"}
+RIG_TOPIC = "/sensor/rig/"  # + a rig sensor's name: stella.RigReading
+
+
+def optional_schema(topic: str) -> str:
+    return "stella.RigReading" if topic.startswith(RIG_TOPIC) else OPTIONAL_TOPICS[topic]
 
 
 def stamp(time_ns: int) -> dict[str, int]:
@@ -270,7 +292,7 @@ class Recorder:
         """compression: "zstd", or "none" for a log that is read once and rewritten (the harness
         compresses the evaluation's log itself)."""
         self._stream = stream
-        self._topics = {**TOPICS, **{topic: OPTIONAL_TOPICS[topic] for topic in optional_topics}}
+        self._topics = {**TOPICS, **{topic: optional_schema(topic) for topic in optional_topics}}
         self._writer = Writer(stream, compression=COMPRESSIONS[compression])
         self._channels: dict[str, int] = {}
 

@@ -102,6 +102,33 @@ class RangeSensor:
     range_m: float
 
 
+RIG_MESSAGES = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")
+RIG_FRAMES = ("body", "local")
+
+
+@dataclass(frozen=True)
+class RigSensor:
+    """One range sensor of the vehicle's rig (harness/scenario/rig.py), as the world renders it:
+    a DISTANCE_SENSOR device, one reading over its field of view, or an OBSTACLE_DISTANCE
+    source, one reading per sector of increment_deg. Its field of view is centred on yaw_deg,
+    clockwise from the nose; range_m is its reach in this world's visibility; its readings come
+    rate_hz times a second and reach the SUT latency_s after they were measured. frame: an
+    OBSTACLE_DISTANCE source's sectors relative to the nose ("body", MAV_FRAME_BODY_FRD) or to
+    north ("local", MAV_FRAME_LOCAL_NED)."""
+
+    name: str
+    message: str
+    yaw_deg: float
+    fov_deg: float
+    min_range_m: float
+    max_range_m: float
+    range_m: float
+    rate_hz: float
+    latency_s: float = 0.0
+    increment_deg: float = 5.0
+    frame: str = "body"
+
+
 @dataclass(frozen=True)
 class Body:
     length_m: float
@@ -181,6 +208,9 @@ class WorldSpec:
     not_simulated: Mapping[str, Any] = field(default_factory=dict)
     pilot: PilotSpec | None = None
     failures: tuple[FailureSpec, ...] | None = None
+    # The vehicle's range sensors, each rendered into its own messages; None: the profile's one
+    # forward sensor (`sensor`), rendered as the SUT reads it (Capabilities.range_messages).
+    rig: tuple[RigSensor, ...] | None = None
     format: str = WORLD_FORMAT
 
     @property
@@ -201,6 +231,11 @@ class WorldSpec:
             raise SpecError("/drive", f"{spec.drive!r} is neither 'mission' nor 'pilot'")
         if spec.drive == "pilot" and spec.pilot is None:
             raise SpecError("/pilot", "missing: the pilot drive needs the pilot's max_stick and aim_offset_m")
+        for index, sensor in enumerate(spec.rig or ()):
+            if sensor.message not in RIG_MESSAGES:
+                raise SpecError(f"/rig/{index}/message", f"{sensor.message!r} is not one of {', '.join(RIG_MESSAGES)}")
+            if sensor.frame not in RIG_FRAMES:
+                raise SpecError(f"/rig/{index}/frame", f"{sensor.frame!r} is not one of {', '.join(RIG_FRAMES)}")
         for index, failure in enumerate(spec.failures or ()):
             if failure.delivery not in FAILURE_DELIVERIES:
                 raise SpecError(f"/failures/{index}/delivery", f"{failure.delivery!r} is neither 'simulator' nor 'sut'")

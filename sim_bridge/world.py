@@ -152,6 +152,18 @@ class World:
                 distances[index] = reach_cm + 1
         return distances
 
+    def hull_offset(self, body_angles_rad: np.ndarray) -> np.ndarray:
+        """How far the hull is from the vehicle's centre in each direction of the body."""
+        half_l, half_w = self.spec.uav.body.length_m / 2.0, self.spec.uav.body.width_m / 2.0
+        with np.errstate(divide="ignore"):
+            return np.minimum(half_l / np.abs(np.cos(body_angles_rad)), half_w / np.abs(np.sin(body_angles_rad)))
+
+    def nearest(self, world_angles_rad: np.ndarray, reach_m: float) -> np.ndarray | None:
+        """Along each horizontal ray from the vehicle's centre (clockwise from north), the distance
+        to the nearest obstacle (inf: none); None: no obstacle within reach_m."""
+        s = self.vehicle.state
+        return self.field.sector_distances(s.north_m, s.east_m, s.up_m, world_angles_rad, reach_m)
+
     def pilot_frame(self, time_s: float) -> RcFrame:
         """The simulated pilot's sticks and switch now (its mode switch held where the harness asked)."""
         frame = self.pilot.update(time_s, self.vehicle.state)

@@ -149,6 +149,9 @@ class Capabilities:
     # How it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled autopilot) and/or
     # DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
     range_messages: tuple[str, ...]
+    # Which of a sensor rig's messages (harness/scenario/rig.py) it reads on the simulator link;
+    # a rig with another kind of sensor is refused for it.
+    rig_messages: tuple[str, ...] = ()
     # How many times faster than real time a paced hold may run. PX4 stretches its timeouts by
     # the speed factor it is started with, so its hold runs that fast.
     hold_pace: float = 1.0

@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 class BundledAutopilot:
     name = "bundled"
-    capabilities = Capabilities(hold_mode="frozen", range_messages=("OBSTACLE_DISTANCE",), transports=("tcp", "unix", "shm", "memory"),
+    capabilities = Capabilities(hold_mode="frozen", range_messages=("OBSTACLE_DISTANCE",), rig_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"), transports=("tcp", "unix", "shm", "memory"),
                                 answers_every_step=True, echoes_step_time=True)
 
     def __init__(self, config: Mapping[str, str] | None = None):

@@ -58,7 +58,8 @@ class CommandSut:
         hold_mode = config.get("hold", "paced")
         if hold_mode not in HOLD_MODES:
             raise SutError(self.name, f"--sut-hold {hold_mode!r} is not one of {', '.join(HOLD_MODES)}")
-        self.capabilities = Capabilities(hold_mode=hold_mode, range_messages=("OBSTACLE_DISTANCE", "DISTANCE_SENSOR"))
+        self.capabilities = Capabilities(hold_mode=hold_mode, range_messages=("OBSTACLE_DISTANCE", "DISTANCE_SENSOR"),
+                                         rig_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"))
 
     def argv(self, *, sim_port: int, api_port: int, instance: int, workdir: Path) -> list[str]:
         values = {"sim_port": sim_port, "api_port": api_port, "instance": instance, "workdir": str(workdir)}

@@ -97,7 +97,7 @@ def takes_params_from_environment(etc: Path) -> bool:
 
 class Px4Sitl:
     name = "px4"
-    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1,
+    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), rig_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1,
                                 echoes_step_time=True)
 
     def __init__(self, config: Mapping[str, str]):

@@ -27,7 +27,7 @@ from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
 from harness.properties.spec import Property
 from harness.scenario.logical import LogicalScenario, load_logical
-from harness.scenario.profile import Profile, load_profile
+from harness.scenario.profile import Profile, load_profile, with_rig_named
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
@@ -75,10 +75,11 @@ class CampaignConfig:
     properties: tuple[Property, ...] = ()
     # Each batch flown on a cheap model first, the real SUT only where it pays (harness/campaigns/screen.py).
     screen: ScreenSettings | None = None
+    rig: str | None = None  # a sensor rig (preset name or file) instead of the profile's range sensors
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
-        profile = load_profile(self.profile)
+        profile = load_profile(self.profile) if self.rig is None else with_rig_named(load_profile(self.profile), self.rig)
         plan = Path(self.mission_plan) if self.mission_plan else None
         return CampaignDocuments(profile, tuple(load_logical(Path(s), profile, self.drive, plan) for s in self.scenarios))
 
@@ -108,6 +109,7 @@ class CampaignConfig:
 
         return {"scenario_files": [str(Path(s).resolve()) for s in self.scenarios], "profile": self.profile,
                 **({"mission_plan": str(Path(self.mission_plan).resolve())} if self.mission_plan else {}),
+                **({"rig": self.rig} if self.rig else {}),
                 "sut_build": build_record(self.sut), **({"reference_build": build_record(self.reference)} if self.reference else {})}
 
     def _identity(self, *, scenarios: list[str], profile: str, from_environment: bool = True) -> dict[str, Any]:

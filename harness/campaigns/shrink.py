@@ -28,6 +28,7 @@ from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json
+from harness.scenario.rig import load_rig, with_rig
 from harness.scenario.world import space_from_concrete, with_drive_recorded
 
 JOURNAL_FORMAT = "stella.shrink-journal/1"
@@ -140,9 +141,12 @@ def _from_json(path: Path) -> Case:
     return Case(document, 0, None, str(path), stem)
 
 
-def start_document(case: Case, drive: str | None = None, mission_plan: Path | None = None) -> Document:
-    """The case as a checked concrete scenario document, flown with `drive` and `mission_plan` if given."""
+def start_document(case: Case, drive: str | None = None, mission_plan: Path | None = None, rig: str | None = None) -> Document:
+    """The case as a checked concrete scenario document, flown with `drive`, `mission_plan` and
+    `rig` (a sensor rig's preset name or file) if given."""
     document = with_drive_recorded(case.document, drive)
+    if rig is not None:
+        document = {**document, "profile_document": with_rig(document["profile_document"], load_rig(rig))}
     space = space_from_concrete(document, case.label, drive, mission_plan)
     x = space.from_concrete(document, case.label)
     broken = space.violations(x)

@@ -236,6 +236,10 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         world = system.capabilities.with_failure_deliveries(world)
+        refused = [sensor for sensor in world.rig or () if sensor.message not in system.capabilities.rig_messages]
+        if refused:
+            raise sut_adapter.SutError(system.name, f"does not read the rig's {', '.join(f'{s.name} ({s.message})' for s in refused)} "
+                                                    "on its simulator link (`stella run --rig` says why)")
         started = time.monotonic()
         with simulation_stack(world, options, system, workdir) as stack:
             timings["start_s"] = time.monotonic() - started

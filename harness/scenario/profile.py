@@ -12,6 +12,7 @@ from harness.errors import InputError, Problem
 from harness.paths import profile_path
 from harness.scenario import units
 from harness.scenario.documents import load_json, schema, schema_problems
+from harness.scenario.rig import load_rig, rig_problems, with_rig
 
 WEATHER_PARAMETERS = (
     "wind force",
@@ -95,6 +96,11 @@ class Profile:
     @property
     def sensor(self) -> Mapping[str, Any]:
         return self.document["sensor"]
+
+    @property
+    def rig(self) -> Mapping[str, Any] | None:
+        """The vehicle's range sensors, if it declares a rig (harness/scenario/rig.py)."""
+        return self.document.get("rig")
 
     @property
     def surfaces(self) -> Mapping[str, Any]:
@@ -228,6 +234,8 @@ def _semantic_problems(document: Mapping[str, Any], file: str) -> list[Problem]:
     sensor = document["sensor"]
     if sensor["min_range_m"] >= sensor["max_range_m"]:
         problems.append(Problem(file, "/sensor/min_range_m", "must be below max_range_m"))
+    if "rig" in document:
+        problems.extend(rig_problems(document["rig"], file, at="/rig"))
     return problems
 
 
@@ -288,3 +296,8 @@ def load_profile(name_or_path: str = "default") -> Profile:
 
 def is_profile_document(document: Any) -> bool:
     return isinstance(document, dict) and "parameters" in document and "landforms" in document
+
+
+def with_rig_named(profile: Profile, name_or_path: str) -> Profile:
+    """The profile with a rig (a preset's name or a file, `--rig`) as its vehicle's range sensors."""
+    return profile_from_document(with_rig(profile.document, load_rig(name_or_path)))

@@ -13,6 +13,7 @@ from harness.scenario.documents import load_json
 from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
 from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, intruder_track, smooth_points
 from harness.scenario.profile import profile_from_document, profile_problems
+from harness.scenario.rig import rig_sensors
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
 from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface,
                              Turbulence, Uav, Waypoint, WorldSpec)
@@ -150,6 +151,7 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
         drive=mission.drive,
         pilot=PilotSpec(**concrete["pilot"]) if mission.drive == "pilot" else None,
         failures=failures or None,
+        rig=None if profile.rig is None else rig_sensors(profile.rig, profile.sensor, environment["visibility_m"]),
     )
 
 

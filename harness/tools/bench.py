@@ -38,7 +38,7 @@ from sut_adapter import SutConfig
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
-from harness.scenario.profile import load_profile
+from harness.scenario.profile import load_profile, with_rig_named
 from harness.scenario.space import SearchSpace
 from sim_bridge.sut_link import TRANSPORTS
 
@@ -59,13 +59,14 @@ PLACEMENT_NAMES = {(2, "tcp", False): "a core each for the simulator and the SUT
 
 def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED, rate_hz: float | None = None, pin_cpu: bool = True,
               sut: RunOptions = RunOptions(), placements: tuple[tuple[int, str, bool], ...] = PLACEMENTS, drive: str | None = None,
-              mission_plan: Path | None = None, limit: bool = False) -> dict[str, Any]:
+              mission_plan: Path | None = None, limit: bool = False, rig: str | None = None) -> dict[str, Any]:
     """`sut` names the SUT (its `sut` field, a SutConfig); the bundled autopilot by
-    default. `drive` overrides the scenario's drive, `mission_plan` its route. `limit`: after
+    default. `drive` overrides the scenario's drive, `mission_plan` its route, `rig` its range
+    sensors (a preset or a file, as --rig). `limit`: after
     each flight, the SUT alone on the placement's cores (harness/tools/sut_alone.py, replaying
     the first flight), and each flight's speed as a share of the replay beside it: paired, the
     ratio holds while the machine's load drifts."""
-    profile = load_profile("default")
+    profile = load_profile("default") if rig is None else with_rig_named(load_profile("default"), rig)
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
     space = SearchSpace(load_logical(path, profile, drive, mission_plan), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]

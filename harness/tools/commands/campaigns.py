@@ -20,7 +20,8 @@ from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
 from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int, share
-from harness.tools.commands.sut_options import add_reference_options, add_sut_logs_option, add_sut_options, check_transport, mission_plan, reference_spec, sut_spec
+from harness.tools.commands.sut_options import (add_reference_options, add_sut_logs_option, add_sut_options, check_rig, check_transport, mission_plan,
+                                                reference_spec, sut_spec)
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
@@ -129,7 +130,8 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
                                                     "(a differential campaign then compares the properties of both sides too)")])
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
-    config = replace(config, screen=screen_settings(args, sut, drives, config.objective))
+    config = replace(config, screen=screen_settings(args, sut, drives, config.objective), rig=args.rig)
+    check_rig(config.read().profile.rig, sut, config.reference)
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config

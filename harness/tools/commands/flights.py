@@ -14,8 +14,8 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.tools.commands.common import command, emit, non_negative_float, non_negative_int, positive_float, positive_int, seed_int
-from harness.tools.commands.sut_options import (add_reference_options, add_sut_options, check_transport, mission_plan, reference_spec, space_of,
-                                                sut_spec)
+from harness.tools.commands.sut_options import (add_reference_options, add_sut_options, check_rig, check_transport, mission_plan, reference_spec,
+                                                rigged, space_of, sut_spec)
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
@@ -59,15 +59,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     sut = sut_spec(args)
     if args.concrete:
         space, x = load_concrete(Path(args.concrete), args.drive, mission_plan(args))
+        space = rigged(space, args)
     elif args.scenario:
         space = space_of(args)
         x = space.sample_feasible(np.random.default_rng(args.seed), 1)[0]
     else:
         raise InputError([Problem("stella run", "", "give a logical scenario to sample from, or --concrete FILE")])
     check_transport(args.transport, sut)
+    reference = reference_spec(args, sut)
+    check_rig(space.profile.rig, sut, reference)
     options = RunOptions(sut=sut, rate_hz=args.rate_hz, cores=args.cores, transport=args.transport,
                          properties=tuple(load_property(given) for given in args.property or []))
-    reference = reference_spec(args, sut)
     if reference is not None:
         if args.repeat != 1:
             raise InputError([Problem("--repeat", "", "a differential run confirms with --confirm N (both sides), not --repeat")])

@@ -39,7 +39,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from harness.tools.bench import PLACEMENTS, bench_text, run_bench
     from harness.flight.results import RunOptions
 
-    for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan")):
+    for given, option in ((args.drive, "--drive"), (args.mission_plan, "--mission-plan"), (args.rig, "--rig")):
         if given and (args.executor or args.campaign):
             raise InputError([Problem(option, "", f"the executor and campaign benchmarks fly the standard scenario's own mission; leave {option} out")])
     if args.limit and (args.executor or args.campaign):
@@ -69,7 +69,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                                      f"(it is measured with --cores {' or '.join(map(str, measured))}): leave one of them out")])
     report = run_bench(args.runs, Path(args.scenario) if args.scenario else None, args.seed, args.rate_hz, pin_cpu=not args.no_pin,
                        sut=RunOptions(sut=sut), placements=placements,
-                       drive=args.drive, mission_plan=mission_plan(args), limit=args.limit)
+                       drive=args.drive, mission_plan=mission_plan(args), limit=args.limit, rig=args.rig)
     emit(args, report, bench_text(report))
     return 0
 

@@ -18,6 +18,7 @@ from harness.scenario.generate import ELEMENTS
 from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
 from harness.scenario.plan import plan_problems
 from harness.scenario.profile import is_profile_document, load_profile, profile_problems
+from harness.scenario.rig import is_rig_document, rig_problems
 from harness.scenario.space import CONCRETE_FORMAT
 from harness.scenario.world import space_from_concrete
 from harness.tools.commands.common import command, emit, non_negative_float, positive_int, seed_int
@@ -29,7 +30,7 @@ def _validate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="default", help="profile name or path used to check units (default: default)")
 
 
-@command("validate", "check logical scenarios and profiles; each error as `file: /json/pointer: message`", _validate_options)
+@command("validate", "check logical scenarios, profiles and sensor rigs; each error as `file: /json/pointer: message`", _validate_options)
 def cmd_validate(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile)
     problems: list[Problem] = []
@@ -43,6 +44,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
             continue
         if path.suffix == ".plan":
             found, kind, notes = plan_problems(document, str(path)), "QGroundControl plan", []
+        elif is_rig_document(document):
+            found, kind, notes = rig_problems(document, str(path)), "sensor rig", []
         elif is_profile_document(document):
             found = profile_problems(document, str(path))
             kind = "profile"
@@ -81,6 +84,19 @@ def cmd_validate(args: argparse.Namespace) -> int:
         if not args.verbose:
             _print_each_note_once(report)
     return 2 if problems else 0
+
+
+@command("rigs", "list the sensor rigs (--rig NAME): each one's messages and sensors")
+def cmd_rigs(args: argparse.Namespace) -> int:
+    from harness.scenario.rig import presets, summary_line
+
+    listed = presets()
+    lines = []
+    for rig in listed:
+        lines.append(f"{rig['name']} ({', '.join(rig['messages'])}): {rig['description']}")
+        lines += [f"  {summary_line(sensor)}" for sensor in rig["sensors"]]
+    emit(args, {"rigs": listed}, "\n".join(lines))
+    return 0
 
 
 def _print_each_note_once(report: list[dict]) -> None:

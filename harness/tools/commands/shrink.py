@@ -11,7 +11,7 @@ from pathlib import Path
 
 from harness.campaigns.regression import EXPECTATIONS
 from harness.tools.commands.common import command, emit, positive_float, positive_int, seed_int
-from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
+from harness.tools.commands.sut_options import add_sut_options, check_rig, check_transport, mission_plan, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
 
 
@@ -78,7 +78,8 @@ def cmd_shrink(args: argparse.Namespace) -> int:
     args = _with_recorded_sut(args, case.sut)
     sut = sut_spec(args)
     check_transport(args.transport, sut)
-    start = shrink.start_document(case, args.drive, mission_plan(args))
+    start = shrink.start_document(case, args.drive, mission_plan(args), args.rig)
+    check_rig(start["profile_document"].get("rig"), sut)
     name = args.name or f"{case.name}-shrunk"
     out = Path(args.out)
     properties = tuple(load_property(given) for given in args.property or [])

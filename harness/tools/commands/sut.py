@@ -11,7 +11,7 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.paths import scenarios_dir
 from harness.tools.commands.common import command, command_with_actions, emit, positive_float, positive_int
-from harness.tools.commands.sut_options import add_sut_options, space_of, sut_spec
+from harness.tools.commands.sut_options import add_sut_options, check_rig, space_of, sut_spec
 
 command_with_actions("sut", "check that a SUT comes up against the simulator (check), or build one from source (build)")
 
@@ -31,6 +31,7 @@ def sut_check(args: argparse.Namespace) -> int:
 
     sut = sut_spec(args)
     space = space_of(args)
+    check_rig(space.profile.rig, sut)
     x = space.sample_feasible(np.random.default_rng(0), 1)[0]
     stages = check(space, x, RunOptions(sut=sut), args.timeout_s)
     emit(args, {"sut": sut.name, "stages": as_dicts(stages), "ok": all(s.ok for s in stages)}, report_text(sut.name, stages))

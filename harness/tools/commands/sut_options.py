@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Mapping
 
 from harness.errors import InputError, Problem
 from harness.flight.results import SUT_LOGS
 from harness.scenario.logical import DRIVES, load_logical
-from harness.scenario.profile import load_profile
+from harness.scenario.profile import load_profile, with_rig_named
 
 if TYPE_CHECKING:
     from harness.scenario.space import SearchSpace
@@ -34,6 +34,7 @@ def add_sut_options(p: argparse.ArgumentParser) -> None:
                                                       "takeoff, waypoint, land, return, change speed, delay)")
     p.add_argument("--drive", choices=DRIVES, help="how the route is flown, overriding the scenario's mission.drive: mission (an uploaded mission) "
                                                    "or pilot (a simulated pilot in Position mode with stick input, relying on collision prevention)")
+    p.add_argument("--rig", metavar="NAME|FILE", help="the vehicle's range sensors: a preset (`stella rigs`) or a rig file, instead of the profile's")
 
 
 def add_sut_logs_option(p: argparse.ArgumentParser) -> None:
@@ -72,7 +73,31 @@ def space_of(args: argparse.Namespace) -> SearchSpace:
     from harness.scenario.space import SearchSpace
 
     profile = load_profile(args.profile)
+    if getattr(args, "rig", None):
+        profile = with_rig_named(profile, args.rig)
     return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None), mission_plan(args)), profile)
+
+
+def rigged(space: SearchSpace, args: argparse.Namespace) -> SearchSpace:
+    """The space with --rig's sensors, if given (a concrete scenario's own profile otherwise)."""
+    from harness.scenario.space import SearchSpace
+
+    if not getattr(args, "rig", None):
+        return space
+    return SearchSpace(space.logical, with_rig_named(space.profile, args.rig))
+
+
+def check_rig(rig: Mapping[str, Any] | None, *suts: SutConfig | None) -> None:
+    """Exit 2 where a SUT cannot read a sensor of the rig."""
+    import sut_adapter
+    from harness.scenario.rig import rig_problem_for
+
+    for sut in suts:
+        if sut is None:
+            continue
+        problem = rig_problem_for(rig, sut.name, sut_adapter.system_for(sut).capabilities.rig_messages)
+        if problem is not None:
+            raise InputError([Problem("--rig", "", problem)])
 
 
 def sut_param_values(items: list[str] | None) -> dict[str, float]:

@@ -1,0 +1,151 @@
+"""Sensor rigs: the vehicle's range sensors, declared in its profile ("rig") or given with --rig
+(a preset's name, scenarios/rigs/NAME.json, or a file), each rendered by the simulator into the
+messages its kind is (sim_bridge/rig.py): DISTANCE_SENSOR devices, one reading over a field of
+view, and OBSTACLE_DISTANCE sources, a reading per sector. A profile without a rig flies its one
+forward sensor ("sensor") as before, rendered as each SUT reads it.
+
+A rig is part of the profile document, so a concrete scenario and a campaign's identity carry it.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any, Mapping
+
+from harness.errors import InputError, Problem
+from harness.paths import scenarios_dir
+from harness.scenario.documents import load_json, schema_problems
+from sim_bridge.spec import RigSensor
+
+SECTORS = 72  # OBSTACLE_DISTANCE's distances array
+
+
+def rigs_dir() -> Path:
+    return scenarios_dir() / "rigs"
+
+
+def rig_path(name_or_path: str) -> Path:
+    """A preset by name (`lidar_360`) or a rig file by path."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".json" or candidate.exists():
+        return candidate
+    return rigs_dir() / f"{name_or_path}.json"
+
+
+def preset_names() -> list[str]:
+    return sorted(path.stem for path in rigs_dir().glob("*.json"))
+
+
+def is_rig_document(document: Any) -> bool:
+    return isinstance(document, dict) and "sensors" in document and "landforms" not in document
+
+
+def rig_problems(document: Any, file: str, at: str = "") -> list[Problem]:
+    """Every problem of a rig document, located by JSON pointer (under `at` where it sits inside a profile)."""
+    problems = [Problem(p.file, at + p.pointer, p.message) for p in schema_problems(document, "rig", file)]
+    if problems:
+        return problems
+    seen_names: set[str] = set()
+    geometries: dict[tuple, int] = {}
+    for index, sensor in enumerate(document["sensors"]):
+        where = f"{at}/sensors/{index}"
+        if sensor["name"] in seen_names:
+            problems.append(Problem(file, f"{where}/name", f'"{sensor["name"]}" names two sensors: each needs its own name (its log topic is /sensor/rig/NAME)'))
+        seen_names.add(sensor["name"])
+        if sensor["min_range_m"] >= sensor["max_range_m"]:
+            problems.append(Problem(file, f"{where}/min_range_m", "must be below max_range_m"))
+        if sensor["message"] == "DISTANCE_SENSOR":
+            for key in ("increment_deg", "frame"):
+                if key in sensor:
+                    problems.append(Problem(file, f"{where}/{key}", "belongs to an OBSTACLE_DISTANCE source: a DISTANCE_SENSOR has one reading over its fov_deg"))
+            continue
+        increment = sensor.get("increment_deg", 5.0)
+        covered = 360.0 if sensor["fov_deg"] >= 360.0 else sensor["fov_deg"]
+        if covered / increment > SECTORS + 1e-9:
+            problems.append(Problem(file, f"{where}/increment_deg",
+                                    f"{covered:g} degrees in sectors of {increment:g} make more than the {SECTORS} an OBSTACLE_DISTANCE message holds: "
+                                    f"at least {covered / SECTORS:g}"))
+        if sensor["fov_deg"] < increment:
+            problems.append(Problem(file, f"{where}/fov_deg", f"is narrower than one sector of {increment:g} degrees"))
+        if sensor.get("frame", "body") == "local" and sensor["fov_deg"] < 360.0:
+            problems.append(Problem(file, f"{where}/frame", '"local" (sectors from north) needs fov_deg 360: a field of view turns with the vehicle'))
+        geometry = (increment, sensor.get("yaw_deg", 0.0), sensor["fov_deg"], sensor["max_range_m"], sensor.get("frame", "body"))
+        if geometry in geometries:
+            problems.append(Problem(file, f"{where}", f"has the geometry of /sensors/{geometries[geometry]}: an autopilot cannot tell two "
+                                                      "OBSTACLE_DISTANCE sources apart by anything else (PX4's obstacle_distance topic has one instance)"))
+        geometries.setdefault(geometry, index)
+    return problems
+
+
+def load_rig(name_or_path: str) -> dict[str, Any]:
+    """A validated rig document, by preset name or path; InputError names the file, the field and the fix."""
+    path = rig_path(name_or_path)
+    if not path.exists():
+        raise InputError([Problem(str(path), "", f"no such rig: give a file or one of the presets {', '.join(preset_names())} (`stella rigs`)")])
+    document = load_json(path)
+    problems = rig_problems(document, str(path))
+    if problems:
+        raise InputError(problems)
+    return document
+
+
+def with_rig(profile_document: Mapping[str, Any], rig: Mapping[str, Any]) -> dict[str, Any]:
+    """The profile document with this rig as its vehicle's range sensors."""
+    return {**copy.deepcopy(dict(profile_document)), "rig": copy.deepcopy(dict(rig))}
+
+
+def reach_m(sensor: Mapping[str, Any], profile_sensor: Mapping[str, Any], visibility_m: float) -> float:
+    """A rig sensor's reach in this visibility, by the profile's sensor model (world.sensor_range_m):
+    linear below its full-range visibility (the profile sensor's unless it gives its own), never
+    below the profile's floor or its own reach, whichever is less."""
+    full = sensor.get("full_range_visibility_m", profile_sensor["full_range_visibility_m"])
+    reach = sensor["max_range_m"] * min(1.0, visibility_m / full)
+    return max(min(profile_sensor["floor_range_m"], sensor["max_range_m"]), reach)
+
+
+def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visibility_m: float) -> tuple[RigSensor, ...]:
+    """The world spec's sensors of a rig document in this world's visibility."""
+    return tuple(RigSensor(name=s["name"], message=s["message"], yaw_deg=float(s.get("yaw_deg", 0.0)), fov_deg=float(s["fov_deg"]),
+                           min_range_m=float(s["min_range_m"]), max_range_m=float(s["max_range_m"]),
+                           range_m=reach_m(s, profile_sensor, visibility_m), rate_hz=float(s["rate_hz"]),
+                           latency_s=float(s.get("latency_s", 0.0)), increment_deg=float(s.get("increment_deg", 5.0)),
+                           frame=s.get("frame", "body"))
+                 for s in rig["sensors"])
+
+
+def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, rig_messages: tuple[str, ...]) -> str | None:
+    """Why this SUT cannot fly with this rig (None: it can): a sensor whose message it does not read."""
+    if rig is None:
+        return None
+    refused = [s for s in rig["sensors"] if s["message"] not in rig_messages]
+    if not refused:
+        return None
+    names = ", ".join(f'{s["name"]} ({s["message"]})' for s in refused)
+    if sut == "px4":
+        why = ("PX4 reads OBSTACLE_DISTANCE on a companion computer's MAVLink link, not on its simulator link, and the harness "
+               "does not deliver it there yet: fly a rig of DISTANCE_SENSOR devices (four_rangefinders), or the bundled autopilot")
+    elif not rig_messages:
+        why = f"{sut} takes its range data another way than the simulator's MAVLink messages; rigs do not reach it yet"
+    else:
+        why = f"{sut} reads only {', '.join(rig_messages)} on its simulator link"
+    return f"rig {rig['name']}: {names}: {why}"
+
+
+def describe(rig: Mapping[str, Any]) -> dict[str, Any]:
+    """A rig as `stella rigs --json` lists it."""
+    return {"name": rig["name"], "description": rig.get("description", ""),
+            "messages": sorted({s["message"] for s in rig["sensors"]}),
+            "sensors": [{k: v for k, v in s.items() if k != "description"} for s in rig["sensors"]]}
+
+
+def presets() -> list[dict[str, Any]]:
+    return [describe(load_rig(name)) for name in preset_names()]
+
+
+def summary_line(sensor: Mapping[str, Any]) -> str:
+    where = f'{sensor["fov_deg"]:g} deg field of view at {sensor.get("yaw_deg", 0):g} deg' if sensor["fov_deg"] < 360 else "all around"
+    sectors = f', sectors of {sensor.get("increment_deg", 5):g} deg' if sensor["message"] == "OBSTACLE_DISTANCE" else ""
+    latency = f', {sensor["latency_s"]:g} s late' if sensor.get("latency_s") else ""
+    return (f'{sensor["name"]}: {sensor["message"]}, {where}{sectors}, '
+            f'{sensor["min_range_m"]:g}-{sensor["max_range_m"]:g} m, {sensor["rate_hz"]:g} Hz{latency}')

@@ -1,0 +1,192 @@
+"""Sensor rigs: the documents and their presets, each sensor rendered into its messages (rate,
+latency, layout, failure), and flights with each preset at a wall on the bundled autopilot and,
+where STELLA_PX4_BIN is set, on PX4."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from conftest import ROOT
+from harness.flight import logs
+from harness.flight.evaluation import evaluate
+from harness.flight.results import RunOptions
+from harness.scenario.profile import load_profile, with_rig_named
+from harness.scenario.rig import load_rig, preset_names, rig_sensors
+from harness.scenario.space import SearchSpace
+from harness.scenario.world import load_concrete
+from harness.tools.cli import main
+from sim_bridge.failures import FailureSchedule
+from sim_bridge.rig import RigFrames
+from sim_bridge.spec import FailureSpec
+from sut_adapter import SutConfig
+
+EXAMPLES = ROOT / "scenarios" / "examples"
+BODY = {"length_m": 0.6, "width_m": 0.6}
+
+
+def decoded(frames: list[bytes]) -> list:
+    parser = mavlink.MAVLink(None)
+    return [message for frame in frames for message in parser.parse_buffer(frame) or []]
+
+
+def wall_north(distance_m: float):
+    """A wall across north at distance_m from the vehicle's centre, as World.nearest sees it."""
+    def nearest(world_angles_rad: np.ndarray, reach_m: float):
+        cosines = np.cos(world_angles_rad)
+        with np.errstate(divide="ignore"):
+            distances = np.where(cosines > 1e-9, distance_m / cosines, np.inf)
+        return distances if np.min(distances) <= reach_m else None
+    return nearest
+
+
+def hull(body_angles_rad: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.minimum(0.3 / np.abs(np.cos(body_angles_rad)), 0.3 / np.abs(np.sin(body_angles_rad)))
+
+
+def rendered(rig_name: str, steps: int, distance_m: float = 3.3, yaw_rad: float = 0.0, delivered=None, visibility_m: float = 10000.0):
+    """Each step's frames of a preset at 250 Hz before a wall, and what was recorded."""
+    profile = load_profile()
+    sensors = rig_sensors(load_rig(rig_name), profile.sensor, visibility_m)
+    recorded = []
+    counter = iter(range(10**6))
+    frames = RigFrames(sensors, 250.0, hull, wall_north(distance_m),
+                       lambda codec, *fields: codec.encode(next(counter) & 0xFF, 1, 51, *fields),
+                       lambda topic, time_us, message: recorded.append((topic, time_us, message)))
+    as_sent = delivered or (lambda name, readings, reach_cm: readings)
+    return [frames.step_frames(step, step * 4000, yaw_rad, as_sent) for step in range(steps)], recorded
+
+
+def test_every_preset_is_a_valid_rig_and_the_list_names_its_messages(capsys):
+    assert set(preset_names()) >= {"lidar_360", "four_rangefinders", "depth_camera", "lidar_and_rangefinders"}
+    assert main(["validate", str(ROOT / "scenarios" / "rigs")]) == 0
+    capsys.readouterr()
+    assert main(["rigs", "--json"]) == 0
+    listed = {rig["name"]: rig for rig in json.loads(capsys.readouterr().out)["rigs"]}
+    assert listed["lidar_and_rangefinders"]["messages"] == ["DISTANCE_SENSOR", "OBSTACLE_DISTANCE"]
+    assert [s["yaw_deg"] for s in listed["four_rangefinders"]["sensors"]] == [0, 90, 180, 270]
+
+
+@pytest.mark.parametrize("sensors, pointer, says", [
+    ([{"name": "a", "message": "LIDAR", "fov_deg": 10, "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10}], "/sensors/0/message", "DISTANCE_SENSOR"),
+    ([{"name": "a", "message": "DISTANCE_SENSOR", "fov_deg": 10, "min_range_m": 6, "max_range_m": 5, "rate_hz": 10}], "/sensors/0/min_range_m", "below max_range_m"),
+    ([{"name": "a", "message": "DISTANCE_SENSOR", "fov_deg": 10, "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10},
+      {"name": "a", "message": "DISTANCE_SENSOR", "fov_deg": 10, "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10, "yaw_deg": 90}],
+     "/sensors/1/name", "names two sensors"),
+    ([{"name": "a", "message": "OBSTACLE_DISTANCE", "fov_deg": 360, "increment_deg": 2, "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10}],
+     "/sensors/0/increment_deg", "at least 5"),
+    ([{"name": "a", "message": "OBSTACLE_DISTANCE", "fov_deg": 90, "frame": "local", "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10}],
+     "/sensors/0/frame", "fov_deg 360"),
+    ([{"name": "a", "message": "DISTANCE_SENSOR", "fov_deg": 10, "increment_deg": 5, "min_range_m": 0.1, "max_range_m": 5, "rate_hz": 10}],
+     "/sensors/0/increment_deg", "belongs to an OBSTACLE_DISTANCE source"),
+])
+def test_a_bad_rig_exits_2_naming_the_field(tmp_path, capsys, sensors, pointer, says):
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps({"name": "bad", "sensors": sensors}))
+    assert main(["validate", str(path)]) == 2
+    out = capsys.readouterr().out
+    assert f"{path}: {pointer}:" in out and says in out
+    assert main(["run", "--concrete", str(EXAMPLES / "wall_concrete.json"), "--rig", str(path), "--out", str(tmp_path)]) == 2
+    assert f"{path}: {pointer}:" in capsys.readouterr().err
+
+
+def test_a_rig_sensor_reaches_less_far_in_fog_never_below_the_floor():
+    profile = load_profile()
+    [clear] = rig_sensors(load_rig("depth_camera"), profile.sensor, 10000.0)
+    [fog] = rig_sensors(load_rig("depth_camera"), profile.sensor, profile.sensor["full_range_visibility_m"] / 2.0)
+    [thick] = rig_sensors(load_rig("depth_camera"), profile.sensor, 1.0)
+    assert clear.range_m == 10.0 and fog.range_m == pytest.approx(5.0) and thick.range_m == min(profile.sensor["floor_range_m"], 10.0)
+
+
+def test_each_sensor_comes_at_its_rate_and_latency_in_its_layout():
+    steps, recorded = rendered("lidar_and_rangefinders", 50)
+    # 250 Hz lockstep: the lidar every 25 steps, each rangefinder every 10
+    lidar_steps = [i for i, frames in enumerate(steps) for m in decoded(frames) if m.get_type() == "OBSTACLE_DISTANCE"]
+    front_steps = [i for i, frames in enumerate(steps) for m in decoded(frames) if m.get_type() == "DISTANCE_SENSOR" and m.id == 1]
+    assert lidar_steps == [0, 25] and front_steps == [0, 10, 20, 30, 40]
+    messages = decoded(steps[0])
+    lidar = next(m for m in messages if m.get_type() == "OBSTACLE_DISTANCE")
+    front = next(m for m in messages if m.get_type() == "DISTANCE_SENSOR" and m.id == 1)
+    back = next(m for m in messages if m.get_type() == "DISTANCE_SENSOR" and m.id == 2)
+    # The wall 3.3 m north of the centre, 3.0 m from the hull, ahead; nothing behind
+    assert lidar.distances[0] == 300 and lidar.distances[36] == 3001 and lidar.frame == mavlink.MAV_FRAME_BODY_FRD
+    assert lidar.increment_f == 5.0 and lidar.angle_offset == 0.0 and lidar.max_distance == 3000
+    assert front.current_distance == 300 and back.current_distance == back.max_distance == 800
+    assert front.horizontal_fov == pytest.approx(math.radians(10.0)) and back.quaternion[3] == pytest.approx(1.0)
+    assert {topic for topic, _t, _m in recorded} == {"/sensor/rig/lidar", "/sensor/rig/front", "/sensor/rig/back"}
+    # The depth camera's 30 sectors of 2.9 degrees span its 87 degrees, and each image arrives 0.1 s (25 steps) late
+    steps, _recorded = rendered("depth_camera", 40)
+    arrivals = [i for i, frames in enumerate(steps) if frames]
+    assert arrivals[0] == 25
+    [depth] = decoded(steps[25])
+    assert depth.angle_offset == pytest.approx(-43.5 + 1.45) and depth.increment_f == pytest.approx(2.9)
+    assert depth.distances[29] != 65535 and depth.distances[30] == 65535 and depth.distances[15] == 300
+
+
+def test_the_distance_sensor_failure_fails_every_sensor_of_the_rig():
+    events = []
+    schedule = FailureSchedule((FailureSpec(unit="distance sensor", type="wrong", onset_s=0.0, duration_s=10.0, delivery="simulator"),),
+                               lambda event, detail: events.append((event, detail)))
+    steps, _recorded = rendered("lidar_and_rangefinders", 1, delivered=lambda name, readings, reach_cm: schedule.reading(
+        "distance sensor", 1.0, readings, lambda r: [reach_cm + 1 for _ in r], instance=name))
+    messages = decoded(steps[0])
+    assert all(m.current_distance == m.max_distance for m in messages if m.get_type() == "DISTANCE_SENSOR")
+    assert next(m for m in messages if m.get_type() == "OBSTACLE_DISTANCE").distances[0] == 3001
+    assert sorted(detail["sensor"] for event, detail in events if event == "failure") == ["back", "front", "lidar"]
+
+
+def test_a_rig_is_part_of_the_profile_and_of_a_campaigns_identity():
+    from harness.campaigns.campaign import CampaignConfig
+
+    plain = CampaignConfig((str(ROOT / "scenarios" / "table3" / "scenario_05.json"),), ("RANDOM",), 4)
+    rigged = CampaignConfig(plain.scenarios, plain.algorithms, 4, rig="four_rangefinders")
+    assert rigged.read().profile.rig["name"] == "four_rangefinders" and plain.read().profile.rig is None
+    assert plain.identity() != rigged.identity()
+
+
+@pytest.mark.slow
+def test_each_preset_rig_keeps_the_pilot_off_a_wall_with_px4s_collision_prevention(tmp_path):
+    """PX4's Position-mode semantics (CP_STICK_ACCEL 1) on the bundled autopilot: whatever the rig,
+    the pilot is stopped before the wall or slides past it, outside the safety distance; the
+    sensors' readings are in the log as the autopilot got them."""
+    space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
+    for name in preset_names():
+        rigged = SearchSpace(space.logical, with_rig_named(space.profile, name))
+        result = evaluate(rigged, x, seed=0, out_dir=tmp_path, options=RunOptions(cores=1, sut=SutConfig("bundled", {"CP_STICK_ACCEL": 1})),
+                          name=name)
+        assert result.min_clearance_m > 1.0, (name, result.status, result.min_clearance_m)
+        topics = {f"/sensor/rig/{sensor['name']}" for sensor in load_rig(name)["sensors"]}
+        assert {topic for topic in topics if any(True for _ in logs.messages(Path(result.log_path), [topic]))} == topics
+
+
+@pytest.mark.slow
+def test_a_depth_cameras_short_reach_and_latency_let_the_default_autopilot_into_the_wall(tmp_path):
+    """What a rig shows that the profile's forward sensor (20 m, no latency) does not: the bundled
+    autopilot's default collision prevention takes nothing seen within reach as free, and at the
+    pilot's full stick a 10 m depth camera seen 0.1 s late leaves it too little room to stop."""
+    space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
+    options = RunOptions(cores=1)
+    plain = evaluate(space, x, seed=0, out_dir=tmp_path, options=options, name="profile-sensor")
+    camera = evaluate(SearchSpace(space.logical, with_rig_named(space.profile, "depth_camera")), x, seed=0, out_dir=tmp_path, options=options,
+                      name="depth-camera")
+    assert plain.min_clearance_m > 1.0 and camera.status == "violation" and camera.min_clearance_m < 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("STELLA_PX4_BIN"), reason="needs a PX4 SITL build (STELLA_PX4_BIN)")
+def test_px4_reads_a_rig_of_rangefinders_and_refuses_obstacle_distance_on_its_simulator_link(tmp_path, capsys):
+    space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
+    rigged = SearchSpace(space.logical, with_rig_named(space.profile, "four_rangefinders"))
+    result = evaluate(rigged, x, seed=0, out_dir=tmp_path, options=RunOptions(sut=SutConfig("px4", px4_bin=os.environ["STELLA_PX4_BIN"])),
+                      name="px4-rangefinders")
+    # Stopped before the wall: PX4 creeps a few centimetres into CP_DIST while the pilot pushes on
+    assert result.status in ("violation", "mission_failed") and "blocked" in (result.why or "") and result.min_clearance_m > 0.8
+    assert main(["run", "--concrete", str(EXAMPLES / "wall_concrete.json"), "--sut", "px4", "--rig", "lidar_360", "--out", str(tmp_path)]) == 2
+    assert "companion computer" in capsys.readouterr().err
