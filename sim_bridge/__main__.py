@@ -30,7 +30,7 @@ from sim_bridge import ardupilot_link
 from sim_bridge.bridge import Bridge
 from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
-from sim_bridge.recording import COMPRESSIONS, RIG_TOPIC, Recorder
+from sim_bridge.recording import COMPANION_TOPIC, COMPRESSIONS, RIG_TOPIC, Recorder
 from sim_bridge.control import EXIT_CUT_SHORT, EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
 from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
@@ -161,6 +161,9 @@ def _parser() -> argparse.ArgumentParser:
                              "its servo frames arrive over UDP on the simulator port (ArduPilot's --sim-port-out)")
     parser.add_argument("--rc-port", type=_port, help="with --sim-protocol ardupilot-json and the pilot drive: send the pilot's sticks to this UDP port "
                                                     "(ArduPilot SITL's --rc-in-port)")
+    parser.add_argument("--companion-port", type=_port, help="send the rig's --companion-messages to this UDP port, a companion computer's "
+                                                            "MAVLink link to the SUT (PX4's onboard link), instead of the simulator link")
+    parser.add_argument("--companion-messages", default="", type=_range_messages, help="comma-separated: which of a rig's messages go to --companion-port")
     parser.add_argument("--control-port", type=_port, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -235,7 +238,8 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
     config = BridgeConfig(rate_hz=args.rate_hz, hold_after_s=args.hold_after_s, hold_mode=args.hold_mode, hold_pace=args.hold_pace,
                           stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
-                          rc_port=args.rc_port, lockstep_from_start=args.lockstep_from_start, answer_times_echoed=args.answer_times_echoed)
+                          rc_port=args.rc_port, companion_port=args.companion_port, companion_messages=args.companion_messages,
+                          lockstep_from_start=args.lockstep_from_start, answer_times_echoed=args.answer_times_echoed)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if not args.serve:
         try:
@@ -294,6 +298,8 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
     if world.atmosphere.varies:
         optional_topics += ("/wind",)
     optional_topics += tuple(f"{RIG_TOPIC}{sensor.name}" for sensor in world.rig or ())
+    if config.companion_port is not None and any(sensor.message in config.companion_messages for sensor in world.rig or ()):
+        optional_topics += (COMPANION_TOPIC,)
     sut = None
     try:
         with ExitStack() as finishing, open(mcap_path, "wb") as stream, Recorder(stream, optional_topics, compression) as recorder:
@@ -315,6 +321,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
                 except KeyboardInterrupt:
                     bridge.settle_outcome()
                     bridge.summary.end_reason = EndReason.INTERRUPTED
+            bridge.close()
             finishing.enter_context(_stop_held())
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})

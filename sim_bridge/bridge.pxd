@@ -10,7 +10,8 @@ cdef class Bridge:
     cdef public World world
     cdef public SensorFrames frames
     cdef public dict _every
-    cdef public bytearray _link_out, _link_in
+    cdef public bytearray _link_out, _link_in, _link_companion
+    cdef public object _companion, _companion_address
     cdef public tuple _clearance_batch
     cdef public bint _hold_announced
 

@@ -39,7 +39,7 @@ from sim_bridge.control import (STEP_TIMERS, EndReason, Event, FailureInjected, 
 from sim_bridge.failures import FailureSchedule
 from sim_bridge.frames import SensorFrames
 from sim_bridge.pilot import RC_PERIOD_S
-from sim_bridge.recording import Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
+from sim_bridge.recording import COMPANION_TOPIC, Recorder, enu, enu_flu_orientation, path_entity, scene_entity, stamp, terrain_entity
 from sim_bridge.spec import WorldSpec
 from sim_bridge.sut_link import SutLink
 from sim_bridge.world import World
@@ -82,7 +82,15 @@ class Bridge:
         self._hold_deadline: float | None = None
         self._hold_announced = False
         self.failures = FailureSchedule(world.failures or (), lambda event, detail: self._event(self.world.time_s, event, detail))
-        self.frames = SensorFrames(self.world, config.range_messages, recorder, self.failures, self._every)
+        self.frames = SensorFrames(self.world, config.range_messages, recorder, self.failures, self._every,
+                                   config.companion_messages if config.companion_port is not None else ())
+        self._link_companion = bytearray()
+        # The companion computer's link: where a rig's messages go that the SUT does not read on
+        # the simulator link (PX4's OBSTACLE_DISTANCE), sent over UDP in step with the simulation.
+        self._companion: socket.socket | None = None
+        self._companion_address = ("127.0.0.1", config.companion_port or 0)
+        if config.companion_port is not None and any(s.message in config.companion_messages for s in world.rig or ()):
+            self._companion = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._awaiting_injection: dict[str, Any] | None = None
         self._json: JsonSteps | None = None  # the exchange with an ArduPilot (protocol "ardupilot-json")
 
@@ -149,6 +157,9 @@ class Bridge:
             if buffer:
                 self.recorder.write("/mavlink/sim", time_ns=time_ns, message={"link": "sim", "direction": direction, "hex": buffer.hex()})
                 buffer.clear()
+        if self._link_companion:
+            self.recorder.write(COMPANION_TOPIC, time_ns=time_ns, message={"link": "companion", "direction": "to_sut", "hex": self._link_companion.hex()})
+            self._link_companion.clear()
 
     def _observe(self, step: int) -> None:
         """Score and record the state after `step` physics steps: the UAV's clearance to the
@@ -337,6 +348,8 @@ class Bridge:
             frames_out = self.frames.step_frames(step, time_us) if json_steps is None else json_steps.state(step, time_us)
             t_send = perf()
             summary.sensors_s += t_send - ts
+            if self._companion is not None and self.frames.companion_out:
+                self._send_companion(self.frames.companion_out)
             try:
                 sut.send(frames_out)
             except OSError:
@@ -379,6 +392,20 @@ class Bridge:
         if unobserved_step is not None:
             self._observe(unobserved_step)
         return self._finished(splitter, started_s=wall_start, run_started_s=wall_run_started, setup_timers=setup_timers)
+
+    def _send_companion(self, frames: list[bytes]) -> None:
+        """This step's companion frames, before the step's simulator frames: PX4 stamps a reading
+        with its clock when its MAVLink thread reads it, which the next HIL_SENSOR moves on."""
+        for frame in frames:
+            try:
+                self._companion.sendto(frame, self._companion_address)
+            except OSError:  # the SUT is not listening (yet): a companion's datagram is lost as on a real link
+                pass
+            self._link_companion += frame
+
+    def close(self) -> None:
+        if self._companion is not None:
+            self._companion.close()
 
     def _finished(self, splitter: codec.FrameSplitter, *, started_s: float, run_started_s: float | None, setup_timers: dict[str, float]) -> Summary:
         """The run's summary once its loop ended: outcome, counts and times (the step timers of

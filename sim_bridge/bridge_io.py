@@ -37,6 +37,10 @@ class BridgeConfig:
     protocol: str = "mavlink"
     # ardupilot-json: the UDP port the SUT takes the pilot's sticks on (ArduPilot SITL's RC input).
     rc_port: int | None = None
+    # A companion computer's MAVLink link to the SUT (PX4 reads OBSTACLE_DISTANCE there, not on
+    # its simulator link): the UDP port it takes it on, and the rig's messages sent there.
+    companion_port: int | None = None
+    companion_messages: tuple[str, ...] = ()
     # The SUT answers every HIL_SENSOR from the first: wait for each answer from step 0 on.
     lockstep_from_start: bool = False
     # Its HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer.

@@ -8,7 +8,8 @@ cdef class SensorFrames:
     cdef public World world
     cdef public object range_messages, recorder, failures, rig
     cdef public dict every
-    cdef public int seq
+    cdef public int seq, companion_seq
+    cdef public list companion_out
     cdef public list wedges
 
     cpdef int next_seq(self)

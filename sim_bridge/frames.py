@@ -32,18 +32,23 @@ class SensorFrames:
     """A world's readings as the SUT gets them. every: steps between messages of a kind (gps,
     truth, sensor, rc), as the bridge counts them."""
 
-    def __init__(self, world: World, range_messages: tuple[str, ...], recorder: Recorder, failures: FailureSchedule, every: Mapping[str, int]):
+    def __init__(self, world: World, range_messages: tuple[str, ...], recorder: Recorder, failures: FailureSchedule, every: Mapping[str, int],
+                 companion_messages: tuple[str, ...] = ()):
         self.world = world
         self.range_messages = range_messages
         self.recorder = recorder
         self.failures = failures
         self.every = dict(every)
         self.seq = 0  # the simulator link's MAVLink sequence number
+        self.companion_seq = 0
+        # This step's frames for a companion computer's link (RigFrames), which the bridge sends.
+        self.companion_out: list[bytes] = []
         self.wedges = _wedges(np.flatnonzero(world.sector_visible).tolist())
         # A rig's sensors, each rendered into its own messages, instead of the profile's one sensor.
         self.rig = None if world.spec.rig is None else RigFrames(
             world.spec.rig, 1.0 / world.dt, world.hull_offset, world.nearest, self.encode,
-            lambda topic, time_us, message: recorder.write(topic, time_ns=time_us * 1000, message=message))
+            lambda topic, time_us, message: recorder.write(topic, time_ns=time_us * 1000, message=message),
+            companion_messages, self.encode_companion)
 
     def next_seq(self) -> int:
         seq = self.seq
@@ -52,6 +57,13 @@ class SensorFrames:
 
     def encode(self, message: codec.MessageCodec, *values) -> bytes:
         return message.encode(self.next_seq(), SYSTEM_ID, COMPONENT_ID, *values)
+
+    def encode_companion(self, message: codec.MessageCodec, *values) -> bytes:
+        """A frame of the companion computer's link: its own sequence, the vehicle's system id and
+        the obstacle-avoidance component's id."""
+        seq = self.companion_seq
+        self.companion_seq = (seq + 1) & 0xFF
+        return message.encode(seq, SYSTEM_ID, mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE, *values)
 
     def step_frames(self, step: int, time_us: int) -> bytes:
         """The messages of one physics step, HIL_SENSOR last."""
@@ -87,7 +99,8 @@ class SensorFrames:
                 _milli_g(s.az_m_s2),
             ))
         if self.rig is not None:
-            frames.extend(self.rig.step_frames(step, time_us, s.yaw_rad, self.rig_reading))
+            simulator, self.companion_out = self.rig.step_frames(step, time_us, s.yaw_rad, self.rig_reading)
+            frames.extend(simulator)
         elif step % every["sensor"] == 0:
             frames.extend(self.obstacle_distance(time_us))
         if world.pilot is not None and step % every["rc"] == 0:

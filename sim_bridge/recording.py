@@ -236,7 +236,8 @@ TOPICS = {
     "/mavlink/api": "stella.MavlinkBytes",
 }
 # Topics a log has only when the run needs them.
-OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks", "/wind": "stella.Wind"}
+COMPANION_TOPIC = "/mavlink/companion"  # a companion computer's link, where a rig's sensor has one
+OPTIONAL_TOPICS = {"/pilot": "stella.PilotSticks", "/wind": "stella.Wind", COMPANION_TOPIC: "stella.MavlinkBytes"}
 RIG_TOPIC = "/sensor/rig/"  # + a rig sensor's name: stella.RigReading
 
 

@@ -47,8 +47,9 @@ def _fan(centre_deg: float, width_deg: float) -> list[float]:
 class _Sensor:
     """One sensor's rays (degrees from the nose or from north, by frame) and which reading each is part of."""
 
-    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int):
+    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int, companion: bool):
         self.spec = sensor
+        self.companion = companion
         self.sensor_id = sensor_id
         self.every_steps = every_steps
         self.latency_steps = latency_steps
@@ -72,37 +73,46 @@ class RigFrames:
     """A rig's messages step by step. rate_hz: the lockstep rate; hull_offset(body_angles_rad):
     how far from the vehicle's centre the hull is in each direction; nearest(world_angles_rad,
     reach_m): the distance from the centre to the nearest obstacle along each ray (None: none
-    within reach); encode(codec, *fields): a MAVLink frame; record(topic, time_us, message)."""
+    within reach); encode(codec, *fields): a MAVLink frame of the simulator link;
+    record(topic, time_us, message). The sensors whose message is one of companion_messages go
+    to a companion computer's link instead, each frame made by encode_companion."""
 
     def __init__(self, rig: tuple[RigSensor, ...], rate_hz: float, hull_offset: Callable[[np.ndarray], np.ndarray],
-                 nearest: Callable[[np.ndarray, float], np.ndarray | None], encode, record):
-        self.sensors = [_Sensor(sensor, index, max(1, int(round(rate_hz / sensor.rate_hz))), int(round(sensor.latency_s * rate_hz)))
+                 nearest: Callable[[np.ndarray, float], np.ndarray | None], encode, record,
+                 companion_messages: tuple[str, ...] = (), encode_companion=None):
+        self.sensors = [_Sensor(sensor, index, max(1, int(round(rate_hz / sensor.rate_hz))), int(round(sensor.latency_s * rate_hz)),
+                                sensor.message in companion_messages)
                         for index, sensor in enumerate(rig)]
         self.hull_offset = hull_offset
         self.nearest = nearest
         self.encode = encode
+        self.encode_companion = encode_companion
         self.record = record
-        self._in_flight: collections.deque[tuple[int, bytes]] = collections.deque()  # (step due, frame), in order of due step
+        # (step due, companion link?, frame), in order of due step
+        self._in_flight: collections.deque[tuple[int, bool, bytes]] = collections.deque()
 
-    def step_frames(self, step: int, time_us: int, yaw_rad: float, delivered) -> list[bytes]:
-        """The frames due at this step: readings measured now with no latency, and those measured
-        their latency ago. delivered(name, distances_cm, reach_cm): the reading as a failure leaves
-        it (None: nothing is sent)."""
+    def step_frames(self, step: int, time_us: int, yaw_rad: float, delivered) -> tuple[list[bytes], list[bytes]]:
+        """The frames due at this step, for the simulator link and for the companion link:
+        readings measured now with no latency, and those measured their latency ago.
+        delivered(name, distances_cm, reach_cm): the reading as a failure leaves it (None:
+        nothing is sent)."""
         for sensor in self.sensors:
             if step % sensor.every_steps == 0:
                 frame = self._measure(sensor, time_us, yaw_rad, delivered)
                 if frame is not None:
-                    self._queue(step + sensor.latency_steps, frame)
-        due = []
+                    self._queue(step + sensor.latency_steps, sensor.companion, frame)
+        simulator: list[bytes] = []
+        companion: list[bytes] = []
         while self._in_flight and self._in_flight[0][0] <= step:
-            due.append(self._in_flight.popleft()[1])
-        return due
+            _due, to_companion, frame = self._in_flight.popleft()
+            (companion if to_companion else simulator).append(frame)
+        return simulator, companion
 
-    def _queue(self, due_step: int, frame: bytes) -> None:
+    def _queue(self, due_step: int, to_companion: bool, frame: bytes) -> None:
         if not self._in_flight or self._in_flight[-1][0] <= due_step:
-            self._in_flight.append((due_step, frame))
+            self._in_flight.append((due_step, to_companion, frame))
             return
-        ordered = sorted([*self._in_flight, (due_step, frame)], key=lambda entry: entry[0])
+        ordered = sorted([*self._in_flight, (due_step, to_companion, frame)], key=lambda entry: entry[0])
         self._in_flight = collections.deque(ordered)
 
     def _readings_cm(self, sensor: _Sensor, yaw_rad: float) -> list[int]:
@@ -132,12 +142,14 @@ class RigFrames:
                                                                "increment_deg": spec.increment_deg, "angle_offset_deg": sensor.first_deg,
                                                                "frame": spec.frame, "distances_cm": readings})
             increment = int(spec.increment_deg) if float(spec.increment_deg).is_integer() else 0
-            return self.encode(codec.OBSTACLE_DISTANCE, time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, increment, sensor.min_cm, sensor.reach_cm,
+            encode = self.encode_companion if sensor.companion else self.encode
+            return encode(codec.OBSTACLE_DISTANCE, time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, increment, sensor.min_cm, sensor.reach_cm,
                                spec.increment_deg, sensor.first_deg, FRAMES[spec.frame])
         current_cm = min(readings[0], sensor.reach_cm)
         self.record(f"/sensor/rig/{spec.name}", time_us, {"t": time_us / 1e6, "message": spec.message, "range_m": spec.range_m,
                                                            "yaw_deg": spec.yaw_deg, "fov_deg": spec.fov_deg, "distance_cm": current_cm})
-        return self.encode(codec.DISTANCE_SENSOR, time_us // 1000, sensor.min_cm, sensor.reach_cm, current_cm, mavlink.MAV_DISTANCE_SENSOR_LASER,
+        encode = self.encode_companion if sensor.companion else self.encode
+        return encode(codec.DISTANCE_SENSOR, time_us // 1000, sensor.min_cm, sensor.reach_cm, current_cm, mavlink.MAV_DISTANCE_SENSOR_LASER,
                            sensor.sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, sensor.fov_rad, sensor.fov_rad, sensor.quaternion, 0)
 
 

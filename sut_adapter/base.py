@@ -149,9 +149,12 @@ class Capabilities:
     # How it reads the range sensor: OBSTACLE_DISTANCE (72 sectors; the bundled autopilot) and/or
     # DISTANCE_SENSOR (wedges; PX4). The simulator sends only those.
     range_messages: tuple[str, ...]
-    # Which of a sensor rig's messages (harness/scenario/rig.py) it reads on the simulator link;
-    # a rig with another kind of sensor is refused for it.
+    # Which of a sensor rig's messages (harness/scenario/rig.py) it reads; a rig with another kind
+    # of sensor is refused for it. Those of companion_messages it reads on a companion computer's
+    # MAVLink link, the UDP port companion_port_for(instance), not on the simulator link.
     rig_messages: tuple[str, ...] = ()
+    companion_messages: tuple[str, ...] = ()
+    companion_port_for: Callable[[int], int] | None = None
     # How many times faster than real time a paced hold may run. PX4 stretches its timeouts by
     # the speed factor it is started with, so its hold runs that fast.
     hold_pace: float = 1.0
@@ -238,6 +241,10 @@ class Capabilities:
         if altitude_param is not None:
             params[altitude_param] = float(world.mission.takeoff_altitude_m)
         return params
+
+    def companion_port(self, instance: int) -> int | None:
+        """The UDP port a companion computer's MAVLink reaches the SUT on (None: it has none)."""
+        return self.companion_port_for(instance) if self.companion_port_for is not None else None
 
     def rc_port(self, instance: int) -> int | None:
         """The UDP port the SUT takes the pilot's sticks on (None: on the simulator link)."""

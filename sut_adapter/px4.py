@@ -8,7 +8,9 @@ give simulator TCP 4560+k and API UDP 14540+k, the block's ports. The airframe i
 
 PX4's threads follow its lockstep clock, so it cannot answer MAVLink while simulated time
 stands still: it needs the "paced" hold. Its collision prevention reads the distance_sensor
-topic, which the bridge feeds through DISTANCE_SENSOR messages on the simulator link; it acts
+topic, which the bridge feeds through DISTANCE_SENSOR messages on the simulator link, and the
+obstacle_distance topic, which PX4 makes of OBSTACLE_DISTANCE from a companion computer: a rig's
+OBSTACLE_DISTANCE source goes to its onboard payload link (UDP 14280+k); it acts
 only in Position mode, never in missions, so in a mission PX4 flies into what is in its way
 and the harness measures exactly that.
 """
@@ -64,6 +66,12 @@ STARTED_UP = "[px4] Startup script returned"
 ENV_PARAM_PREFIX = "PX4_PARAM_"
 
 
+def companion_port_for(instance: int) -> int:
+    """The UDP port of instance k's onboard payload link (px4-rc.mavlink: udp_onboard_payload_port_local),
+    a MAVLink instance in onboard mode that takes a companion computer's messages."""
+    return 14280 + instance
+
+
 def resolve_binary(given: str | None) -> tuple[Path, Path]:
     """(px4 binary, its etc/ folder with the init scripts) from a binary or build folder path,
     or STELLA_PX4_BIN's where none is given."""
@@ -97,7 +105,8 @@ def takes_params_from_environment(etc: Path) -> bool:
 
 class Px4Sitl:
     name = "px4"
-    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), rig_messages=("DISTANCE_SENSOR",), instance_count=MAX_INSTANCE + 1,
+    capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), rig_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"),
+                                companion_messages=("OBSTACLE_DISTANCE",), companion_port_for=companion_port_for, instance_count=MAX_INSTANCE + 1,
                                 echoes_step_time=True)
 
     def __init__(self, config: Mapping[str, str]):

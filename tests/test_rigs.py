@@ -61,7 +61,7 @@ def rendered(rig_name: str, steps: int, distance_m: float = 3.3, yaw_rad: float 
                        lambda codec, *fields: codec.encode(next(counter) & 0xFF, 1, 51, *fields),
                        lambda topic, time_us, message: recorded.append((topic, time_us, message)))
     as_sent = delivered or (lambda name, readings, reach_cm: readings)
-    return [frames.step_frames(step, step * 4000, yaw_rad, as_sent) for step in range(steps)], recorded
+    return [frames.step_frames(step, step * 4000, yaw_rad, as_sent)[0] for step in range(steps)], recorded
 
 
 def test_every_preset_is_a_valid_rig_and_the_list_names_its_messages(capsys):
@@ -130,6 +130,19 @@ def test_each_sensor_comes_at_its_rate_and_latency_in_its_layout():
     assert depth.distances[29] != 65535 and depth.distances[30] == 65535 and depth.distances[15] == 300
 
 
+def test_obstacle_distance_goes_to_a_companion_link_where_the_sut_reads_it_there():
+    profile = load_profile()
+    sensors = rig_sensors(load_rig("lidar_and_rangefinders"), profile.sensor, 10000.0)
+    simulator_seq, companion_seq = iter(range(100)), iter(range(100))
+    frames = RigFrames(sensors, 250.0, hull, wall_north(3.3), lambda codec, *fields: codec.encode(next(simulator_seq), 1, 51, *fields),
+                       lambda topic, time_us, message: None, ("OBSTACLE_DISTANCE",),
+                       lambda codec, *fields: codec.encode(next(companion_seq), 1, mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE, *fields))
+    simulator, companion = frames.step_frames(0, 0, 0.0, lambda name, readings, reach_cm: readings)
+    assert [m.get_type() for m in decoded(simulator)] == ["DISTANCE_SENSOR", "DISTANCE_SENSOR"]
+    [lidar] = decoded(companion)
+    assert lidar.get_type() == "OBSTACLE_DISTANCE" and lidar.get_srcComponent() == mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE and lidar.get_seq() == 0
+
+
 def test_the_distance_sensor_failure_fails_every_sensor_of_the_rig():
     events = []
     schedule = FailureSchedule((FailureSpec(unit="distance sensor", type="wrong", onset_s=0.0, duration_s=10.0, delivery="simulator"),),
@@ -181,12 +194,19 @@ def test_a_depth_cameras_short_reach_and_latency_let_the_default_autopilot_into_
 
 @pytest.mark.slow
 @pytest.mark.skipif(not os.environ.get("STELLA_PX4_BIN"), reason="needs a PX4 SITL build (STELLA_PX4_BIN)")
-def test_px4_reads_a_rig_of_rangefinders_and_refuses_obstacle_distance_on_its_simulator_link(tmp_path, capsys):
+def test_px4_reads_rangefinders_on_its_simulator_link_and_a_lidar_on_its_companion_link(tmp_path):
     space, x = load_concrete(EXAMPLES / "wall_concrete.json", "pilot")
-    rigged = SearchSpace(space.logical, with_rig_named(space.profile, "four_rangefinders"))
-    result = evaluate(rigged, x, seed=0, out_dir=tmp_path, options=RunOptions(sut=SutConfig("px4", px4_bin=os.environ["STELLA_PX4_BIN"])),
-                      name="px4-rangefinders")
+    options = RunOptions(sut=SutConfig("px4", px4_bin=os.environ["STELLA_PX4_BIN"]), sut_logs="failures")
+    rangefinders = evaluate(SearchSpace(space.logical, with_rig_named(space.profile, "four_rangefinders")), x, seed=0, out_dir=tmp_path,
+                            options=options, name="px4-rangefinders")
     # Stopped before the wall: PX4 creeps a few centimetres into CP_DIST while the pilot pushes on
-    assert result.status in ("violation", "mission_failed") and "blocked" in (result.why or "") and result.min_clearance_m > 0.8
-    assert main(["run", "--concrete", str(EXAMPLES / "wall_concrete.json"), "--sut", "px4", "--rig", "lidar_360", "--out", str(tmp_path)]) == 2
-    assert "companion computer" in capsys.readouterr().err
+    assert "blocked" in (rangefinders.why or "") and rangefinders.min_clearance_m > 0.8
+    # Without range data PX4 would not let the pilot move at all (CP_GO_NO_DATA 0): it flew to the
+    # wall and round it on the lidar's OBSTACLE_DISTANCE, which went to its onboard link
+    lidar = evaluate(SearchSpace(space.logical, with_rig_named(space.profile, "lidar_360")), x, seed=0, out_dir=tmp_path, options=options,
+                     name="px4-lidar")
+    assert 1.0 < lidar.min_clearance_m < 10.0
+    parser = mavlink.MAVLink(None)
+    sent = [m for _t, _ns, record in logs.messages(Path(lidar.log_path), ["/mavlink/companion"])
+            for m in parser.parse_buffer(bytes.fromhex(record["hex"])) or []]
+    assert len(sent) > 100 and {m.get_type() for m in sent} == {"OBSTACLE_DISTANCE"}

@@ -185,12 +185,15 @@ class _Simulator:
         cores = 1 if inline else cores_for(options)
         spin_s = LOCKSTEP_SPIN_S if cores >= 2 else 0.0
         rc_port = capabilities.rc_port(ports.slot)
+        companion_port = capabilities.companion_port(ports.slot)
         bridge_argv = [sys.executable, "-m", "sim_bridge", *run_arguments, "--sim-port", str(ports.sim), "--control-port", str(ports.control),
                        "--rate-hz", str(options.rate_hz or capabilities.rate_hz), "--hold-after-s", str(options.hold_after_s), "--hold-mode", capabilities.hold_mode,
                        "--hold-pace", str(capabilities.hold_pace),
                        "--range-messages", ",".join(capabilities.range_messages), "--spin-us", str(spin_s * 1e6),
                        "--sim-protocol", capabilities.sim_protocol,
                        *(["--rc-port", str(rc_port)] if rc_port is not None else []),
+                       *(["--companion-port", str(companion_port), "--companion-messages", ",".join(capabilities.companion_messages)]
+                         if companion_port is not None else []),
                        *(["--lockstep-from-start"] if capabilities.answers_every_step else []),
                        *(["--answer-times-echoed"] if capabilities.echoes_step_time else []),
                        # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.

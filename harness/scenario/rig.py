@@ -122,10 +122,7 @@ def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, rig_messages: tuple
     if not refused:
         return None
     names = ", ".join(f'{s["name"]} ({s["message"]})' for s in refused)
-    if sut == "px4":
-        why = ("PX4 reads OBSTACLE_DISTANCE on a companion computer's MAVLink link, not on its simulator link, and the harness "
-               "does not deliver it there yet: fly a rig of DISTANCE_SENSOR devices (four_rangefinders), or the bundled autopilot")
-    elif not rig_messages:
+    if not rig_messages:
         why = f"{sut} takes its range data another way than the simulator's MAVLink messages; rigs do not reach it yet"
     else:
         why = f"{sut} reads only {', '.join(rig_messages)} on its simulator link"
