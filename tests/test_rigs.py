@@ -210,3 +210,14 @@ def test_px4_reads_rangefinders_on_its_simulator_link_and_a_lidar_on_its_compani
     sent = [m for _t, _ns, record in logs.messages(Path(lidar.log_path), ["/mavlink/companion"])
             for m in parser.parse_buffer(bytes.fromhex(record["hex"])) or []]
     assert len(sent) > 100 and {m.get_type() for m in sent} == {"OBSTACLE_DISTANCE"}
+
+
+def test_a_mutation_runs_suite_and_searches_fly_with_its_rig():
+    from harness.campaigns.regression import suite_cases
+    from harness.firmware.mutation import MutationPlan
+
+    [(_name, space, _x, _seed)] = suite_cases([str(EXAMPLES / "wall_concrete.json")], "pilot", "lidar_360")
+    assert space.profile.rig["name"] == "lidar_360"
+    plain = MutationPlan((str(EXAMPLES / "wall_concrete.json"),))
+    # A folder screened without a rig keeps its identity; one with a rig is another screening
+    assert "rig" not in plain.screening() and MutationPlan(plain.suite, rig="lidar_360").screening()["rig"] == "lidar_360"

@@ -26,6 +26,7 @@ from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.properties.spec import Property, property_from
 from harness.scenario.documents import load_json, schema_problems
+from harness.scenario.profile import with_rig_named
 from harness.scenario.space import SearchSpace
 from harness.scenario.world import load_concrete, space_from_concrete, with_drive_recorded
 from sut_adapter import SutConfig
@@ -78,9 +79,10 @@ def load_regression(path: Path, drive: str | None = None) -> Regression:
                       document.get("reference"), properties)
 
 
-def suite_cases(paths: Sequence[str], drive: str | None) -> list[tuple[str, Any, Any, int]]:
+def suite_cases(paths: Sequence[str], drive: str | None, rig: str | None = None) -> list[tuple[str, Any, Any, int]]:
     """(name, space, vector, seed) of each case: regression cases (their seed) and concrete
-    scenarios (seed 0), a folder standing for the cases in it."""
+    scenarios (seed 0), a folder standing for the cases in it; each flown with `rig`'s range
+    sensors (a preset or file, `--rig`) if given."""
     files: list[Path] = []
     for given in map(Path, paths):
         if given.is_dir():
@@ -98,6 +100,8 @@ def suite_cases(paths: Sequence[str], drive: str | None) -> list[tuple[str, Any,
         else:
             space, x = load_concrete(path, drive)
             seed = 0
+        if rig is not None:
+            space = SearchSpace(space.logical, with_rig_named(space.profile, rig))
         refused = infeasible(space, x, seed=seed, sut="suite")
         if refused is not None:
             raise InputError([Problem(str(path), "", f"the case is infeasible ({refused.why}): it can tell no two builds apart; drop it")])

@@ -67,12 +67,15 @@ class MutationPlan:
     sut_params: Mapping[str, float] = field(default_factory=dict)
     sut_logs: str = "all"  # RunOptions.sut_logs: which flights keep the SUT's own logs
     screen: ScreenSettings | None = None  # the searches' candidates flown on a cheap model first (harness/campaigns/screen.py)
+    rig: str | None = None  # a sensor rig (preset or file) every case and search flies with instead of the profile's sensor
 
     def screening(self) -> dict[str, Any]:
         """What decides the suite's verdicts: a folder's mutants are screened once with these.
         Searches can be added later (other scenarios, other algorithms) to the same folder."""
+        # Folders screened before rigs existed keep their identity.
+        rigged = {"rig": self.rig} if self.rig is not None else {}
         return {"suite": [str(Path(s).resolve()) for s in self.suite], "confirm": self.confirm, "seed": self.seed, "drive": self.drive,
-                "sut_params": dict(self.sut_params)}
+                "sut_params": dict(self.sut_params), **rigged}
 
     def searching(self) -> dict[str, Any]:
         screened = {"screen": self.screen.identity()} if self.screen is not None else {}
@@ -84,7 +87,7 @@ def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
 
 
 def _suite_cases(plan: MutationPlan) -> list[tuple[str, Any, Any, int]]:
-    cases = suite_cases(plan.suite, plan.drive)
+    cases = suite_cases(plan.suite, plan.drive, plan.rig)
     if not cases:
         raise InputError([Problem("--suite", "", "no suite cases: give regression cases or concrete scenarios to screen every mutant with")])
     return cases
@@ -95,7 +98,7 @@ def _load(path: Path, plan: MutationPlan) -> dict[str, Any]:
         return {"screening": plan.screening(), "searching": plan.searching(), "mutants": {}}
     document = json.loads(path.read_text())
     if document["screening"] != plan.screening():
-        raise InputError([Problem(str(path), "/screening", "this folder's mutants were screened with another suite, confirm, seed, drive or parameters; "
+        raise InputError([Problem(str(path), "/screening", "this folder's mutants were screened with another suite, confirm, seed, drive, rig or parameters; "
                                                            "run with the same ones, or generate into another folder")])
     searched = any(o.get("search") for o in document["mutants"].values())
     if searched and document["searching"] != plan.searching():
@@ -203,7 +206,7 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     """One differential campaign of the algorithm on the scenario against the mutant: when it
     first revealed a difference, and at which level."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
-                            confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen)
+                            confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig)
     store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,

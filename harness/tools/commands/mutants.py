@@ -71,6 +71,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--drive", choices=["mission", "pilot"], help="fly every case and scenario with this drive (PX4's CP acts in pilot only)")
     p.add_argument("--objective", choices=["subject", "difference"], default="difference", help="what the searches minimise (default difference)")
+    p.add_argument("--rig", metavar="NAME|FILE", help="fly every case and search with this sensor rig (`stella rigs`, or a rig file) instead of the profile's sensor")
     add_screen_options(p)
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
@@ -94,7 +95,7 @@ def mutants_run(args: argparse.Namespace) -> int:
                                  args.evaluations, args.population, args.confirm, args.seed, args.drive, args.objective, params,
                                  sut_logs=args.sut_logs,
                                  # the cheap model: the bundled autopilot unmutated, with the parameters of both sides
-                                 screen=screen_settings(args, SutConfig("bundled", params), {args.drive or "mission"}, args.objective))
+                                 screen=screen_settings(args, SutConfig("bundled", params), {args.drive or "mission"}, args.objective), rig=args.rig)
     executor = LocalExecutor(args.workers or len(os.sched_getaffinity(0)))
     try:
         document = mutation.run(Path(args.folder), plan, executor, only=args.only, progress=lambda line: print(line, file=sys.stderr))
