@@ -17,7 +17,9 @@ from simlink.failures import TYPE_BY_NAME, Failure
 class FailureSchedule:
     def __init__(self, failures: tuple[FailureSpec, ...], on_event: Callable[[str, dict[str, Any]], None]):
         self._on_event = on_event
-        self._owned = {f.unit: f for f in failures if f.delivery == "simulator"}
+        # By unit, and for a rig's range sensors by unit/sensor where a failure names one.
+        self._owned = {f.unit if f.sensor is None else f"{f.unit}/{f.sensor}": f for f in failures if f.delivery == "simulator"}
+        self._owned_units = {f.unit for f in failures if f.delivery == "simulator"}
         self._active: dict[str, Failure] = {}
         self._cleared: set[str] = set()
         self._last: dict[str, Any] = {}
@@ -26,14 +28,16 @@ class FailureSchedule:
         self._commands = sorted(commands, key=lambda command: command[0])
 
     def owns(self, unit: str) -> bool:
-        return unit in self._owned
+        return unit in self._owned_units
 
     def reading(self, unit: str, run_time_s: float | None, reading: Any, wrong: Callable[[Any], Any], instance: str | None = None) -> Any | None:
         """What the SUT receives of a reading of a unit the simulator owns at a run time (None
         before the run): the reading itself, its failed form, or None when nothing is sent. A unit
         of several instances (a rig's range sensors) fails in each, from each one's last reading."""
-        spec = self._owned[unit]
         key = unit if instance is None else f"{unit}/{instance}"
+        spec = self._owned.get(key) or self._owned.get(unit)
+        if spec is None:  # a failure of another of the rig's sensors
+            return reading
         named = {} if instance is None else {"sensor": instance}
         if run_time_s is None or run_time_s < spec.onset_s or key in self._cleared:
             self._last[key] = reading

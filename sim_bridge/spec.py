@@ -181,6 +181,7 @@ class FailureSpec:
     onset_s: float
     duration_s: float
     delivery: str
+    sensor: str | None = None  # the one rig sensor of the distance sensor that fails (None: every one)
 
 
 @dataclass(frozen=True)

@@ -221,3 +221,32 @@ def test_a_mutation_runs_suite_and_searches_fly_with_its_rig():
     plain = MutationPlan((str(EXAMPLES / "wall_concrete.json"),))
     # A folder screened without a rig keeps its identity; one with a rig is another screening
     assert "rig" not in plain.screening() and MutationPlan(plain.suite, rig="lidar_360").screening()["rig"] == "lidar_360"
+
+
+def test_a_failure_may_fail_one_sensor_of_the_rig(tmp_path, capsys):
+    events = []
+    schedule = FailureSchedule((FailureSpec(unit="distance sensor", type="wrong", onset_s=0.0, duration_s=10.0, delivery="simulator", sensor="front"),),
+                               lambda event, detail: events.append((event, detail)))
+    steps, _recorded = rendered("lidar_and_rangefinders", 1, delivered=lambda name, readings, reach_cm: schedule.reading(
+        "distance sensor", 1.0, readings, lambda r: [reach_cm + 1 for _ in r], instance=name))
+    messages = decoded(steps[0])
+    assert next(m for m in messages if m.get_type() == "DISTANCE_SENSOR" and m.id == 1).current_distance == 800  # front: nothing in reach
+    assert next(m for m in messages if m.get_type() == "OBSTACLE_DISTANCE").distances[0] == 300  # the lidar still sees the wall
+    assert [detail["sensor"] for event, detail in events if event == "failure"] == ["front"]
+    # A logical scenario names the sensor; it must be one of the rig's
+    scenario = json.loads((EXAMPLES / "wall.json").read_text())
+    scenario["failures"] = [{"unit": "distance sensor", "type": "off", "sensor": "front"}]
+    path = tmp_path / "front_off.json"
+    path.write_text(json.dumps(scenario))
+    assert main(["space", str(path), "--drive", "pilot"]) == 2
+    assert "/failures/0/sensor" in capsys.readouterr().err
+    assert main(["run", str(path), "--rig", "lidar_360", "--out", str(tmp_path)]) == 2
+    assert "the rig's sensors are lidar" in capsys.readouterr().err
+    from harness.scenario.logical import load_logical
+    from harness.scenario.world import world_spec
+
+    profile = with_rig_named(load_profile(), "four_rangefinders")
+    space = SearchSpace(load_logical(path, profile, "pilot"), profile)
+    assert {d["name"] for d in space.describe()["dimensions"]} >= {"failure_1.onset_s", "failure_1.duration_s"}
+    [failure] = world_spec(space, space.sample_feasible(np.random.default_rng(0), 1)[0], 0).failures
+    assert failure.sensor == "front" and failure.delivery == "simulator"

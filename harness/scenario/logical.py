@@ -38,6 +38,7 @@ class LogicalObstacle:
 class LogicalFailure:
     unit: str
     type: str
+    sensor: str | None = None  # one range sensor of the rig (unit "distance sensor"); None: all of them
 
 
 @dataclass(frozen=True)
@@ -163,12 +164,22 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             if area[f"{axis}_min_m"] >= area[f"{axis}_max_m"]:
                 problems.append(Problem(file, f"/environment/flight area/area/{axis}_min_m",
                                         f"{area[f'{axis}_min_m']} is not below {axis}_max_m {area[f'{axis}_max_m']}: swapped bounds?"))
-    seen_units: dict[str, int] = {}
+    seen_units: dict[tuple[str, str | None], int] = {}
+    rig_sensors = [sensor["name"] for sensor in profile.rig["sensors"]] if profile.rig is not None else []
     for index, failure in enumerate(document.get("failures", [])):
-        if failure["unit"] in seen_units:
-            problems.append(Problem(file, f"/failures/{index}/unit", f'{failure["unit"]!r} already fails in /failures/{seen_units[failure["unit"]]}: '
-                                                                      "one failure per unit"))
-        seen_units.setdefault(failure["unit"], index)
+        unit, sensor = failure["unit"], failure.get("sensor")
+        # One failure per unit; the distance sensor's may instead name sensors of the rig, one each.
+        clash = next((i for (u, s), i in seen_units.items() if u == unit and (s is None or sensor is None or s == sensor)), None)
+        if clash is not None:
+            problems.append(Problem(file, f"/failures/{index}/unit", f'{unit!r} already fails in /failures/{clash}: '
+                                                                      "one failure per unit (per sensor of the rig, for the distance sensor)"))
+        seen_units.setdefault((unit, sensor), index)
+        if "sensor" in failure:
+            if failure["unit"] != "distance sensor":
+                problems.append(Problem(file, f"/failures/{index}/sensor", 'names a range sensor of the rig: only with "unit": "distance sensor"'))
+            elif failure["sensor"] not in rig_sensors:
+                have = f"the rig's sensors are {', '.join(rig_sensors)}" if rig_sensors else "the profile has no rig: give one with --rig (`stella rigs`)"
+                problems.append(Problem(file, f"/failures/{index}/sensor", f'{failure["sensor"]!r} is no sensor of the vehicle: {have}'))
         if failure["unit"] == DATA_LINK and failure["type"] != "off":
             problems.append(Problem(file, f"/failures/{index}/type", f'the data link is lost ("off") or not: {failure["type"]!r} is no failure of it'))
     mission = document.get("mission", {})
@@ -237,7 +248,7 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
         weather=_weather(document, profile),
         mission=document.get("mission"),
         gusts=environment["weather"].get("gusts", "none"),
-        failures=tuple(LogicalFailure(f["unit"], f["type"]) for f in document.get("failures", [])),
+        failures=tuple(LogicalFailure(f["unit"], f["type"], f.get("sensor")) for f in document.get("failures", [])),
     )
 
 

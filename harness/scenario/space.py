@@ -212,7 +212,7 @@ class SearchSpace:
         space.template["failures"] = []
         duration = Interval.from_json(self.profile.section("failures")["duration"])
         for index, failure in enumerate(self.logical.failures):
-            space.template["failures"].append({"unit": failure.unit, "type": failure.type})
+            space.template["failures"].append({"unit": failure.unit, "type": failure.type, **({"sensor": failure.sensor} if failure.sensor else {})})
             space.quantity(f"failure_{index + 1}.onset_s", during_route, "s", ("failures", index, "onset_s"))
             space.quantity(f"failure_{index + 1}.duration_s", duration, "s", ("failures", index, "duration_s"))
 

@@ -130,7 +130,7 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
     obstacles = tuple(_intruder(space, concrete, i, start_up_m, time_limit_s) if entry["kind"] == "intruder" else _obstacle(space, concrete, i)
                       for i, entry in enumerate(concrete["obstacles"]))
     failures = tuple(FailureSpec(unit=f["unit"], type=f["type"], onset_s=f["onset_s"], duration_s=f["duration_s"],
-                                 delivery="simulator" if f["unit"] in SIMULATOR_FAILURE_UNITS else "sut")
+                                 delivery="simulator" if f["unit"] in SIMULATOR_FAILURE_UNITS else "sut", sensor=f.get("sensor"))
                      for f in concrete.get("failures", ()))
     return WorldSpec(
         scenario=space.logical.name,
