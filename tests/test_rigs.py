@@ -250,3 +250,47 @@ def test_a_failure_may_fail_one_sensor_of_the_rig(tmp_path, capsys):
     assert {d["name"] for d in space.describe()["dimensions"]} >= {"failure_1.onset_s", "failure_1.duration_s"}
     [failure] = world_spec(space, space.sample_feasible(np.random.default_rng(0), 1)[0], 0).failures
     assert failure.sensor == "front" and failure.delivery == "simulator"
+
+
+def searched_depth_camera(tmp_path: Path, **behaviour) -> Path:
+    scenario = json.loads((EXAMPLES / "wall.json").read_text())
+    scenario["sensors"] = [{"sensor": "depth", **behaviour}]
+    path = tmp_path / "wall_depth.json"
+    path.write_text(json.dumps(scenario))
+    return path
+
+
+def test_a_sensors_reach_rate_latency_and_view_are_search_dimensions_that_reach_the_world(tmp_path):
+    from harness.scenario.logical import load_logical
+    from harness.scenario.world import world_spec
+
+    path = searched_depth_camera(tmp_path, max_range_m={"min": 4, "max": 10}, latency_s={"min": 0, "max": 0.4}, fov_deg={"min": 30, "max": 87})
+    profile = with_rig_named(load_profile(), "depth_camera")
+    space = SearchSpace(load_logical(path, profile, "pilot"), profile)
+    names = [d["name"] for d in space.describe()["dimensions"]]
+    assert {"sensor.depth.max_range_m", "sensor.depth.latency_s", "sensor.depth.fov_deg"} <= set(names) and "sensor.depth.rate_hz" not in names
+    x = space.vector_from({"sensor.depth.max_range_m": 10.0, "sensor.depth.latency_s": 0.2, "sensor.depth.fov_deg": 30.0})
+    [depth] = world_spec(space, x, 0).rig
+    assert (depth.max_range_m, depth.range_m, depth.latency_s, depth.fov_deg, depth.rate_hz) == (10.0, 10.0, 0.2, 30.0, 15.0)
+    # The concrete scenario carries the values, and flies the same world again
+    from harness.scenario.world import space_from_concrete
+
+    concrete = space.to_concrete(x)
+    again = space_from_concrete(concrete, "concrete")
+    assert world_spec(again, again.from_concrete(concrete, "concrete"), 0).rig == (depth,)
+
+
+@pytest.mark.parametrize("behaviour, rig, pointer, says", [
+    ({"latency_s": {"min": 0, "max": 0.2}}, None, "/sensors/0/sensor", "has no rig"),
+    ({"latency_s": {"min": 0, "max": 0.2}}, "lidar_360", "/sensors/0/sensor", "the rig's sensors are lidar"),
+    ({"latency_s": {"min": 0.3, "max": 0.2}}, "depth_camera", "/sensors/0/latency_s", "swapped bounds"),
+    ({"max_range_m": {"min": 0.2, "max": 5}}, "depth_camera", "/sensors/0/max_range_m/min", "min_range_m, 0.3 m"),
+    ({"rate_hz": {"min": 0, "max": 5}}, "depth_camera", "/sensors/0/rate_hz/min", "more than 0"),
+    ({"fov_deg": {"min": 30, "max": 300}}, "depth_camera", "/sensors/0/fov_deg", "2.9 to 208.8 degrees"),
+    ({"latency_s": {"min": 0, "max": 3}}, "depth_camera", "/sensors/0/latency_s/max", "at most 2 s"),
+])
+def test_bad_searched_sensor_behaviour_exits_2_naming_the_field(tmp_path, capsys, behaviour, rig, pointer, says):
+    path = searched_depth_camera(tmp_path, **behaviour)
+    assert main(["space", str(path), *(["--rig", rig] if rig else [])]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: {pointer}:" in err and says in err

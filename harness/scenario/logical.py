@@ -10,6 +10,7 @@ from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.plan import Plan, load_plan, plan_from_document, plan_problems
 from harness.scenario.profile import WEATHER_PARAMETERS, Interval, Profile
+from harness.scenario.rig import sensor_behaviour_problems
 
 # The ground station's link to the SUT, failed by the harness, which silences the API tap
 # (harness/flight/evaluation.py); lost ("off") or not.
@@ -65,6 +66,9 @@ class LogicalScenario:
     mission: Mapping[str, Any] | None
     gusts: str = "none"
     failures: tuple[LogicalFailure, ...] = ()
+    # Range sensors' behaviour searched, each {"sensor": name, field: {"min", "max"}, ...}
+    # (harness/scenario/rig.py: SENSOR_BEHAVIOUR).
+    sensors: tuple[Mapping[str, Any], ...] = ()
 
     @property
     def not_simulated(self) -> list[WeatherValue]:
@@ -182,6 +186,7 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
                 problems.append(Problem(file, f"/failures/{index}/sensor", f'{failure["sensor"]!r} is no sensor of the vehicle: {have}'))
         if failure["unit"] == DATA_LINK and failure["type"] != "off":
             problems.append(Problem(file, f"/failures/{index}/type", f'the data link is lost ("off") or not: {failure["type"]!r} is no failure of it'))
+    problems += sensor_behaviour_problems(document.get("sensors", []), profile.rig, file)
     mission = document.get("mission", {})
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
     if "move to waypoint" not in maneuvers and "waypoints" not in mission and "plan" not in mission:
@@ -249,6 +254,7 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
         mission=document.get("mission"),
         gusts=environment["weather"].get("gusts", "none"),
         failures=tuple(LogicalFailure(f["unit"], f["type"], f.get("sensor")) for f in document.get("failures", [])),
+        sensors=tuple(document.get("sensors", [])),
     )
 
 

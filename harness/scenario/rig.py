@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from harness.errors import InputError, Problem
 from harness.paths import scenarios_dir
@@ -19,6 +19,9 @@ from harness.scenario.documents import load_json, schema_problems
 from sim_bridge.spec import RigSensor
 
 SECTORS = 72  # OBSTACLE_DISTANCE's distances array
+# A sensor's behaviour a logical scenario may search ("sensors"), with its unit and the values a
+# sensor of the rig can take (the rig schema's bounds).
+SENSOR_BEHAVIOUR = {"max_range_m": ("m", 0.0, 655.0), "fov_deg": ("deg", 0.0, 360.0), "rate_hz": ("Hz", 0.0, 250.0), "latency_s": ("s", 0.0, 2.0)}
 
 
 def rigs_dir() -> Path:
@@ -78,6 +81,44 @@ def rig_problems(document: Any, file: str, at: str = "") -> list[Problem]:
     return problems
 
 
+def sensor_behaviour_problems(entries: list, rig: Mapping[str, Any] | None, file: str) -> list[Problem]:
+    """A logical scenario's searched sensor behaviour ("sensors"): each entry names a sensor of
+    the rig once, and each range lies within what that sensor can be."""
+    problems = []
+    sensors = {sensor["name"]: sensor for sensor in rig["sensors"]} if rig is not None else {}
+    seen: dict[str, int] = {}
+    for index, entry in enumerate(entries):
+        name = entry["sensor"]
+        if name not in sensors:
+            have = f"the rig's sensors are {', '.join(sensors)}" if sensors else "the profile has no rig: give one with --rig (`stella rigs`)"
+            problems.append(Problem(file, f"/sensors/{index}/sensor", f"{name!r} is no sensor of the vehicle: {have}"))
+            continue
+        if name in seen:
+            problems.append(Problem(file, f"/sensors/{index}/sensor", f"{name!r} is searched in /sensors/{seen[name]} already: one entry per sensor"))
+        seen.setdefault(name, index)
+        sensor = sensors[name]
+        for field, (unit, lowest, highest) in SENSOR_BEHAVIOUR.items():
+            if field not in entry:
+                continue
+            low, high = entry[field]["min"], entry[field]["max"]
+            where = f"/sensors/{index}/{field}"
+            if low > high:
+                problems.append(Problem(file, where, f"min {low:g} is above max {high:g}: swapped bounds?"))
+            elif field == "max_range_m" and low <= sensor["min_range_m"]:
+                problems.append(Problem(file, f"{where}/min", f"must be above the sensor's min_range_m, {sensor['min_range_m']:g} m"))
+            elif high > highest:
+                problems.append(Problem(file, f"{where}/max", f"a sensor's {field} is at most {highest:g} {unit}"))
+            elif field == "rate_hz" and low <= lowest:
+                problems.append(Problem(file, f"{where}/min", "a sensor reads more than 0 times a second"))
+            elif field == "fov_deg" and sensor["message"] == "OBSTACLE_DISTANCE" and (
+                    low < sensor.get("increment_deg", 5.0) or min(high, 360.0) / sensor.get("increment_deg", 5.0) > SECTORS + 1e-9):
+                problems.append(Problem(file, where, f"an OBSTACLE_DISTANCE source of {sensor.get('increment_deg', 5.0):g}-degree sectors covers "
+                                                     f"{sensor.get('increment_deg', 5.0):g} to {SECTORS * sensor.get('increment_deg', 5.0):g} degrees"))
+            elif field == "fov_deg" and sensor.get("frame") == "local" and low < 360.0:
+                problems.append(Problem(file, where, 'a "local" source covers all around: its field of view stays 360'))
+    return problems
+
+
 def load_rig(name_or_path: str) -> dict[str, Any]:
     """A validated rig document, by preset name or path; InputError names the file, the field and the fix."""
     path = rig_path(name_or_path)
@@ -104,8 +145,12 @@ def reach_m(sensor: Mapping[str, Any], profile_sensor: Mapping[str, Any], visibi
     return max(min(profile_sensor["floor_range_m"], sensor["max_range_m"]), reach)
 
 
-def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visibility_m: float) -> tuple[RigSensor, ...]:
-    """The world spec's sensors of a rig document in this world's visibility."""
+def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visibility_m: float,
+                behaviour: Sequence[Mapping[str, Any]] = ()) -> tuple[RigSensor, ...]:
+    """The world spec's sensors of a rig document in this world's visibility, with a concrete
+    scenario's values of their searched behaviour ({"sensor": name, field: value, ...})."""
+    values = {entry["sensor"]: {k: v for k, v in entry.items() if k != "sensor"} for entry in behaviour}
+    rig = {**rig, "sensors": [{**s, **values.get(s["name"], {})} for s in rig["sensors"]]}
     return tuple(RigSensor(name=s["name"], message=s["message"], yaw_deg=float(s.get("yaw_deg", 0.0)), fov_deg=float(s["fov_deg"]),
                            min_range_m=float(s["min_range_m"]), max_range_m=float(s["max_range_m"]),
                            range_m=reach_m(s, profile_sensor, visibility_m), rate_hz=float(s["rate_hz"]),

@@ -22,6 +22,7 @@ from harness.scenario.footprints import Footprints
 from harness.scenario.motion import PATH_SAMPLES, RouteTiming, arc_points, intruder_speed, smooth_points
 from harness.scenario.plan import Plan
 from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
+from harness.scenario.rig import SENSOR_BEHAVIOUR
 from sim_bridge.terrain import max_height_on_segment_m
 
 CONCRETE_FORMAT = "stella.concrete/1"
@@ -162,6 +163,8 @@ class SearchSpace:
             self._gusts(space, during_route)
         if logical.failures:
             self._failures(space, during_route)
+        if logical.sensors:
+            self._sensors(space)
         for index, obstacle in enumerate(logical.obstacles):
             if obstacle.kind == "intruder":
                 self._intruder(space, index, obstacle, during_route)
@@ -215,6 +218,16 @@ class SearchSpace:
             space.template["failures"].append({"unit": failure.unit, "type": failure.type, **({"sensor": failure.sensor} if failure.sensor else {})})
             space.quantity(f"failure_{index + 1}.onset_s", during_route, "s", ("failures", index, "onset_s"))
             space.quantity(f"failure_{index + 1}.duration_s", duration, "s", ("failures", index, "duration_s"))
+
+    def _sensors(self, space: _Builder) -> None:
+        """Each searched behaviour of a rig sensor: its value replaces the rig's in the world."""
+        space.template["sensors"] = []
+        for index, entry in enumerate(self.logical.sensors):
+            space.template["sensors"].append({"sensor": entry["sensor"]})
+            for field, (unit, _lowest, _highest) in SENSOR_BEHAVIOUR.items():
+                if field in entry:
+                    space.quantity(f"sensor.{entry['sensor']}.{field}", Interval(float(entry[field]["min"]), float(entry[field]["max"])), unit,
+                                   ("sensors", index, field))
 
     def _intruder(self, space: _Builder, index: int, obstacle, during_route: Interval) -> None:
         """An intruder UAV by its encounter geometry: when and how it meets the route."""

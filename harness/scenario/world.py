@@ -151,7 +151,7 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
         drive=mission.drive,
         pilot=PilotSpec(**concrete["pilot"]) if mission.drive == "pilot" else None,
         failures=failures or None,
-        rig=None if profile.rig is None else rig_sensors(profile.rig, profile.sensor, environment["visibility_m"]),
+        rig=None if profile.rig is None else rig_sensors(profile.rig, profile.sensor, environment["visibility_m"], concrete.get("sensors", ())),
     )
 
 

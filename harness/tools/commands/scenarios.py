@@ -127,6 +127,7 @@ def _scenario_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="default")
     p.add_argument("--drive", choices=DRIVES, help="override the scenario's mission.drive (pilot adds the pilot's dimensions)")
     p.add_argument("--mission-plan", metavar="PLAN", help="fly this QGroundControl .plan instead of the scenario's route (its home is the origin)")
+    p.add_argument("--rig", metavar="NAME|FILE", help="the vehicle's range sensors: a preset (`stella rigs`) or a rig file, instead of the profile's")
 
 
 @command("space", "print the derived search space", _scenario_options)
