@@ -16,6 +16,12 @@ RC_CHANNELS frame on the simulator link, which PX4's simulator_mavlink publishes
 So a pilot-driven flight is as deterministic as the simulation, whatever the real-time factor.
 SUT_PARAMS maps this transmitter's channels in the SUT (PX4's parameter names).
 
+A programme (PilotSpec.programme) comes first: from the start of the cruise the pilot flies its
+segments one after the other, each a stick deflection in a direction relative to the route or
+to the nearest obstacle for a time, with a yaw stick, as a pilot probing the obstacle would:
+a tiny deflection, release and re-push, sliding along it at an angle, backing away from it.
+Then it flies the route as above.
+
 Pure logic; the bridge calls `update` and encodes the result.
 """
 
@@ -23,9 +29,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
-from sim_bridge.spec import Point, Waypoint
+from sim_bridge.spec import PilotSegment, Point, Waypoint
 
 if TYPE_CHECKING:  # the harness imports this module for its constants; no JSBSim for that
     from sim_bridge.physics import VehicleState
@@ -107,8 +113,11 @@ def _clip(value: float, limit: float) -> float:
 
 
 class Pilot:
-    def __init__(self, start: Point, route: Sequence[Waypoint], takeoff_altitude_m: float, max_stick: float, aim_offset_m: float):
-        """start: the take-off point; route: waypoints with altitudes above the start, the last one the goal."""
+    def __init__(self, start: Point, route: Sequence[Waypoint], takeoff_altitude_m: float, max_stick: float, aim_offset_m: float,
+                 programme: Sequence[PilotSegment] = (), obstacle_bearing: Callable[[VehicleState], float | None] | None = None):
+        """start: the take-off point; route: waypoints with altitudes above the start, the last one
+        the goal; programme: segments flown first; obstacle_bearing(state): the direction (radians
+        clockwise from north) of the nearest obstacle the pilot sees, None where there is none."""
         self.start_up_m = start.up_m
         self.points = [(start.north_m, start.east_m)] + [(w.north_m, w.east_m) for w in route]
         self.altitudes = [takeoff_altitude_m] + [w.altitude_m for w in route]
@@ -122,6 +131,10 @@ class Pilot:
         self._best_remaining_m = math.inf
         self._progress_at_s = 0.0
         self._settled_at_s = 0.0
+        self.programme = tuple(programme)
+        self.obstacle_bearing = obstacle_bearing
+        self.segment: int | None = None  # the programme's segment flown now
+        self._programme_from_s = 0.0
 
     def _leg_geometry(self, leg: int) -> tuple[float, float, float, float, float]:
         """The leg's start, unit direction and length; right of a direction (un, ue) is (-ue, un)."""
@@ -159,8 +172,13 @@ class Pilot:
             climbed = altitude >= AIRBORNE_M and abs(state.v_down_m_s) < SETTLED_SPEED_M_S
             if not climbed:
                 return RcFrame(0.0, 0.0, 0.0, 0.0, SLOT_HOLD)
-            self.phase = "cruise"
-            self._progress_at_s = time_s
+            self.phase = "programme" if self.programme else "cruise"
+            self._progress_at_s = self._programme_from_s = time_s
+        if self.phase == "programme":
+            frame = self._programme(time_s, state, altitude)
+            if frame is not None:
+                return frame
+            self.phase, self.segment, self._progress_at_s = "cruise", None, time_s
         if self.phase == "settle" and time_s - self._settled_at_s >= SETTLE_S:
             self.phase = "land"
         if self.phase == "settle":
@@ -197,6 +215,25 @@ class Pilot:
             error = math.atan2(right, forward)
             yaw = _clip(YAW_GAIN * error, self.max_stick)
         return RcFrame(right * scale, forward * scale, throttle, yaw, SLOT_POSITION)
+
+    def _programme(self, time_s: float, state: VehicleState, altitude: float) -> RcFrame | None:
+        """The sticks of the programme's segment at this time (None: the programme is over)."""
+        elapsed = time_s - self._programme_from_s
+        for index, segment in enumerate(self.programme):
+            if elapsed < segment.duration_s:
+                break
+            elapsed -= segment.duration_s
+        else:
+            return None
+        self.segment = index
+        north, east = state.north_m, state.east_m
+        self.aim = self._aim_point(north, east)
+        bearing = self.obstacle_bearing(state) if segment.towards == "obstacle" and self.obstacle_bearing is not None else None
+        if bearing is None:  # towards the route, or no obstacle in sight
+            bearing = math.atan2(self.aim[1] - east, self.aim[0] - north)
+        direction = bearing + math.radians(segment.angle_deg) - state.yaw_rad
+        throttle = _clip(ALTITUDE_GAIN * (self.altitudes[self.leg + 1] - altitude), self.max_stick)
+        return RcFrame(segment.deflection * math.sin(direction), segment.deflection * math.cos(direction), throttle, segment.yaw_stick, SLOT_POSITION)
 
     @staticmethod
     def _stopping_m(d_n: float, d_e: float, to_goal: float, state: VehicleState) -> float:

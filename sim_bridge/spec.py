@@ -184,10 +184,29 @@ class FailureSpec:
     sensor: str | None = None  # the one rig sensor of the distance sensor that fails (None: every one)
 
 
+PILOT_REFERENCES = ("route", "obstacle")
+
+
+@dataclass(frozen=True)
+class PilotSegment:
+    """One segment of a pilot programme (sim_bridge/pilot.py): for duration_s the pilot pushes the
+    stick deflection (0..1) in the direction angle_deg clockwise from the reference, where the
+    pilot would push along the route ("route") or towards the nearest obstacle ("obstacle"), and
+    turns with the yaw stick at yaw_stick (-1..1)."""
+
+    towards: str
+    angle_deg: float
+    deflection: float
+    duration_s: float
+    yaw_stick: float = 0.0
+
+
 @dataclass(frozen=True)
 class PilotSpec:
     max_stick: float
     aim_offset_m: float
+    # Flown from the start of the cruise, before the pilot pushes along the route (None: at once).
+    programme: tuple[PilotSegment, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -232,6 +251,9 @@ class WorldSpec:
             raise SpecError("/drive", f"{spec.drive!r} is neither 'mission' nor 'pilot'")
         if spec.drive == "pilot" and spec.pilot is None:
             raise SpecError("/pilot", "missing: the pilot drive needs the pilot's max_stick and aim_offset_m")
+        for index, segment in enumerate(spec.pilot.programme or () if spec.pilot is not None else ()):
+            if segment.towards not in PILOT_REFERENCES:
+                raise SpecError(f"/pilot/programme/{index}/towards", f"{segment.towards!r} is not one of {', '.join(PILOT_REFERENCES)}")
         for index, sensor in enumerate(spec.rig or ()):
             if sensor.message not in RIG_MESSAGES:
                 raise SpecError(f"/rig/{index}/message", f"{sensor.message!r} is not one of {', '.join(RIG_MESSAGES)}")

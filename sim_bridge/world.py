@@ -29,6 +29,8 @@ SECTOR_DEG = 5.0
 LANDED_HOLD_S = 1.0
 CRASH_SPEED_M_S = 4.0
 NO_READING = 65535  # UINT16_MAX: a sector the sensor does not cover, as OBSTACLE_DISTANCE has it
+PILOT_RAYS_RAD = np.radians(np.arange(0.0, 360.0, 2.0))  # how finely a programme's pilot sees where the nearest obstacle is
+PILOT_SIGHT_M = 100.0
 
 
 def _ignore_event(time_s: float, event: str, detail: dict[str, Any]) -> None:
@@ -98,7 +100,8 @@ class World:
         self._landed_since: float | None = None
         self.pilot: Pilot | None = None
         if spec.drive == "pilot":
-            self.pilot = Pilot(spec.uav.start, spec.mission.waypoints, spec.mission.takeoff_altitude_m, spec.pilot.max_stick, spec.pilot.aim_offset_m)
+            self.pilot = Pilot(spec.uav.start, spec.mission.waypoints, spec.mission.takeoff_altitude_m, spec.pilot.max_stick, spec.pilot.aim_offset_m,
+                               spec.pilot.programme or (), self.obstacle_bearing)
 
     @property
     def state(self) -> VehicleState:
@@ -151,6 +154,14 @@ class World:
             else:
                 distances[index] = reach_cm + 1
         return distances
+
+    def obstacle_bearing(self, state: VehicleState) -> float | None:
+        """Where the nearest obstacle lies from the vehicle (radians clockwise from north), as a
+        pilot sees it, to PILOT_SIGHT_M (None: nothing that near)."""
+        nearest = self.field.sector_distances(state.north_m, state.east_m, state.up_m, PILOT_RAYS_RAD, PILOT_SIGHT_M)
+        if nearest is None or not np.isfinite(np.min(nearest)):
+            return None
+        return float(PILOT_RAYS_RAD[int(np.argmin(nearest))])
 
     def hull_offset(self, body_angles_rad: np.ndarray) -> np.ndarray:
         """How far the hull is from the vehicle's centre in each direction of the body."""

@@ -35,17 +35,19 @@ NEUTRAL: Mapping[str, str | float] = {
     "altitude_m": LOWER, "speed_m_s": LOWER, "travel_m": LOWER, "radius_m": LOWER, "turn_deg": 0.0, "rise_m": LOWER,
     "closing_speed_m_s": LOWER, "vertical_offset_m": 0.0, "turn_rate_deg_s": 0.0,
     "max_stick": UPPER, "aim_offset_m": 0.0,  # the pilot drive's defaults: full stick, aiming along the route
+    "angle_deg": 0.0, "deflection": LOWER, "yaw_stick": 0.0,  # a programme segment: straight at its reference, no stick
+    "max_range_m": UPPER, "fov_deg": UPPER, "rate_hz": UPPER, "latency_s": LOWER,  # a rig sensor at its best
 }
 # Round numbers tried in turn: whole units, then tenths (hundredths for unitless fractions).
 GRAINS = {"": (0.1, 0.01)}
 DEFAULT_GRAINS = (1.0, 0.1)
 # Removals change which elements interact, so a pass that kept one is followed by another.
-REMOVALS = frozenset({"obstacles", "failure", "gusts", "wind", "fog"})
+REMOVALS = frozenset({"obstacles", "failure", "programme", "gusts", "wind", "fog"})
 
 
 @dataclass(frozen=True)
 class Candidate:
-    kind: str  # obstacles, failure, gusts, wind, fog, neutral, round
+    kind: str  # obstacles, failure, programme, gusts, wind, fog, neutral, round
     description: str
     document: Document
 
@@ -129,6 +131,22 @@ def failure_steps(state) -> Iterator[Candidate]:
         candidate = _variant(state.current, edit)
         if candidate is not None:
             yield Candidate("failure", f"drop the {failure['unit']} {failure['type']} failure", candidate)
+
+
+def programme_steps(state) -> Iterator[Candidate]:
+    """Each segment of the pilot's programme dropped, the last first."""
+    segments = state.current.get("pilot", {}).get("programme", ())
+    for index in reversed(range(len(segments))):
+
+        def edit(document: Document, index: int = index) -> None:
+            for holder in (document["logical_scenario"]["mission"], document["pilot"]):
+                del holder["programme"][index]
+                if not holder["programme"]:
+                    del holder["programme"]
+
+        candidate = _variant(state.current, edit)
+        if candidate is not None:
+            yield Candidate("programme", f"drop the pilot's segment {index + 1} (towards the {segments[index]['towards']})", candidate)
 
 
 def gust_steps(state) -> Iterator[Candidate]:
@@ -278,7 +296,7 @@ def _grain_text(level: int) -> str:
     return ("whole units", "tenths")[level]
 
 
-STEPS = (obstacle_steps, failure_steps, gust_steps, weather_steps, neutral_steps, round_steps)
+STEPS = (obstacle_steps, failure_steps, programme_steps, gust_steps, weather_steps, neutral_steps, round_steps)
 
 
 def elements(document: Mapping[str, Any]) -> dict[str, Any]:

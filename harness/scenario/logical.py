@@ -86,6 +86,20 @@ class LogicalScenario:
 
 
 DRIVES = ("mission", "pilot")
+# A pilot programme segment's searched values: their limits, and the range each takes when the
+# scenario gives none (mission.programme; sim_bridge/pilot.py).
+PROGRAMME_LIMITS = {"angle_deg": (-180.0, 180.0), "deflection": (0.0, 1.0), "duration_s": (0.0, 60.0), "yaw_stick": (-1.0, 1.0)}
+PROGRAMME_DEFAULTS = {"angle_deg": (0.0, 0.0), "deflection": (0.0, 1.0), "duration_s": (0.5, 5.0), "yaw_stick": (0.0, 0.0)}
+
+
+def programme_interval(segment: Mapping[str, Any], field: str) -> Interval:
+    """A programme segment's value or range for a field, as an interval (a number: a degenerate one)."""
+    given = segment.get(field)
+    if given is None:
+        return Interval(*PROGRAMME_DEFAULTS[field])
+    if isinstance(given, Mapping):
+        return Interval(float(given["min"]), float(given["max"]))
+    return Interval(float(given), float(given))
 
 
 def with_drive(document: Mapping[str, Any], drive: str | None) -> Mapping[str, Any]:
@@ -187,6 +201,14 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
         if failure["unit"] == DATA_LINK and failure["type"] != "off":
             problems.append(Problem(file, f"/failures/{index}/type", f'the data link is lost ("off") or not: {failure["type"]!r} is no failure of it'))
     problems += sensor_behaviour_problems(document.get("sensors", []), profile.rig, file)
+    for index, segment in enumerate(document.get("mission", {}).get("programme", [])):
+        for field, (low_limit, high_limit) in PROGRAMME_LIMITS.items():
+            value = programme_interval(segment, field)
+            where = f"/mission/programme/{index}/{field}"
+            if value.min > value.max:
+                problems.append(Problem(file, where, f"min {value.min:g} is above max {value.max:g}: swapped bounds?"))
+            elif value.min < low_limit or value.max > high_limit or (field == "duration_s" and value.min <= 0.0):
+                problems.append(Problem(file, where, f"must lie within {low_limit:g}..{high_limit:g}" + (" and above 0" if field == "duration_s" else "")))
     mission = document.get("mission", {})
     maneuvers = document["system"]["UAVs"][0]["maneuvers"]
     if "move to waypoint" not in maneuvers and "waypoints" not in mission and "plan" not in mission:

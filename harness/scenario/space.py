@@ -17,7 +17,7 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario import units
 from harness.scenario.documents import pointer
-from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario
+from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario, programme_interval
 from harness.scenario.footprints import Footprints
 from harness.scenario.motion import PATH_SAMPLES, RouteTiming, arc_points, intruder_speed, smooth_points
 from harness.scenario.plan import Plan
@@ -289,6 +289,16 @@ class SearchSpace:
         space.quantity("pilot.max_stick", stick, "", ("pilot", "max_stick"))
         space.quantity("pilot.aim_offset_m", offset, "m", ("pilot", "aim_offset_m"))
         self.pilot_defaults = {"pilot.max_stick": stick.max, "pilot.aim_offset_m": min(max(0.0, offset.min), offset.max)}
+        programme = (self.logical.mission or {}).get("programme", [])
+        if programme:
+            space.template["pilot"]["programme"] = []
+        for index, segment in enumerate(programme):
+            space.template["pilot"]["programme"].append({"towards": segment["towards"]})
+            for field, unit in (("angle_deg", "deg"), ("deflection", ""), ("duration_s", "s"), ("yaw_stick", "")):
+                interval = programme_interval(segment, field)
+                space.quantity(f"pilot.segment_{index + 1}.{field}", interval, unit, ("pilot", "programme", index, field))
+                # A concrete scenario made for the mission drive and flown by the pilot: a short, gentle programme.
+                self.pilot_defaults[f"pilot.segment_{index + 1}.{field}"] = interval.min
 
     def _intruder_entry(self, obstacle) -> dict[str, Any]:
         body = self.profile.section("intruder")["body"]

@@ -15,7 +15,7 @@ from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, in
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.rig import rig_sensors
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
-from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSpec, Point, RangeSensor, Surface,
+from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSegment, PilotSpec, Point, RangeSensor, Surface,
                              Turbulence, Uav, Waypoint, WorldSpec)
 from sim_bridge.terrain import terrain_height_m
 
@@ -149,10 +149,15 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
         time_limit_s=time_limit_s,
         not_simulated=concrete["not_simulated"],
         drive=mission.drive,
-        pilot=PilotSpec(**concrete["pilot"]) if mission.drive == "pilot" else None,
+        pilot=_pilot(concrete["pilot"]) if mission.drive == "pilot" else None,
         failures=failures or None,
         rig=None if profile.rig is None else rig_sensors(profile.rig, profile.sensor, environment["visibility_m"], concrete.get("sensors", ())),
     )
+
+
+def _pilot(pilot: Mapping[str, Any]) -> PilotSpec:
+    programme = tuple(PilotSegment(**segment) for segment in pilot.get("programme", ()))
+    return PilotSpec(max_stick=pilot["max_stick"], aim_offset_m=pilot["aim_offset_m"], programme=programme or None)
 
 
 def _mission(mission: Mission) -> MissionSpec:
