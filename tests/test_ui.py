@@ -135,6 +135,7 @@ def test_the_setup_offers_what_the_command_line_offers(client):
     setup = client.get("/api/setup").json()
     assert {"bundled", "px4", "command"} <= set(setup["suts"])
     assert setup["drives"] == ["mission", "pilot"] and setup["holds"] == ["frozen", "paced"]
+    assert {"lidar_360", "four_rangefinders", "depth_camera"} <= set(setup["rigs"])
     assert "cp_ignores_delay" in [fault["name"] for fault in setup["faults"]]
     assert setup["plans"] == ["scenarios/examples/two_altitudes.plan"] and setup["params_files"] == []
 
@@ -156,6 +157,7 @@ def cli_refusal(tmp_path, capsys, options: list[str]) -> str:
     ({"sut_params": ["CP_DIST=near"]}, ["--sut-param", "CP_DIST=near"], "sut_params"),
     ({"sut_params": ["CP_DISTANCE=2"]}, ["--sut-param", "CP_DISTANCE=2"], "sut_params"),
     ({"sut_params": ["CP_DIST=99"]}, ["--sut-param", "CP_DIST=99"], "sut_params"),
+    ({"rig": "sonar_ring"}, ["--rig", "sonar_ring"], "rig"),
 ])
 def test_a_sut_the_command_line_refuses_is_refused_on_its_field_with_the_same_message(client, tmp_path, capsys, changes, options, field):
     response = client.post("/api/campaigns", json=launch_spec(**changes))

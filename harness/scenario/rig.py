@@ -123,7 +123,7 @@ def load_rig(name_or_path: str) -> dict[str, Any]:
     """A validated rig document, by preset name or path; InputError names the file, the field and the fix."""
     path = rig_path(name_or_path)
     if not path.exists():
-        raise InputError([Problem(str(path), "", f"no such rig: give a file or one of the presets {', '.join(preset_names())} (`stella rigs`)")])
+        raise InputError([Problem("--rig", "", f"{name_or_path}: no such rig file or preset: give a file or one of {', '.join(preset_names())} (`stella rigs`)")])
     document = load_json(path)
     problems = rig_problems(document, str(path))
     if problems:

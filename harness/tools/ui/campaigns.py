@@ -42,7 +42,7 @@ NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 NUMBERS = {"evaluations": positive_int, "population": positive_int, "runs": positive_int, "seed": seed_int, "workers": positive_int}
 # The page's fields for `stella campaign`'s options: text as typed, and files chosen by kind.
 TEXT_OPTIONS = {"sut": "--sut", "px4_bin": "--px4-bin", "ardupilot_bin": "--ardupilot-bin", "sut_command": "--sut-command", "sut_hold": "--sut-hold", "sut_fault": "--sut-fault",
-                "autopilot_dir": "--autopilot-dir", "drive": "--drive"}
+                "autopilot_dir": "--autopilot-dir", "drive": "--drive", "rig": "--rig"}
 FILE_OPTIONS = {"mission_plan": ("plan", "--mission-plan"), "sut_params_file": ("params", "--sut-params-file")}
 FIELDS = {"--algorithm": "algorithms", "--sut-param": "sut_params", "--profile": "profile", "--executor": "executor", "--workers": "workers",
           **{f"--{field}": field for field in NUMBERS}, **{option: field for field, option in TEXT_OPTIONS.items()},

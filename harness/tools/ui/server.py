@@ -29,6 +29,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from harness.errors import InputError
 from harness.execution import registry as executors
 from harness.scenario.logical import DRIVES
+from harness.scenario.rig import preset_names
 from harness.tools.ui.campaigns import Campaigns, SetupError
 from harness.tools.ui.uploads import MAX_UPLOAD_BYTES
 
@@ -57,7 +58,7 @@ def setup_choices(campaigns: Campaigns) -> dict[str, Any]:
     return {"scenarios": campaigns.uploads.choices("scenario"), "plans": campaigns.uploads.choices("plan"),
             "params_files": campaigns.uploads.choices("params"), "profiles": ["default"],
             "executors": sorted(executors.names(), key=lambda name: name != "local"),  # the form's first is its default
-            "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES),
+            "suts": sut_adapter.names(), "drives": list(DRIVES), "holds": list(HOLD_MODES), "rigs": preset_names(),
             "faults": [{"name": f.name, "breaks": f.breaks} for f in seeded_faults().values()],
             "px4_bin_default": os.environ.get("STELLA_PX4_BIN"), "ardupilot_bin_default": os.environ.get("STELLA_ARDUPILOT_BIN"),
             "max_upload_bytes": MAX_UPLOAD_BYTES}

@@ -74,6 +74,7 @@ async function loadSetup(chosen = {}) {
     fillSelect($("sut-hold"), setup.holds, "paced (default)");
     fillSelect($("sut-fault"), setup.faults.map((f) => ({ value: f.name, text: f.name, title: f.breaks })), "none");
     fillSelect($("drive"), setup.drives, "the scenario's own");
+    fillSelect($("rig"), setup.rigs, "the profile's sensor");
     if (setup.px4_bin_default) $("px4-bin").placeholder = `$STELLA_PX4_BIN: ${setup.px4_bin_default}`;
     if (setup.ardupilot_bin_default) $("ardupilot-bin").placeholder = `$STELLA_ARDUPILOT_BIN: ${setup.ardupilot_bin_default}`;
     showSutFields();
@@ -112,7 +113,7 @@ async function launch(event) {
     evaluations: $("evaluations").value, population: $("population").value, runs: $("runs").value, seed: $("seed").value,
     executor: $("executor").value, workers: $("workers").value || null,
     sut: $("sut").value, px4_bin: shown("px4-bin"), ardupilot_bin: shown("ardupilot-bin"), sut_command: shown("sut-command"), sut_hold: shown("sut-hold"),
-    sut_fault: shown("sut-fault"), autopilot_dir: shown("autopilot-dir"), drive: $("drive").value, mission_plan: $("mission-plan").value,
+    sut_fault: shown("sut-fault"), autopilot_dir: shown("autopilot-dir"), drive: $("drive").value, rig: $("rig").value, mission_plan: $("mission-plan").value,
     sut_params_file: $("sut-params-file").value, sut_params: $("sut-params").value.split("\n").map((line) => line.trim()).filter(Boolean),
   };
   const response = await api("/api/campaigns", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(spec) });
