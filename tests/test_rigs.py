@@ -294,3 +294,11 @@ def test_bad_searched_sensor_behaviour_exits_2_naming_the_field(tmp_path, capsys
     assert main(["space", str(path), *(["--rig", rig] if rig else [])]) == 2
     err = capsys.readouterr().err
     assert f"{path}: {pointer}:" in err and says in err
+
+
+def test_a_sut_that_reads_no_rig_refuses_one_before_anything_flies():
+    from harness.scenario.rig import rig_problem_for
+
+    assert rig_problem_for(load_rig("four_rangefinders"), "px4", ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")) is None
+    problem = rig_problem_for(load_rig("lidar_and_rangefinders"), "ardupilot", ())
+    assert "lidar (OBSTACLE_DISTANCE), front (DISTANCE_SENSOR), back (DISTANCE_SENSOR)" in problem and "ardupilot" in problem
