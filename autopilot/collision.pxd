@@ -49,12 +49,12 @@ cpdef double _stick_scale(double distance, double keep, double scale_distance)
 @cython.locals(best_cost=cython.double, best=cython.int, span=cython.int, i=cython.int, j=cython.int, mean=cython.double, cost=cython.double)
 cpdef int px4_guided_bin(list view, int home, double keep, double guide_angle_deg)
 
-@cython.locals(a_n=cython.double, a_e=cython.double, length=cython.double, reach=cython.double, keep=cython.double, scale_distance=cython.double,
+@cython.locals(a_n=cython.double, a_e=cython.double, length=cython.double, keep=cython.double, scale_distance=cython.double,
                closest_n=cython.double, closest_e=cython.double, closest=cython.double, dir_n=cython.double, dir_e=cython.double,
                new_n=cython.double, new_e=cython.double, towards=cython.double, normal_n=cython.double, normal_e=cython.double,
                tangential_n=cython.double, tangential_e=cython.double, along=cython.double, normal_scale=cython.double,
                tangential_scale=cython.double, delay=cython.double, age=cython.double, gain=cython.double, braking=cython.double,
                brake_n=cython.double, brake_e=cython.double, bin_n=cython.double, bin_e=cython.double, distance=cython.double,
-               parallel=cython.double, delay_m=cython.double, stop_distance=cython.double, constraint=cython.double, index=cython.int, home=cython.int,
+               parallel=cython.double, delay_m=cython.double, stop_distance=cython.double, constraint=cython.double, index=cython.int, home=cython.int, in_range=cython.bint,
                view=list, seen=list)
 cpdef tuple px4_stick_acceleration(params, ObstacleMap obstacles, double now_s, tuple accel_ne, tuple velocity_ne)

@@ -56,7 +56,7 @@ class ObstacleMap:
         # the reach of the sensor that saw nothing: the distances clamped so, and (north, east,
         # distance) of every bin seen.
         self.view_at_reach: list[float | None] = [None] * BINS
-        self.seen_at_reach: list[tuple[float, float, float]] = []
+        self.seen_at_reach: list[tuple[float, float, float, bool]] = []
         # Each source's latest reading, by source: (when, its reach in metres, its bins).
         self.sources: dict[tuple, tuple[float, float, list]] = {}
 
@@ -125,7 +125,9 @@ class ObstacleMap:
         self.occupied = [(*BIN_DIRECTIONS[i], d) for i, d in enumerate(bins) if d is not None and not math.isinf(d)]
         self.unknown = [BIN_DIRECTIONS[i] for i, d in enumerate(bins) if d is None]
         self.view_at_reach = [None if d is None else min(d, reaches[i]) for i, d in enumerate(bins)]
-        self.seen_at_reach = self.occupied + [(*BIN_DIRECTIONS[i], reaches[i]) for i, d in enumerate(bins) if d is not None and math.isinf(d)]
+        # With whether the bin's reading is within its own sensor's reach: only such a reading's age delays braking.
+        self.seen_at_reach = ([(*BIN_DIRECTIONS[i], d, d < reaches[i]) for i, d in enumerate(bins) if d is not None and not math.isinf(d)]
+                              + [(*BIN_DIRECTIONS[i], reaches[i], False) for i, d in enumerate(bins) if d is not None and math.isinf(d)])
 
     def fresh(self, now_s: float) -> bool:
         return now_s - self.updated_s <= STALE_AFTER_S
@@ -135,7 +137,8 @@ def _fused(sources: list) -> tuple[list, list]:
     """Each bin's reading and the reach of the sensor it came from, of several sources' (when,
     reach, bins): what PX4's _enterData leaves once each has reported. An obstacle seen replaces
     nothing-in-range and is replaced only by one seen by a sensor of the same or a shorter
-    reach; nothing-in-range replaces nothing-in-range of the same or a shorter reach."""
+    reach, or by later nothing-in-range of a sensor of the same reach; nothing-in-range replaces
+    nothing-in-range of the same or a shorter reach."""
     bins: list[float | None] = [None] * BINS
     reaches = [0.0] * BINS
     latest = [-math.inf] * BINS
@@ -147,7 +150,9 @@ def _fused(sources: list) -> tuple[list, list]:
             if current is None:
                 better = True
             elif math.isinf(value):
-                better = math.isinf(current) and reach_m >= reaches[i]
+                # Nothing in range replaces nothing in range of the same or a shorter reach, and
+                # an obstacle only where it is later news from a sensor of the same reach.
+                better = reach_m >= reaches[i] if math.isinf(current) else (reach_m == reaches[i] and heard_s > latest[i])
             elif math.isinf(current):
                 better = True
             else:
@@ -301,15 +306,14 @@ def px4_stick_acceleration(params, obstacles: ObstacleMap, now_s: float, accel_n
         return accel_ne
     if not obstacles.fresh(now_s):
         return 0.0, 0.0
-    reach = obstacles.max_range_m
     seen = obstacles.seen_at_reach
     if not seen:
         return accel_ne
     keep = params["CP_DIST"]
     scale_distance = max(keep, params["MPC_VEL_MANUAL"] / params["MPC_XY_P"])
     view = obstacles.view_at_reach
-    closest_n, closest_e, closest = seen[0]
-    for bin_n, bin_e, distance in seen:
+    closest_n, closest_e, closest, _in_range = seen[0]
+    for bin_n, bin_e, distance, _in_range in seen:
         if distance < closest:
             closest_n, closest_e, closest = bin_n, bin_e, distance
     home = _bin_of(math.atan2(a_e, a_n))
@@ -338,9 +342,9 @@ def px4_stick_acceleration(params, obstacles: ObstacleMap, now_s: float, accel_n
     age = max(0.0, now_s - obstacles.updated_s)
     gain = params["MPC_XY_VEL_P_ACC"]
     braking, brake_n, brake_e = math.inf, 0.0, 0.0
-    for bin_n, bin_e, distance in seen:
+    for bin_n, bin_e, distance, in_range in seen:
         parallel = max(0.0, velocity_ne[0] * bin_n + velocity_ne[1] * bin_e)
-        delay_m = parallel * (delay + (age if distance < reach else 0.0))
+        delay_m = parallel * (delay + (age if in_range else 0.0))
         stop_distance = distance - keep - delay_m
         if stop_distance >= 0.0:
             constraint = gain * min(max_speed_from_distance(params["MPC_JERK_MAX"], params["MPC_ACC_HOR"], stop_distance) - parallel, 0.0)

@@ -307,6 +307,7 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
             recorder.metadata("bridge", {"rate_hz": str(config.rate_hz), "pid": str(os.getpid())})
             control.send(Loaded())
             bridge = Bridge(world, config, recorder)
+            finishing.callback(bridge.close)
             try:
                 sut = connect_sut()
             except socket.timeout:
@@ -321,7 +322,6 @@ def fly(world: WorldSpec, config: BridgeConfig, mcap_path: Path, control: Contro
                 except KeyboardInterrupt:
                     bridge.settle_outcome()
                     bridge.summary.end_reason = EndReason.INTERRUPTED
-            bridge.close()
             finishing.enter_context(_stop_held())
             summary = bridge.summary.as_dict()
             recorder.metadata("bridge_summary", {"json": json.dumps(summary)})

@@ -172,7 +172,7 @@ class SensorFrames:
         self.recorder.write("/pilot", time_ns=time_us * 1000, message={
             "t": time_us / 1e6, "phase": pilot.phase, "roll": frame.roll, "pitch": frame.pitch, "throttle": frame.throttle, "yaw": frame.yaw,
             "mode_slot": frame.slot, "channels_us": channels, "aim_north_m": pilot.aim[0], "aim_east_m": pilot.aim[1], "remaining_m": pilot.remaining_m,
-            **({"segment": pilot.segment} if pilot.segment is not None else {}),
+            **({"segment": pilot.segment + 1} if pilot.segment is not None else {}),
         })
         return channels
 

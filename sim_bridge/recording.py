@@ -214,7 +214,7 @@ OPTIONAL_SCHEMAS: dict[str, dict[str, Any]] = {
             "yaw": {"type": "number"},
             "mode_slot": {"type": "integer"},
             "channels_us": {"type": "array", "items": {"type": "integer"}},
-            "segment": {"type": "integer", "description": "the programme segment flown (absent: the route)"},
+            "segment": {"type": "integer", "description": "the programme's segment flown, from 1 (absent: the route)"},
             "aim_north_m": {"type": "number"},
             "aim_east_m": {"type": "number"},
             "remaining_m": {"type": "number"},

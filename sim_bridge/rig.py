@@ -4,7 +4,8 @@ OBSTACLE_DISTANCE source's sectors, every sensor at its own rate, delivered its 
 was measured, and recorded as the SUT gets it (/sensor/rig/NAME).
 
 Rays are cast from the vehicle's hull, as for the profile's one forward sensor (sim_bridge/world.py):
-a sector or a field of view is as close as the closest of its rays, at most MAX_RAY_GAP_DEG apart.
+a sector of 5 degrees or less is one ray at its centre, as that sensor's are; a wider sector or a
+DISTANCE_SENSOR's field of view is as close as the closest of rays at most MAX_RAY_GAP_DEG apart.
 """
 
 from __future__ import annotations
@@ -88,8 +89,9 @@ class RigFrames:
         self.encode = encode
         self.encode_companion = encode_companion
         self.record = record
-        # (step due, companion link?, frame), in order of due step
-        self._in_flight: collections.deque[tuple[int, bool, bytes]] = collections.deque()
+        # (step due, companion link?, the message and its fields), in order of due step: encoded
+        # when sent, so that each link's sequence numbers count up in the order frames go out.
+        self._in_flight: collections.deque[tuple[int, bool, tuple]] = collections.deque()
 
     def step_frames(self, step: int, time_us: int, yaw_rad: float, delivered) -> tuple[list[bytes], list[bytes]]:
         """The frames due at this step, for the simulator link and for the companion link:
@@ -98,21 +100,24 @@ class RigFrames:
         nothing is sent)."""
         for sensor in self.sensors:
             if step % sensor.every_steps == 0:
-                frame = self._measure(sensor, time_us, yaw_rad, delivered)
-                if frame is not None:
-                    self._queue(step + sensor.latency_steps, sensor.companion, frame)
+                message = self._measure(sensor, time_us, yaw_rad, delivered)
+                if message is not None:
+                    self._queue(step + sensor.latency_steps, sensor.companion, message)
         simulator: list[bytes] = []
         companion: list[bytes] = []
         while self._in_flight and self._in_flight[0][0] <= step:
-            _due, to_companion, frame = self._in_flight.popleft()
-            (companion if to_companion else simulator).append(frame)
+            _due, to_companion, (kind, fields) = self._in_flight.popleft()
+            if to_companion:
+                companion.append(self.encode_companion(kind, *fields))
+            else:
+                simulator.append(self.encode(kind, *fields))
         return simulator, companion
 
-    def _queue(self, due_step: int, to_companion: bool, frame: bytes) -> None:
+    def _queue(self, due_step: int, to_companion: bool, message: tuple) -> None:
         if not self._in_flight or self._in_flight[-1][0] <= due_step:
-            self._in_flight.append((due_step, to_companion, frame))
+            self._in_flight.append((due_step, to_companion, message))
             return
-        ordered = sorted([*self._in_flight, (due_step, to_companion, frame)], key=lambda entry: entry[0])
+        ordered = sorted([*self._in_flight, (due_step, to_companion, message)], key=lambda entry: entry[0])
         self._in_flight = collections.deque(ordered)
 
     def _readings_cm(self, sensor: _Sensor, yaw_rad: float) -> list[int]:
@@ -131,7 +136,8 @@ class RigFrames:
                 readings[reading] = min(readings[reading], max(sensor.min_cm, int(distance * 100)))
         return readings
 
-    def _measure(self, sensor: _Sensor, time_us: int, yaw_rad: float, delivered) -> bytes | None:
+    def _measure(self, sensor: _Sensor, time_us: int, yaw_rad: float, delivered) -> tuple | None:
+        """A reading as a message to send, (codec, fields), recorded; None: nothing is sent."""
         spec = sensor.spec
         readings = delivered(spec.name, self._readings_cm(sensor, yaw_rad), sensor.reach_cm)
         if readings is None:
@@ -142,15 +148,13 @@ class RigFrames:
                                                                "increment_deg": spec.increment_deg, "angle_offset_deg": sensor.first_deg,
                                                                "frame": spec.frame, "distances_cm": readings})
             increment = int(spec.increment_deg) if float(spec.increment_deg).is_integer() else 0
-            encode = self.encode_companion if sensor.companion else self.encode
-            return encode(codec.OBSTACLE_DISTANCE, time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, increment, sensor.min_cm, sensor.reach_cm,
-                               spec.increment_deg, sensor.first_deg, FRAMES[spec.frame])
+            return codec.OBSTACLE_DISTANCE, (time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, increment, sensor.min_cm, sensor.reach_cm,
+                                             spec.increment_deg, sensor.first_deg, FRAMES[spec.frame])
         current_cm = min(readings[0], sensor.reach_cm)
         self.record(f"/sensor/rig/{spec.name}", time_us, {"t": time_us / 1e6, "message": spec.message, "range_m": spec.range_m,
                                                            "yaw_deg": spec.yaw_deg, "fov_deg": spec.fov_deg, "distance_cm": current_cm})
-        encode = self.encode_companion if sensor.companion else self.encode
-        return encode(codec.DISTANCE_SENSOR, time_us // 1000, sensor.min_cm, sensor.reach_cm, current_cm, mavlink.MAV_DISTANCE_SENSOR_LASER,
-                           sensor.sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, sensor.fov_rad, sensor.fov_rad, sensor.quaternion, 0)
+        return codec.DISTANCE_SENSOR, (time_us // 1000, sensor.min_cm, sensor.reach_cm, current_cm, mavlink.MAV_DISTANCE_SENSOR_LASER,
+                                       sensor.sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, sensor.fov_rad, sensor.fov_rad, sensor.quaternion, 0)
 
 
 def wrong_rig_reading(readings: list[int], reach_cm: int) -> list[int]:

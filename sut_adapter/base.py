@@ -155,6 +155,8 @@ class Capabilities:
     rig_messages: tuple[str, ...] = ()
     companion_messages: tuple[str, ...] = ()
     companion_port_for: Callable[[int], int] | None = None
+    # How many DISTANCE_SENSOR devices it tells apart (None: any number).
+    distance_sensor_limit: int | None = None
     # How many times faster than real time a paced hold may run. PX4 stretches its timeouts by
     # the speed factor it is started with, so its hold runs that fast.
     hold_pace: float = 1.0

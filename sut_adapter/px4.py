@@ -106,7 +106,9 @@ def takes_params_from_environment(etc: Path) -> bool:
 class Px4Sitl:
     name = "px4"
     capabilities = Capabilities(hold_mode="paced", hold_pace=float(SPEED_FACTOR), range_messages=("DISTANCE_SENSOR",), rig_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"),
-                                companion_messages=("OBSTACLE_DISTANCE",), companion_port_for=companion_port_for, instance_count=MAX_INSTANCE + 1,
+                                companion_messages=("OBSTACLE_DISTANCE",), companion_port_for=companion_port_for,
+                                # SimulatorMavlink publishes distance_sensor instances for the first ORB_MULTI_MAX_INSTANCES ids
+                                distance_sensor_limit=10, instance_count=MAX_INSTANCE + 1,
                                 echoes_step_time=True)
 
     def __init__(self, config: Mapping[str, str]):

@@ -491,3 +491,12 @@ def test_a_disarm_without_the_force_parameter_is_answered():
             acks = [m for m in mavlink.MAVLink(None).parse_buffer(gcs.recv(65536)) or [] if m.get_type() == "COMMAND_ACK"]
         assert (acks[0].command, acks[0].result) == (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED)  # already disarmed
         link.sock.close()
+
+
+def test_later_news_of_nothing_in_range_from_a_sensor_of_the_same_reach_clears_an_obstacle():
+    m = ObstacleMap()
+    front_rangefinder(m, 0.0, 3.0, reach_m=5.0, sensor_id=1)
+    front_rangefinder(m, 0.05, 5.0, reach_m=5.0, sensor_id=2)  # a second rangefinder of the same reach sees nothing
+    assert m.distances[0] == math.inf
+    front_rangefinder(m, 0.1, 3.0, reach_m=5.0, sensor_id=1)
+    assert m.distances[0] == 3.0

@@ -296,9 +296,29 @@ def test_bad_searched_sensor_behaviour_exits_2_naming_the_field(tmp_path, capsys
     assert f"{path}: {pointer}:" in err and says in err
 
 
-def test_a_sut_that_reads_no_rig_refuses_one_before_anything_flies():
+def test_a_rig_a_sut_cannot_read_is_refused_naming_each_sensor():
     from harness.scenario.rig import rig_problem_for
 
     assert rig_problem_for(load_rig("four_rangefinders"), "px4", ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")) is None
     problem = rig_problem_for(load_rig("lidar_and_rangefinders"), "ardupilot", ())
     assert "lidar (OBSTACLE_DISTANCE), front (DISTANCE_SENSOR), back (DISTANCE_SENSOR)" in problem and "ardupilot" in problem
+
+
+def test_validate_checks_a_scenario_that_searches_sensors_as_a_scenario_against_the_rig_given(tmp_path, capsys):
+    path = searched_depth_camera(tmp_path, latency_s={"min": 0, "max": 0.2})
+    assert main(["validate", str(path)]) == 2
+    assert f"{path}: /sensors/0/sensor: 'depth' is no sensor of the vehicle: the profile has no rig" in capsys.readouterr().out
+    assert main(["validate", str(path), "--rig", "depth_camera"]) == 0
+    assert "(logical scenario)" in capsys.readouterr().out
+
+
+def test_a_rig_given_for_a_concrete_scenario_is_checked_against_its_logical_scenario(tmp_path, capsys):
+    from harness.scenario.logical import load_logical
+
+    path = searched_depth_camera(tmp_path, latency_s={"min": 0, "max": 0.2})
+    profile = with_rig_named(load_profile(), "depth_camera")
+    space = SearchSpace(load_logical(path, profile, "pilot"), profile)
+    concrete = tmp_path / "concrete.json"
+    concrete.write_text(json.dumps(space.to_concrete(space.sample_feasible(np.random.default_rng(0), 1)[0])))
+    assert main(["run", "--concrete", str(concrete), "--rig", "four_rangefinders", "--out", str(tmp_path)]) == 2
+    assert "/sensors/0/sensor: 'depth' is no sensor of the vehicle: the rig's sensors are front, right, back, left" in capsys.readouterr().err

@@ -96,6 +96,8 @@ class CampaignConfig:
         without the firmware's digest where the environment named the build (STELLA_PX4_BIN),
         before such builds counted. Such a store is that campaign, and is re-keyed by today's."""
         documents = documents or self.read()
+        if self.rig is not None:  # no store of those days flew a rig
+            return []
         by_path = self._identity(scenarios=[str(Path(s).resolve()) for s in self.scenarios], profile=self.profile, from_environment=False)
         if self.mission_plan:
             by_path["mission_plan"] = str(Path(self.mission_plan).resolve())

@@ -331,6 +331,11 @@ def explain(path: Path) -> dict[str, Any]:
             "min_clearance_m": clearance.min_clearance_m, "obstacle": clearance.obstacle}
     if not states or clearance.obstacle is None or clearance.at_s is None:
         return {**base, "mechanism": "other", "evidence": ["no obstacle at the closest approach (or no trajectory in the log)"], "timeline": []}
+    if world.rig is not None:
+        names = ", ".join(f"{sensor.name} ({sensor.message})" for sensor in world.rig)
+        return {**base, "mechanism": "other", "timeline": [],
+                "evidence": [f"the vehicle flew a sensor rig ({names}): the explanation reads the profile's one forward sensor and cannot "
+                             "say what the rig showed; its readings are in the log as /sensor/rig/NAME"]}
     spec = next((o for o in world.obstacles if o["id"] == clearance.obstacle), None)
     if spec is None:
         return {**base, "mechanism": "other", "evidence": [f"{clearance.obstacle} is not in the world spec: an injection added it"], "timeline": []}

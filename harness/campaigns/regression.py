@@ -26,9 +26,8 @@ from harness.flight.fitness import Status
 from harness.flight.logs import slug
 from harness.properties.spec import Property, property_from
 from harness.scenario.documents import load_json, schema_problems
-from harness.scenario.profile import with_rig_named
 from harness.scenario.space import SearchSpace
-from harness.scenario.world import load_concrete, space_from_concrete, with_drive_recorded
+from harness.scenario.world import load_concrete, space_from_concrete, space_with_rig, with_drive_recorded
 from sut_adapter import SutConfig
 
 FORMAT = "stella.regression/1"
@@ -101,7 +100,7 @@ def suite_cases(paths: Sequence[str], drive: str | None, rig: str | None = None)
             space, x = load_concrete(path, drive)
             seed = 0
         if rig is not None:
-            space = SearchSpace(space.logical, with_rig_named(space.profile, rig))
+            space = space_with_rig(space, rig)
         refused = infeasible(space, x, seed=seed, sut="suite")
         if refused is not None:
             raise InputError([Problem(str(path), "", f"the case is infeasible ({refused.why}): it can tell no two builds apart; drop it")])

@@ -185,13 +185,24 @@ def _heartbeat_signals(api_from_sut: Iterable[tuple[int, bytes]], time_s: np.nda
 
 def _failure_signals(recorded: Recorded, time_s: np.ndarray) -> dict[str, np.ndarray]:
     values = {name(unit): np.zeros(len(time_s)) for unit in FAILING_UNITS for name in (_failure_signal, _loss_signal)}
+    # A unit is failed while any of its failures is on: a rig's sensors fail one by one (the
+    # event's "sensor"), each cleared on its own.
+    failing: dict[str, set] = {}
+    lost: dict[str, set] = {}
     for _topic, _ns, event in recorded(["/events"]):
         if event.get("event") in ("failure", "failure_cleared"):
             detail = event["detail"]
-            on = 1.0 if event["event"] == "failure" else 0.0
-            if _failure_signal(detail["unit"]) in values:
-                values[_failure_signal(detail["unit"])][time_s >= event["t"]] = on
-                if detail.get("type") == "off" or not on:
-                    values[_loss_signal(detail["unit"])][time_s >= event["t"]] = on
+            unit, which = detail["unit"], detail.get("sensor")
+            if _failure_signal(unit) not in values:
+                continue
+            if event["event"] == "failure":
+                failing.setdefault(unit, set()).add(which)
+                if detail.get("type") == "off":
+                    lost.setdefault(unit, set()).add(which)
+            else:
+                failing.get(unit, set()).discard(which)
+                lost.get(unit, set()).discard(which)
+            values[_failure_signal(unit)][time_s >= event["t"]] = 1.0 if failing.get(unit) else 0.0
+            values[_loss_signal(unit)][time_s >= event["t"]] = 1.0 if lost.get(unit) else 0.0
     return values
 

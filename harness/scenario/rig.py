@@ -41,7 +41,8 @@ def preset_names() -> list[str]:
 
 
 def is_rig_document(document: Any) -> bool:
-    return isinstance(document, dict) and "sensors" in document and "landforms" not in document
+    """A rig, not a profile ("landforms") or a logical scenario ("system", which may search "sensors")."""
+    return isinstance(document, dict) and "sensors" in document and "landforms" not in document and "system" not in document
 
 
 def rig_problems(document: Any, file: str, at: str = "") -> list[Problem]:
@@ -159,10 +160,14 @@ def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visib
                  for s in rig["sensors"])
 
 
-def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, rig_messages: tuple[str, ...]) -> str | None:
-    """Why this SUT cannot fly with this rig (None: it can): a sensor whose message it does not read."""
+def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, rig_messages: tuple[str, ...], distance_sensor_limit: int | None = None) -> str | None:
+    """Why this SUT cannot fly with this rig (None: it can): a sensor whose message it does not
+    read, or more DISTANCE_SENSOR devices than it tells apart."""
     if rig is None:
         return None
+    devices = sum(1 for s in rig["sensors"] if s["message"] == "DISTANCE_SENSOR")
+    if distance_sensor_limit is not None and devices > distance_sensor_limit:
+        return f"rig {rig['name']}: {devices} DISTANCE_SENSOR devices, of which {sut} reads the first {distance_sensor_limit} only"
     refused = [s for s in rig["sensors"] if s["message"] not in rig_messages]
     if not refused:
         return None

@@ -12,7 +12,7 @@ from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
 from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
 from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, intruder_track, smooth_points
-from harness.scenario.profile import profile_from_document, profile_problems
+from harness.scenario.profile import profile_from_document, profile_problems, with_rig_named
 from harness.scenario.rig import rig_sensors
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
 from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSegment, PilotSpec, Point, RangeSensor, Surface,
@@ -126,7 +126,9 @@ def world_spec(space: SearchSpace, x: np.ndarray, seed: int) -> WorldSpec:
     mission = space.mission
     start_up_m = terrain_height_m(landform.terrain, 0.0, 0.0)
     sensor = {k: v for k, v in profile.sensor.items() if k != "description"}
-    time_limit_s = _time_limit_s(mission, profile.time_limit_s)
+    # A pilot's programme is flown before the route: the route gets its time on top.
+    programme_s = sum(segment["duration_s"] for segment in concrete.get("pilot", {}).get("programme", ())) if mission.drive == "pilot" else 0.0
+    time_limit_s = _time_limit_s(mission, profile.time_limit_s) + programme_s
     obstacles = tuple(_intruder(space, concrete, i, start_up_m, time_limit_s) if entry["kind"] == "intruder" else _obstacle(space, concrete, i)
                       for i, entry in enumerate(concrete["obstacles"]))
     failures = tuple(FailureSpec(unit=f["unit"], type=f["type"], onset_s=f["onset_s"], duration_s=f["duration_s"],
@@ -193,6 +195,17 @@ def _time_limit_s(mission: Mission, profile_limit_s: float) -> float:
 def with_drive_recorded(document: Any, drive: str | None) -> Any:
     """A concrete scenario document whose recorded drive is `drive` (unchanged for None)."""
     return {**document, "drive": drive} if drive is not None and isinstance(document, dict) else document
+
+
+def space_with_rig(space: SearchSpace, rig: str) -> SearchSpace:
+    """The space with a rig's sensors (a preset or file, --rig), its logical scenario checked
+    against them again: a failure of one sensor, or a sensor's searched behaviour, must name one
+    of the rig's."""
+    profile = with_rig_named(space.profile, rig)
+    problems = logical_problems(space.logical.document, profile, space.logical.file)
+    if problems:
+        raise InputError(problems)
+    return SearchSpace(space.logical, profile)
 
 
 def space_from_concrete(document: Any, file: str, drive: str | None = None, mission_plan: Path | None = None) -> SearchSpace:

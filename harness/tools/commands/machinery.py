@@ -11,7 +11,8 @@ from harness.errors import InputError, Problem
 from harness.execution import registry as executors
 from harness.tools.commands.campaigns import print_run_line
 from harness.tools.commands.common import command, emit, port_int, positive_float, positive_int, seed_int
-from harness.tools.commands.sut_options import add_sut_options, check_transport, mission_plan, sut_spec
+from harness.scenario.rig import load_rig
+from harness.tools.commands.sut_options import add_sut_options, check_rig, check_transport, mission_plan, sut_spec
 from sim_bridge.sut_link import TRANSPORTS
 
 
@@ -62,6 +63,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     sut = sut_spec(args)
     if args.transport:
         check_transport(args.transport, sut)
+    if args.rig:
+        check_rig(load_rig(args.rig), sut)
     placements = tuple(p for p in PLACEMENTS if args.cores in (None, p[0]) and args.transport in (None, p[1]))
     if not placements:
         measured = sorted({cores for cores, transport, _warm in PLACEMENTS if transport == args.transport})

@@ -17,7 +17,7 @@ from harness.scenario.documents import load_json
 from harness.scenario.generate import ELEMENTS
 from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
 from harness.scenario.plan import plan_problems
-from harness.scenario.profile import is_profile_document, load_profile, profile_problems
+from harness.scenario.profile import is_profile_document, load_profile, profile_problems, with_rig_named
 from harness.scenario.rig import is_rig_document, rig_problems
 from harness.scenario.space import CONCRETE_FORMAT
 from harness.scenario.world import space_from_concrete
@@ -28,11 +28,12 @@ from harness.tools.commands.sut_options import space_of
 def _validate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", help="JSON files or folders of them")
     p.add_argument("--profile", default="default", help="profile name or path used to check units (default: default)")
+    p.add_argument("--rig", metavar="NAME|FILE", help="check logical scenarios against this sensor rig (their \"sensors\" and failures of one sensor)")
 
 
 @command("validate", "check logical scenarios, profiles and sensor rigs; each error as `file: /json/pointer: message`", _validate_options)
 def cmd_validate(args: argparse.Namespace) -> int:
-    profile = load_profile(args.profile)
+    profile = load_profile(args.profile) if not args.rig else with_rig_named(load_profile(args.profile), args.rig)
     problems: list[Problem] = []
     report = []
     for path in _expand(args.paths):

@@ -80,11 +80,11 @@ def space_of(args: argparse.Namespace) -> SearchSpace:
 
 def rigged(space: SearchSpace, args: argparse.Namespace) -> SearchSpace:
     """The space with --rig's sensors, if given (a concrete scenario's own profile otherwise)."""
-    from harness.scenario.space import SearchSpace
+    from harness.scenario.world import space_with_rig
 
     if not getattr(args, "rig", None):
         return space
-    return SearchSpace(space.logical, with_rig_named(space.profile, args.rig))
+    return space_with_rig(space, args.rig)
 
 
 def check_rig(rig: Mapping[str, Any] | None, *suts: SutConfig | None) -> None:
@@ -95,7 +95,8 @@ def check_rig(rig: Mapping[str, Any] | None, *suts: SutConfig | None) -> None:
     for sut in suts:
         if sut is None:
             continue
-        problem = rig_problem_for(rig, sut.name, sut_adapter.system_for(sut).capabilities.rig_messages)
+        capabilities = sut_adapter.system_for(sut).capabilities
+        problem = rig_problem_for(rig, sut.name, capabilities.rig_messages, capabilities.distance_sensor_limit)
         if problem is not None:
             raise InputError([Problem("--rig", "", problem)])
 
