@@ -116,6 +116,15 @@ def obstacle_steps(state) -> Iterator[Candidate]:
             yield Candidate("obstacles", f"drop {label}", candidate)
 
 
+def _drop_entry(holders, key: str, index: int) -> None:
+    """The list entry at index dropped from each holder (the logical scenario's and the concrete
+    values'), the list itself where it is left empty."""
+    for holder in holders:
+        del holder[key][index]
+        if not holder[key]:
+            del holder[key]
+
+
 def failure_steps(state) -> Iterator[Candidate]:
     for index in reversed(range(len(state.current.get("failures", ())))):
         if index >= len(state.current.get("failures", ())):
@@ -123,10 +132,7 @@ def failure_steps(state) -> Iterator[Candidate]:
         failure = state.current["failures"][index]
 
         def edit(document: Document, index: int = index) -> None:
-            for holder in (document["logical_scenario"], document):
-                del holder["failures"][index]
-                if not holder["failures"]:
-                    del holder["failures"]
+            _drop_entry((document["logical_scenario"], document), "failures", index)
 
         candidate = _variant(state.current, edit)
         if candidate is not None:
@@ -139,10 +145,7 @@ def programme_steps(state) -> Iterator[Candidate]:
     for index in reversed(range(len(segments))):
 
         def edit(document: Document, index: int = index) -> None:
-            for holder in (document["logical_scenario"]["mission"], document["pilot"]):
-                del holder["programme"][index]
-                if not holder["programme"]:
-                    del holder["programme"]
+            _drop_entry((document["logical_scenario"]["mission"], document["pilot"]), "programme", index)
 
         candidate = _variant(state.current, edit)
         if candidate is not None:
