@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from itertools import combinations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from harness.scenario.documents import load_json
-from harness.scenario.generate import EMPTY, MAX_OBSTACLES, FactorModel, covering_rows, row_to_scenario, scenario_to_row
+from harness.scenario.generate import EMPTY, MAX_OBSTACLES, PROGRAMME_SHAPES, FactorModel, covering_rows, row_to_scenario, scenario_to_row
 from harness.scenario.logical import load_logical, logical_problems
 from harness.scenario.space import SearchSpace
 from harness.tools.cli import main
@@ -47,10 +48,10 @@ def tuple_is_valid(assignment: dict[str, str], elements: str) -> bool:
     return any(all(can_fill[:filled]) and all(can_empty[filled:]) for filled in range(1, MAX_OBSTACLES + 1))
 
 
-def uncovered(rows: list[dict[str, str]], strength: int, elements: str) -> list[dict[str, str]]:
+def uncovered(rows: list[dict[str, str]], strength: int, elements: str, rigs=(), programmes=()) -> list[dict[str, str]]:
     """Every valid t-tuple no row holds: per combination of factors, the rows' tuples are marked in
     an array indexed by the tuple's mixed-radix number; only the unmarked ones go to the oracle."""
-    factors = FactorModel(elements).factors
+    factors = FactorModel(elements, rigs, programmes).factors
     names = list(factors)
     matrix = np.array([[factors[name].index(row[name]) for name in names] for row in rows])
     missing = []
@@ -172,3 +173,63 @@ def test_generate_says_how_many_scenarios_at_least_before_it_starts(tmp_path, ca
     assert main(["generate", "--strength", "1", "--elements", elements, "--out", str(tmp_path)]) == 0
     assert f"strength 1: at least {fewest} logical scenarios" in capsys.readouterr().err
     assert len(list(tmp_path.glob("*.json"))) >= fewest
+
+
+def test_rigs_and_programme_shapes_are_factors_every_pair_of_which_a_scenario_flies(tmp_path, profile, capsys):
+    from harness.scenario.rig import load_rig, preset_names
+    from harness.scenario.world import world_spec
+
+    rigs, programmes = ["presets", "profile"], ["all"]
+    assert main(["generate", "--strength", "2", "--rigs", ",".join(rigs), "--programmes", ",".join(programmes), "--out", str(tmp_path)]) == 0
+    rows = covering_rows(2, "all", rigs, programmes)
+    assert uncovered(rows, 2, "all", rigs, programmes) == []
+    files = sorted(tmp_path.glob("*.json"))
+    assert len(files) == len(rows)
+    assert {row["rig"] for row in rows} == {*preset_names(), "profile"} and {row["programme"] for row in rows} == set(PROGRAMME_SHAPES)
+    for path, row in zip(files, rows):
+        document = load_json(path)
+        assert scenario_to_row(document, "all", rigs, programmes) == row
+        space = SearchSpace(load_logical(path, profile), profile)
+        assert space.mission.drive == "pilot"
+        world = world_spec(space, space.sample_feasible(np.random.default_rng(1), 1)[0], 1)
+        expected = [] if row["rig"] == "profile" else [sensor["name"] for sensor in load_rig(row["rig"])["sensors"]]
+        assert [sensor.name for sensor in world.rig or ()] == expected
+        segments = len(PROGRAMME_SHAPES[row["programme"]][1])
+        assert sum(name.startswith("pilot.segment_") and name.endswith(".duration_s") for name in (d.name for d in space.dimensions)) == segments
+
+
+def test_a_rig_file_is_read_into_the_generated_scenarios(tmp_path, profile):
+    from harness.scenario.rig import load_rig
+
+    mine = tmp_path / "mine.json"
+    mine.write_text(json.dumps({**load_rig("four_rangefinders"), "name": "mine"}))
+    assert main(["generate", "--strength", "1", "--elements", "paper", "--rigs", str(mine), "--out", str(tmp_path / "out")]) == 0
+    assert {load_json(path)["rig"]["name"] for path in (tmp_path / "out").glob("*.json")} == {"mine"}
+
+
+@pytest.mark.parametrize("option, value, says", [
+    ("--rigs", "lidar_360,sf45", "--rigs: sf45: no such rig file or preset"),
+    ("--programmes", "push,zigzag", "--programmes: zigzag: no programme shape: choose among push, probe"),
+])
+def test_an_unknown_rig_or_programme_shape_exits_2_naming_it(tmp_path, capsys, option, value, says):
+    assert main(["generate", "--strength", "2", option, value, "--out", str(tmp_path)]) == 2
+    assert says in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_a_generated_scenario_flies_its_rig_and_its_programme(tmp_path, profile):
+    from pathlib import Path
+
+    from harness.flight import logs
+    from harness.flight.evaluation import evaluate
+    from harness.flight.results import RunOptions
+
+    assert main(["generate", "--strength", "1", "--elements", "paper", "--rigs", "lidar_and_rangefinders", "--programmes", "release",
+                 "--out", str(tmp_path / "out")]) == 0
+    path = sorted((tmp_path / "out").glob("*.json"))[0]
+    space = SearchSpace(load_logical(path, profile), profile)
+    result = evaluate(space, space.sample_feasible(np.random.default_rng(2), 1)[0], seed=2, out_dir=tmp_path, options=RunOptions(cores=1), name="generated")
+    log = Path(result.log_path)
+    assert {topic for topic, _ns, _m in logs.messages(log, ["/sensor/rig/lidar", "/sensor/rig/front", "/sensor/rig/back"])} == {
+        "/sensor/rig/lidar", "/sensor/rig/front", "/sensor/rig/back"}
+    assert {record.get("segment") for _t, _ns, record in logs.messages(log, ["/pilot"]) if record["phase"] == "programme"} == {1, 2, 3}

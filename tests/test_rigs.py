@@ -155,13 +155,27 @@ def test_the_distance_sensor_failure_fails_every_sensor_of_the_rig():
     assert sorted(detail["sensor"] for event, detail in events if event == "failure") == ["back", "front", "lidar"]
 
 
-def test_a_rig_is_part_of_the_profile_and_of_a_campaigns_identity():
+def test_a_campaigns_rig_replaces_each_scenarios_and_is_part_of_its_identity():
     from harness.campaigns.campaign import CampaignConfig
 
     plain = CampaignConfig((str(ROOT / "scenarios" / "table3" / "scenario_05.json"),), ("RANDOM",), 4)
     rigged = CampaignConfig(plain.scenarios, plain.algorithms, 4, rig="four_rangefinders")
-    assert rigged.read().profile.rig["name"] == "four_rangefinders" and plain.read().profile.rig is None
+    assert rigged.read().scenarios[0].rig["name"] == "four_rangefinders" and plain.read().scenarios[0].rig is None
+    assert SearchSpace(rigged.read().scenarios[0], rigged.read().profile).profile.rig["name"] == "four_rangefinders"
     assert plain.identity() != rigged.identity()
+
+
+def test_a_rigged_campaigns_store_from_when_the_rig_went_into_the_profile_still_resumes(tmp_path):
+    """Until 2026-11-29 --rig changed the profile; a profile carrying the rig gives that identity."""
+    from harness.campaigns.campaign import CampaignConfig
+    from harness.scenario.rig import with_rig
+
+    profile = tmp_path / "rigged_profile.json"
+    profile.write_text(json.dumps(with_rig(load_profile().document, load_rig("four_rangefinders"))))
+    scenarios = (str(ROOT / "scenarios" / "table3" / "scenario_05.json"),)
+    then = CampaignConfig(scenarios, ("RANDOM",), 4, profile=str(profile)).identity()
+    now = CampaignConfig(scenarios, ("RANDOM",), 4, rig="four_rangefinders")
+    assert then != now.identity() and then in now.legacy_identities()
 
 
 @pytest.mark.slow
@@ -307,7 +321,7 @@ def test_a_rig_a_sut_cannot_read_is_refused_naming_each_sensor():
 def test_validate_checks_a_scenario_that_searches_sensors_as_a_scenario_against_the_rig_given(tmp_path, capsys):
     path = searched_depth_camera(tmp_path, latency_s={"min": 0, "max": 0.2})
     assert main(["validate", str(path)]) == 2
-    assert f"{path}: /sensors/0/sensor: 'depth' is no sensor of the vehicle: the profile has no rig" in capsys.readouterr().out
+    assert f"{path}: /sensors/0/sensor: 'depth' is no sensor of the vehicle: the vehicle has no rig" in capsys.readouterr().out
     assert main(["validate", str(path), "--rig", "depth_camera"]) == 0
     assert "(logical scenario)" in capsys.readouterr().out
 
@@ -322,3 +336,56 @@ def test_a_rig_given_for_a_concrete_scenario_is_checked_against_its_logical_scen
     concrete.write_text(json.dumps(space.to_concrete(space.sample_feasible(np.random.default_rng(0), 1)[0])))
     assert main(["run", "--concrete", str(concrete), "--rig", "four_rangefinders", "--out", str(tmp_path)]) == 2
     assert "/sensors/0/sensor: 'depth' is no sensor of the vehicle: the rig's sensors are front, right, back, left" in capsys.readouterr().err
+
+
+def scenario_with_rig(tmp_path: Path, rig, **extra) -> Path:
+    scenario = {**json.loads((EXAMPLES / "wall.json").read_text()), "rig": rig, **extra}
+    path = tmp_path / "wall_rigged.json"
+    path.write_text(json.dumps(scenario))
+    return path
+
+
+def test_a_scenario_names_its_own_rig_which_its_flights_and_concrete_scenarios_carry(tmp_path, capsys):
+    from harness.scenario.logical import load_logical
+    from harness.scenario.world import space_from_concrete, world_spec
+
+    path = scenario_with_rig(tmp_path, "depth_camera", sensors=[{"sensor": "depth", "latency_s": {"min": 0, "max": 0.2}}])
+    assert main(["validate", str(path)]) == 0
+    space = SearchSpace(load_logical(path, load_profile(), "pilot"), load_profile())
+    x = space.sample_feasible(np.random.default_rng(0), 1)[0]
+    assert [sensor.name for sensor in world_spec(space, x, 0).rig] == ["depth"]
+    concrete = space.to_concrete(x)
+    assert concrete["logical_scenario"]["rig"] == load_rig("depth_camera") == concrete["profile_document"]["rig"]
+    again = space_from_concrete(json.loads(json.dumps(concrete)), "concrete")
+    assert world_spec(again, again.from_concrete(concrete, "concrete"), 0).rig == world_spec(space, x, 0).rig
+    # --rig replaces the scenario's: its searched sensor is then no sensor of the vehicle
+    assert main(["space", str(path), "--rig", "lidar_360"]) == 2
+    assert f"{path}: /sensors/0/sensor: 'depth' is no sensor of the vehicle: the rig's sensors are lidar" in capsys.readouterr().err
+
+
+def test_a_scenarios_rig_file_lies_beside_it_and_a_rig_without_its_preset_exits_2_at_its_pointer(tmp_path, capsys):
+    from harness.scenario.logical import load_logical
+
+    (tmp_path / "rigs").mkdir()
+    (tmp_path / "rigs" / "mine.json").write_text(json.dumps({**load_rig("four_rangefinders"), "name": "mine"}))
+    path = scenario_with_rig(tmp_path, "rigs/mine.json")
+    assert load_logical(path, load_profile()).rig["name"] == "mine"
+    path = scenario_with_rig(tmp_path, "sf45")
+    assert main(["validate", str(path)]) == 2
+    assert f"{path}: /rig: sf45: no such rig file or preset: give a file or one of depth_camera" in capsys.readouterr().out
+    broken = {**load_rig("depth_camera")}
+    broken["sensors"] = [{**broken["sensors"][0], "min_range_m": 20.0}]
+    path = scenario_with_rig(tmp_path, broken)
+    assert main(["run", str(path), "--out", str(tmp_path)]) == 2
+    assert f"{path}: /rig/sensors/0/min_range_m: must be below max_range_m" in capsys.readouterr().err
+
+
+def test_a_campaign_refuses_a_scenarios_rig_its_sut_cannot_read(tmp_path, capsys):
+    path = scenario_with_rig(tmp_path, "lidar_360")
+    arducopter = tmp_path / "bin" / "arducopter"  # never started: the rig is refused first
+    arducopter.parent.mkdir()
+    arducopter.write_text("#!/bin/sh\n")
+    arducopter.chmod(0o755)
+    assert main(["campaign", str(path), "--algorithm", "RANDOM", "--sut", "ardupilot", "--ardupilot-bin", str(tmp_path), "--evaluations", "2",
+                 "--store", str(tmp_path / "c.db")]) == 2
+    assert "rig lidar_360: lidar (OBSTACLE_DISTANCE)" in capsys.readouterr().err

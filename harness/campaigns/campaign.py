@@ -27,7 +27,8 @@ from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
 from harness.properties.spec import Property
 from harness.scenario.logical import LogicalScenario, load_logical
-from harness.scenario.profile import Profile, load_profile, with_rig_named
+from harness.scenario.profile import Profile, load_profile
+from harness.scenario.rig import with_rig
 from harness.scenario.space import SearchSpace
 from harness.search import DEFAULT_BATCH
 from harness.search.optimizers import OPTIMIZERS, parse_algorithm
@@ -79,9 +80,9 @@ class CampaignConfig:
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
-        profile = load_profile(self.profile) if self.rig is None else with_rig_named(load_profile(self.profile), self.rig)
+        profile = load_profile(self.profile)
         plan = Path(self.mission_plan) if self.mission_plan else None
-        return CampaignDocuments(profile, tuple(load_logical(Path(s), profile, self.drive, plan) for s in self.scenarios))
+        return CampaignDocuments(profile, tuple(load_logical(Path(s), profile, self.drive, plan, self.rig) for s in self.scenarios))
 
     def identity(self, documents: CampaignDocuments | None = None) -> dict[str, Any]:
         """What makes two invocations the same campaign (and so resumable from one store): the
@@ -94,10 +95,14 @@ class CampaignConfig:
         """The identities stores were made with before: by the scenario files' (and the mission
         plan's) absolute paths and the profile's name, before they were known by content; and
         without the firmware's digest where the environment named the build (STELLA_PX4_BIN),
-        before such builds counted. Such a store is that campaign, and is re-keyed by today's."""
+        before such builds counted; and with --rig's sensors in the profile rather than in each
+        scenario, before scenarios had rigs of their own. Such a store is that campaign, and is
+        re-keyed by today's."""
         documents = documents or self.read()
-        if self.rig is not None:  # no store of those days flew a rig
-            return []
+        if self.rig is not None:
+            rig = documents.scenarios[0].rig
+            return [self._identity(scenarios=[content_key({k: v for k, v in s.document.items() if k != "rig"}) for s in documents.scenarios],
+                                   profile=content_key(with_rig(documents.profile.document, rig)))]
         by_path = self._identity(scenarios=[str(Path(s).resolve()) for s in self.scenarios], profile=self.profile, from_environment=False)
         if self.mission_plan:
             by_path["mission_plan"] = str(Path(self.mission_plan).resolve())

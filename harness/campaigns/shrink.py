@@ -28,7 +28,7 @@ from harness.errors import InfrastructureError, InputError, Problem
 from harness.flight.fitness import COULD_NOT_FINISH, Status
 from harness.flight.logs import slug
 from harness.scenario.documents import load_json
-from harness.scenario.rig import load_rig, with_rig
+from harness.scenario.logical import with_rig_embedded
 from harness.scenario.world import space_from_concrete, with_drive_recorded
 
 JOURNAL_FORMAT = "stella.shrink-journal/1"
@@ -146,7 +146,7 @@ def start_document(case: Case, drive: str | None = None, mission_plan: Path | No
     `rig` (a sensor rig's preset name or file) if given."""
     document = with_drive_recorded(case.document, drive)
     if rig is not None:
-        document = {**document, "profile_document": with_rig(document["profile_document"], load_rig(rig))}
+        document = {**document, "logical_scenario": with_rig_embedded(document["logical_scenario"], Path(case.label), rig)}
     space = space_from_concrete(document, case.label, drive, mission_plan)
     x = space.from_concrete(document, case.label)
     broken = space.violations(x)

@@ -5,6 +5,9 @@ Two element sets (`stella generate --elements`):
   up to four obstacle slots of kind (static, dynamic), size and form.
 * `all` (the default): also gusts, intruders (an obstacle slot of kind intruder, with its
   encounter and path), each dynamic obstacle's motion, and one injected failure (unit and type).
+Either may add two factors of the vehicle: its sensor rig (`--rigs`: presets or files, or the
+profile's own sensors) and the shape of the pilot's stick programme (`--programmes`, PROGRAMME_SHAPES),
+which flies the scenario in the pilot drive.
 
 The values are the schema's enums. Each list element (obstacle, failure) is a group of slots,
 each slot a few factors that hold one element or nothing: a factor that does not apply (an empty
@@ -19,13 +22,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from harness.errors import InputError, Problem
 from harness.scenario.covering import covering_array, tuple_count, valid_tuples
 from harness.scenario.documents import schema
 from harness.scenario.logical import DATA_LINK
+from harness.scenario.rig import load_rig, preset_names
 
 EMPTY = "-"
 MAX_OBSTACLES = 4
@@ -33,6 +38,44 @@ ELEMENTS = ("all", "paper")
 # The builder keeps five bytes per t-tuple (covered?, its factor combination): 200 MB at this many.
 MAX_TUPLES = 40_000_000
 _ENUMERATED_AT_MOST = 1_000_000
+PROFILE_RIG = "profile"  # the --rigs value that keeps the profile's own range sensors
+
+# The pilot's stick programmes by shape (docs/pilot_drive.md): what each probes of collision
+# prevention; the ranges are the searched dimensions of a generated scenario's programme.
+_PROBE = {"towards": "obstacle", "deflection": {"min": 0.5, "max": 1}, "duration_s": {"min": 1, "max": 8}}
+PROGRAMME_SHAPES: dict[str, tuple[str, list[dict[str, Any]]]] = {
+    "push": ("no programme: the pilot pushes along the route", []),
+    "probe": ("push towards the nearest obstacle first", [_PROBE]),
+    "tiny": ("a deflection near the sticks' dead zones and thresholds, any direction",
+             [{"towards": "obstacle", "angle_deg": {"min": -180, "max": 180}, "deflection": {"min": 0, "max": 0.01}, "duration_s": {"min": 1, "max": 10}}]),
+    "slide": ("push at an angle to the nearest obstacle: along it once stopped",
+              [{"towards": "obstacle", "angle_deg": {"min": 20, "max": 80}, "deflection": {"min": 0.5, "max": 1}, "duration_s": {"min": 2, "max": 10}}]),
+    "release": ("push at the obstacle, release the stick, push again",
+                [_PROBE, {"towards": "obstacle", "deflection": 0, "duration_s": {"min": 0.2, "max": 3}}, _PROBE]),
+    "back_away": ("push at the obstacle, then back away from it",
+                  [_PROBE, {"towards": "obstacle", "angle_deg": 180, "deflection": {"min": 0.1, "max": 1}, "duration_s": {"min": 0.5, "max": 3}}]),
+    "yaw": ("push along the route while turning",
+            [{"towards": "route", "deflection": {"min": 0.5, "max": 1}, "duration_s": {"min": 2, "max": 8}, "yaw_stick": {"min": -1, "max": 1}}]),
+}
+
+
+def vehicle_factors(rigs: Sequence[str] = (), programmes: Sequence[str] = ()) -> dict[str, list[str]]:
+    """The vehicle's factors `--rigs` and `--programmes` add, their names checked: "presets" and
+    "all" stand for every preset rig and every programme shape."""
+    factors: dict[str, list[str]] = {}
+    if rigs:
+        names = [name for given in rigs for name in (preset_names() if given == "presets" else [given])]
+        for name in names:
+            if name != PROFILE_RIG:
+                load_rig(name, named_at=("--rigs", ""))
+        factors["rig"] = list(dict.fromkeys(names))
+    if programmes:
+        shapes = [shape for given in programmes for shape in (PROGRAMME_SHAPES if given == "all" else [given])]
+        unknown = [shape for shape in shapes if shape not in PROGRAMME_SHAPES]
+        if unknown:
+            raise InputError([Problem("--programmes", "", f"{', '.join(unknown)}: no programme shape: choose among {', '.join(PROGRAMME_SHAPES)}, or all")])
+        factors["programme"] = list(dict.fromkeys(shapes))
+    return factors
 
 
 def _enums() -> dict[str, list[str]]:
@@ -95,11 +138,12 @@ FAILURE = Slots("failure", 1, 0, ("failing",), (("unit", ("failing",)), ("type",
 class FactorModel:
     """The factors of one element set, and which partial rows extend to a valid one."""
 
-    def __init__(self, elements: str):
+    def __init__(self, elements: str, rigs: Sequence[str] = (), programmes: Sequence[str] = ()):
         if elements not in ELEMENTS:
             raise ValueError(f"unknown elements {elements!r}: choose {' or '.join(ELEMENTS)}")
-        enums = _enums()
+        enums = {**_enums(), **vehicle_factors(rigs, programmes)}
         free = ["landform", "surface nature", "wind force", "reduced visibility"] + (["gusts"] if elements == "all" else [])
+        free += [name for name in ("rig", "programme") if name in enums]
         self.slot_groups = (PAPER_OBSTACLES,) if elements == "paper" else (ALL_OBSTACLES, FAILURE)
         self.free = free  # the factors no constraint touches
         self.factors: dict[str, list[str]] = {name: list(enums[name]) for name in free}
@@ -170,8 +214,8 @@ class FactorModel:
         return {name: self.factors[name][int(index)] for name, index in zip(self.names, indices)}
 
 
-def covering_rows(strength: int, elements: str = "all") -> list[dict[str, str]]:
-    model = FactorModel(elements)
+def covering_rows(strength: int, elements: str = "all", rigs: Sequence[str] = (), programmes: Sequence[str] = ()) -> list[dict[str, str]]:
+    model = FactorModel(elements, rigs, programmes)
     if strength < 1:
         raise ValueError("strength must be at least 1")
     array = covering_array(model.sizes, strength, model.extendable)
@@ -205,6 +249,12 @@ def row_to_scenario(row: Mapping[str, str], name: str) -> dict[str, Any]:
         failure = _element(row, FAILURE, 1)
         if failure is not None:
             document["failures"] = [failure]
+    if row.get("rig", PROFILE_RIG) != PROFILE_RIG:
+        # A preset by name; a file read in, as the generated scenario lies elsewhere.
+        document["rig"] = row["rig"] if row["rig"] in preset_names() else load_rig(row["rig"])
+    if "programme" in row:
+        programme = PROGRAMME_SHAPES[row["programme"]][1]
+        document["mission"] = {"drive": "pilot", **({"programme": programme} if programme else {})}
     return document
 
 
@@ -212,9 +262,9 @@ def row_to_scenario(row: Mapping[str, str], name: str) -> dict[str, Any]:
 _DEFAULTS = {("dynamic", "motion"): "straight", ("intruder", "path"): "straight"}
 
 
-def scenario_to_row(document: Mapping[str, Any], elements: str = "all") -> dict[str, str]:
-    """The row of a logical scenario in the factors of `elements` (its inverse of row_to_scenario)."""
-    model = FactorModel(elements)
+def scenario_to_row(document: Mapping[str, Any], elements: str = "all", rigs: Sequence[str] = (), programmes: Sequence[str] = ()) -> dict[str, str]:
+    """The row of a logical scenario in the factors of `elements` and the vehicle's (its inverse of row_to_scenario)."""
+    model = FactorModel(elements, rigs, programmes)
     environment = document["environment"]
     row = {"landform": environment["flight area"]["landform"], "surface nature": environment["flight area"]["surface nature"]}
     row.update({name: environment["weather"].get(name, "none") for name in ("wind force", "reduced visibility", "gusts") if name in model.factors})
@@ -224,12 +274,18 @@ def scenario_to_row(document: Mapping[str, Any], elements: str = "all") -> dict[
             element = lists[group.label][slot - 1] if slot <= len(lists[group.label]) else {}
             for field, _kinds in group.fields:
                 row[group.factor(slot, field)] = element.get(field, _DEFAULTS.get((element.get("kind"), field), EMPTY))
+    if "rig" in model.factors:
+        rig = document.get("rig")
+        row["rig"] = rig if isinstance(rig, str) else next((name for name in model.factors["rig"] if name != PROFILE_RIG and load_rig(name) == rig), PROFILE_RIG)
+    if "programme" in model.factors:
+        programme = document.get("mission", {}).get("programme", [])
+        row["programme"] = next(shape for shape, (_about, segments) in PROGRAMME_SHAPES.items() if segments == programme)
     return row
 
 
-def generate(strength: int, elements: str = "all") -> Iterable[tuple[str, dict[str, Any]]]:
+def generate(strength: int, elements: str = "all", rigs: Sequence[str] = (), programmes: Sequence[str] = ()) -> Iterable[tuple[str, dict[str, Any]]]:
     """(file stem, logical scenario) for every row of a t-wise covering array."""
-    rows = covering_rows(strength, elements)
+    rows = covering_rows(strength, elements, rigs, programmes)
     width = len(str(len(rows)))
     for index, row in enumerate(rows, start=1):
         stem = f"t{strength}_{index:0{width}d}"

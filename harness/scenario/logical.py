@@ -9,8 +9,8 @@ from typing import Any, Mapping
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json, schema_problems
 from harness.scenario.plan import Plan, load_plan, plan_from_document, plan_problems
-from harness.scenario.profile import WEATHER_PARAMETERS, Interval, Profile
-from harness.scenario.rig import sensor_behaviour_problems
+from harness.scenario.profile import WEATHER_PARAMETERS, Interval, Profile, with_rig_document
+from harness.scenario.rig import NO_RIG, load_rig, rig_problems, sensor_behaviour_problems
 
 # The ground station's link to the SUT, failed by the harness, which silences the API tap
 # (harness/flight/evaluation.py); lost ("off") or not.
@@ -69,6 +69,7 @@ class LogicalScenario:
     # Range sensors' behaviour searched, each {"sensor": name, field: {"min", "max"}, ...}
     # (harness/scenario/rig.py: SENSOR_BEHAVIOUR).
     sensors: tuple[Mapping[str, Any], ...] = ()
+    rig: Mapping[str, Any] | None = None  # the scenario's own sensor rig, read in on loading; None: the profile's
 
     @property
     def not_simulated(self) -> list[WeatherValue]:
@@ -132,6 +133,25 @@ def with_plan_embedded(document: Any, folder: Path, mission_plan: Path | None = 
     return {**document, "mission": mission}
 
 
+def with_rig_embedded(document: Any, file: Path, rig: str | None = None) -> Any:
+    """The logical scenario document with its rig (a preset's name, or a file relative to the
+    scenario) read into it, so that the scenario travels whole; `rig` (--rig, a preset or a file)
+    replaces the scenario's own."""
+    if not isinstance(document, Mapping):
+        return document  # not a scenario: validation names what is wrong with it
+    if rig is not None:
+        return {**document, "rig": load_rig(rig)}
+    if not isinstance(document.get("rig"), str):
+        return document
+    return {**document, "rig": load_rig(document["rig"], file.parent, named_at=(str(file), "/rig"))}
+
+
+def rigged_profile(profile: Profile, document: Mapping[str, Any]) -> Profile:
+    """The profile a logical scenario flies: with the scenario's own rig, if it has one."""
+    rig = document.get("rig")
+    return profile if not isinstance(rig, Mapping) else with_rig_document(profile, rig)
+
+
 def _range(document: Mapping[str, Any] | None) -> Interval | None:
     return None if document is None else Interval.from_json(document)
 
@@ -147,6 +167,13 @@ def _range_problems(file: str, at: str, document: Mapping[str, Any], unit: str) 
 
 def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) -> list[Problem]:
     """Checks the schema cannot express: override units and order, and obstacle overrides."""
+    if isinstance(document.get("rig"), str):
+        return [Problem(file, "/rig", "a rig's name or path is read when the scenario file is loaded; here it must be the rig itself")]
+    if "rig" in document:
+        problems = rig_problems(document["rig"], file, at="/rig")
+        if problems:
+            return problems
+        profile = rigged_profile(profile, document)
     problems = []
     environment = document["environment"]
     for name, override in environment.get("ranges", {}).items():
@@ -196,7 +223,7 @@ def semantic_problems(document: Mapping[str, Any], profile: Profile, file: str) 
             if failure["unit"] != "distance sensor":
                 problems.append(Problem(file, f"/failures/{index}/sensor", 'names a range sensor of the rig: only with "unit": "distance sensor"'))
             elif failure["sensor"] not in rig_sensors:
-                have = f"the rig's sensors are {', '.join(rig_sensors)}" if rig_sensors else "the profile has no rig: give one with --rig (`stella rigs`)"
+                have = f"the rig's sensors are {', '.join(rig_sensors)}" if rig_sensors else NO_RIG
                 problems.append(Problem(file, f"/failures/{index}/sensor", f'{failure["sensor"]!r} is no sensor of the vehicle: {have}'))
         if failure["unit"] == DATA_LINK and failure["type"] != "off":
             problems.append(Problem(file, f"/failures/{index}/type", f'the data link is lost ("off") or not: {failure["type"]!r} is no failure of it'))
@@ -277,13 +304,15 @@ def logical_from_document(document: Mapping[str, Any], profile: Profile, file: s
         gusts=environment["weather"].get("gusts", "none"),
         failures=tuple(LogicalFailure(f["unit"], f["type"], f.get("sensor")) for f in document.get("failures", [])),
         sensors=tuple(document.get("sensors", [])),
+        rig=document.get("rig"),
     )
 
 
-def load_logical(path: Path, profile: Profile, drive: str | None = None, mission_plan: Path | None = None) -> LogicalScenario:
+def load_logical(path: Path, profile: Profile, drive: str | None = None, mission_plan: Path | None = None,
+                 rig: str | None = None) -> LogicalScenario:
     """A logical scenario file; `drive` overrides its mission's drive (`--drive`), `mission_plan`
-    its route (`--mission-plan`)."""
-    document = with_plan_embedded(with_drive(load_json(path), drive), path.parent, mission_plan)
+    its route (`--mission-plan`), `rig` its range sensors (`--rig`)."""
+    document = with_rig_embedded(with_plan_embedded(with_drive(load_json(path), drive), path.parent, mission_plan), path, rig)
     problems = logical_problems(document, profile, str(path))
     if problems:
         raise InputError(problems)

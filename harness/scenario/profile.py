@@ -300,4 +300,8 @@ def is_profile_document(document: Any) -> bool:
 
 def with_rig_named(profile: Profile, name_or_path: str) -> Profile:
     """The profile with a rig (a preset's name or a file, `--rig`) as its vehicle's range sensors."""
-    return profile_from_document(with_rig(profile.document, load_rig(name_or_path)))
+    return with_rig_document(profile, load_rig(name_or_path))
+
+
+def with_rig_document(profile: Profile, rig: Mapping[str, Any]) -> Profile:
+    return profile if profile.rig == rig else profile_from_document(with_rig(profile.document, rig))

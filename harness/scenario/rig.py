@@ -1,5 +1,6 @@
-"""Sensor rigs: the vehicle's range sensors, declared in its profile ("rig") or given with --rig
-(a preset's name, scenarios/rigs/NAME.json, or a file), each rendered by the simulator into the
+"""Sensor rigs: the vehicle's range sensors, declared in its profile ("rig"), in a logical scenario
+("rig", which wins) or given with --rig (which wins over both): a preset's name,
+scenarios/rigs/NAME.json, or a file. Each sensor is rendered by the simulator into the
 messages its kind is (sim_bridge/rig.py): DISTANCE_SENSOR devices, one reading over a field of
 view, and OBSTACLE_DISTANCE sources, a reading per sector. A profile without a rig flies its one
 forward sensor ("sensor") as before, rendered as each SUT reads it.
@@ -19,6 +20,7 @@ from harness.scenario.documents import load_json, schema_problems
 from sim_bridge.spec import RigSensor
 
 SECTORS = 72  # OBSTACLE_DISTANCE's distances array
+NO_RIG = 'the vehicle has no rig: name one in the scenario\'s "rig" or with --rig (`stella rigs`)'
 # A sensor's behaviour a logical scenario may search ("sensors"), with its unit and the values a
 # sensor of the rig can take (the rig schema's bounds).
 SENSOR_BEHAVIOUR = {"max_range_m": ("m", 0.0, 655.0), "fov_deg": ("deg", 0.0, 360.0), "rate_hz": ("Hz", 0.0, 250.0), "latency_s": ("s", 0.0, 2.0)}
@@ -28,9 +30,12 @@ def rigs_dir() -> Path:
     return scenarios_dir() / "rigs"
 
 
-def rig_path(name_or_path: str) -> Path:
-    """A preset by name (`lidar_360`) or a rig file by path."""
+def rig_path(name_or_path: str, folder: Path | None = None) -> Path:
+    """A preset by name (`lidar_360`) or a rig file by path (relative to `folder` if given: a
+    logical scenario's rig lies beside it)."""
     candidate = Path(name_or_path)
+    if folder is not None and not candidate.is_absolute():
+        candidate = folder / candidate
     if candidate.suffix == ".json" or candidate.exists():
         return candidate
     return rigs_dir() / f"{name_or_path}.json"
@@ -91,7 +96,7 @@ def sensor_behaviour_problems(entries: list, rig: Mapping[str, Any] | None, file
     for index, entry in enumerate(entries):
         name = entry["sensor"]
         if name not in sensors:
-            have = f"the rig's sensors are {', '.join(sensors)}" if sensors else "the profile has no rig: give one with --rig (`stella rigs`)"
+            have = f"the rig's sensors are {', '.join(sensors)}" if sensors else NO_RIG
             problems.append(Problem(file, f"/sensors/{index}/sensor", f"{name!r} is no sensor of the vehicle: {have}"))
             continue
         if name in seen:
@@ -120,11 +125,13 @@ def sensor_behaviour_problems(entries: list, rig: Mapping[str, Any] | None, file
     return problems
 
 
-def load_rig(name_or_path: str) -> dict[str, Any]:
-    """A validated rig document, by preset name or path; InputError names the file, the field and the fix."""
-    path = rig_path(name_or_path)
+def load_rig(name_or_path: str, folder: Path | None = None, named_at: tuple[str, str] = ("--rig", "")) -> dict[str, Any]:
+    """A validated rig document, by preset name or path (relative to `folder`, if given);
+    InputError names the file, the field and the fix, and `named_at` (file, JSON pointer) where
+    the name was given."""
+    path = rig_path(name_or_path, folder)
     if not path.exists():
-        raise InputError([Problem("--rig", "", f"{name_or_path}: no such rig file or preset: give a file or one of {', '.join(preset_names())} (`stella rigs`)")])
+        raise InputError([Problem(*named_at, f"{name_or_path}: no such rig file or preset: give a file or one of {', '.join(preset_names())} (`stella rigs`)")])
     document = load_json(path)
     problems = rig_problems(document, str(path))
     if problems:

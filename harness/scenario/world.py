@@ -10,9 +10,9 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
-from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded
+from harness.scenario.logical import logical_from_document, logical_problems, with_drive, with_plan_embedded, with_rig_embedded
 from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, intruder_track, smooth_points
-from harness.scenario.profile import profile_from_document, profile_problems, with_rig_named
+from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.rig import rig_sensors
 from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
 from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSegment, PilotSpec, Point, RangeSensor, Surface,
@@ -201,11 +201,11 @@ def space_with_rig(space: SearchSpace, rig: str) -> SearchSpace:
     """The space with a rig's sensors (a preset or file, --rig), its logical scenario checked
     against them again: a failure of one sensor, or a sensor's searched behaviour, must name one
     of the rig's."""
-    profile = with_rig_named(space.profile, rig)
-    problems = logical_problems(space.logical.document, profile, space.logical.file)
+    document = with_rig_embedded(space.logical.document, Path(space.logical.file), rig)
+    problems = logical_problems(document, space.profile, space.logical.file)
     if problems:
         raise InputError(problems)
-    return SearchSpace(space.logical, profile)
+    return SearchSpace(logical_from_document(document, space.profile, space.logical.file), space.profile)
 
 
 def space_from_concrete(document: Any, file: str, drive: str | None = None, mission_plan: Path | None = None) -> SearchSpace:
@@ -220,7 +220,7 @@ def space_from_concrete(document: Any, file: str, drive: str | None = None, miss
     if problems:
         raise InputError([Problem(p.file, "/profile_document" + p.pointer, p.message) for p in problems])
     profile = profile_from_document(document["profile_document"])
-    logical = with_plan_embedded(with_drive(document["logical_scenario"], drive), Path(file).parent, mission_plan)
+    logical = with_rig_embedded(with_plan_embedded(with_drive(document["logical_scenario"], drive), Path(file).parent, mission_plan), Path(file))
     problems = logical_problems(logical, profile, file)
     if problems:
         raise InputError([Problem(p.file, "/logical_scenario" + p.pointer, p.message) for p in problems])

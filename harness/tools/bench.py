@@ -38,7 +38,7 @@ from sut_adapter import SutConfig
 from harness.flight.fitness import Status
 from harness.paths import scenarios_dir
 from harness.scenario.logical import load_logical
-from harness.scenario.profile import load_profile, with_rig_named
+from harness.scenario.profile import load_profile
 from harness.scenario.space import SearchSpace
 from sim_bridge.sut_link import TRANSPORTS
 
@@ -66,9 +66,9 @@ def run_bench(runs: int, scenario: Path | None = None, seed: int = DEFAULT_SEED,
     each flight, the SUT alone on the placement's cores (harness/tools/sut_alone.py, replaying
     the first flight), and each flight's speed as a share of the replay beside it: paired, the
     ratio holds while the machine's load drifts."""
-    profile = load_profile("default") if rig is None else with_rig_named(load_profile("default"), rig)
+    profile = load_profile("default")
     path = scenario or scenarios_dir() / DEFAULT_SCENARIO
-    space = SearchSpace(load_logical(path, profile, drive, mission_plan), profile)
+    space = SearchSpace(load_logical(path, profile, drive, mission_plan, rig), profile)
     x = space.sample_feasible(np.random.default_rng(seed), 1)[0]
     machine_cores = len(os.sched_getaffinity(0))
     report_placements = []

@@ -131,7 +131,9 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
     config = replace(config, screen=screen_settings(args, sut, drives, config.objective), rig=args.rig)
-    check_rig(config.read().profile.rig, sut, config.reference)
+    documents = config.read()
+    for logical in documents.scenarios:
+        check_rig(logical.rig or documents.profile.rig, sut, config.reference)
     if args.stop_at_reveal and config.reference is None:
         raise InputError([Problem("--stop-at-reveal", "", "needs a reference SUT (--reference-px4-bin, --reference-sut or --reference-sut-param)")])
     return config

@@ -14,10 +14,10 @@ import numpy as np
 
 from harness.errors import InputError, Problem
 from harness.scenario.documents import load_json
-from harness.scenario.generate import ELEMENTS
-from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded
+from harness.scenario.generate import ELEMENTS, PROGRAMME_SHAPES
+from harness.scenario.logical import DRIVES, load_logical, logical_problems, with_plan_embedded, with_rig_embedded
 from harness.scenario.plan import plan_problems
-from harness.scenario.profile import is_profile_document, load_profile, profile_problems, with_rig_named
+from harness.scenario.profile import is_profile_document, load_profile, profile_problems
 from harness.scenario.rig import is_rig_document, rig_problems
 from harness.scenario.space import CONCRETE_FORMAT
 from harness.scenario.world import space_from_concrete
@@ -33,7 +33,7 @@ def _validate_options(p: argparse.ArgumentParser) -> None:
 
 @command("validate", "check logical scenarios, profiles and sensor rigs; each error as `file: /json/pointer: message`", _validate_options)
 def cmd_validate(args: argparse.Namespace) -> int:
-    profile = load_profile(args.profile) if not args.rig else with_rig_named(load_profile(args.profile), args.rig)
+    profile = load_profile(args.profile)
     problems: list[Problem] = []
     report = []
     for path in _expand(args.paths):
@@ -63,13 +63,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
                 found = list(error.problems)
         else:
             try:
-                found = logical_problems(with_plan_embedded(document, path.parent), profile, str(path))
-            except InputError as error:  # its plan file
+                found = logical_problems(with_rig_embedded(with_plan_embedded(document, path.parent), path, args.rig), profile, str(path))
+            except InputError as error:  # its plan or rig file
                 found = list(error.problems)
             kind = "logical scenario"
             notes = []
             if not found:
-                logical = load_logical(path, profile)
+                logical = load_logical(path, profile, rig=args.rig)
                 notes = [f"{w.parameter} = {w.category} ({w.source}) is not simulated" for w in logical.not_simulated]
         problems.extend(found)
         report.append({"file": str(path), "kind": kind, "ok": not found, "notes": notes})
@@ -172,15 +172,24 @@ def _generate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--elements", choices=ELEMENTS, default="all",
                    help="all (default): the paper's value sets plus gusts, intruders, dynamic obstacles' motions and one injected failure; "
                         "paper: the paper's value sets only (landform, surface, wind, visibility, up to four static or dynamic obstacles)")
+    p.add_argument("--rigs", type=_listed, default=[], metavar="RIG,...",
+                   help="add the vehicle's sensor rig as a factor over these presets or rig files; presets: every preset; profile: the profile's own sensors")
+    p.add_argument("--programmes", type=_listed, default=[], metavar="SHAPE,...",
+                   help="add the shape of the pilot's stick programme as a factor, flying every scenario in the pilot drive: "
+                        f"{', '.join(PROGRAMME_SHAPES)}, or all (docs/scenarios.md)")
     p.add_argument("--max-scenarios", type=positive_int, default=10_000, help="refuse a strength that gives more logical scenarios than this (default 10,000)")
     p.add_argument("--out", required=True)
+
+
+def _listed(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
 
 
 @command("generate", "write logical scenarios covering every T-wise combination of the scenario format's category values", _generate_options)
 def cmd_generate(args: argparse.Namespace) -> int:
     from harness.scenario.generate import MAX_TUPLES, FactorModel, generate
 
-    model = FactorModel(args.elements)
+    model = FactorModel(args.elements, args.rigs, args.programmes)
     factors = len(model.names)
     if not 1 <= args.strength <= factors:
         raise InputError([Problem("--strength", "", f"{args.strength} is not a strength for the {factors} value sets of --elements {args.elements}: "
@@ -200,7 +209,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for stem, document in generate(args.strength, args.elements):
+    for stem, document in generate(args.strength, args.elements, args.rigs, args.programmes):
         path = out / f"{stem}.json"
         path.write_text(json.dumps(document, indent=2) + "\n")
         written.append(str(path))

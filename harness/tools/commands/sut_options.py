@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from harness.errors import InputError, Problem
 from harness.flight.results import SUT_LOGS
 from harness.scenario.logical import DRIVES, load_logical
-from harness.scenario.profile import load_profile, with_rig_named
+from harness.scenario.profile import load_profile
 
 if TYPE_CHECKING:
     from harness.scenario.space import SearchSpace
@@ -73,9 +73,7 @@ def space_of(args: argparse.Namespace) -> SearchSpace:
     from harness.scenario.space import SearchSpace
 
     profile = load_profile(args.profile)
-    if getattr(args, "rig", None):
-        profile = with_rig_named(profile, args.rig)
-    return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None), mission_plan(args)), profile)
+    return SearchSpace(load_logical(Path(args.scenario), profile, getattr(args, "drive", None), mission_plan(args), getattr(args, "rig", None)), profile)
 
 
 def rigged(space: SearchSpace, args: argparse.Namespace) -> SearchSpace:
