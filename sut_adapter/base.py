@@ -22,7 +22,7 @@ import signal
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Mapping, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol
 
 from sut_adapter.processes import ManagedProcess, process_cpu_s
 
@@ -87,6 +87,9 @@ class SutHandle:
     # Whether it has finished starting up: a SUT may speak MAVLink before it answers all of it
     # (PX4 drops parameter messages until the end of its start-up script).
     booted: Callable[[], bool] = lambda: True
+    # A coverage build's: once it has stopped, the code it ran (sut_adapter/coverage.py); None
+    # where it is no coverage build or left no counters.
+    coverage: Callable[[], dict[str, Any] | None] = lambda: None
 
     def cpu_s(self) -> float | None:
         """The CPU time its processes and their descendants have used so far; None for a SUT

@@ -3,7 +3,9 @@
 With `autopilot_dir` (a folder holding an `autopilot` package: a mutant built by `stella mutants
 build`, or the user's own edit) that package flies instead of the installed one. It runs in a
 process of its own then, with the folder first on its PYTHONPATH, never inside the simulator's
-process, whose `autopilot` is the installed one.
+process, whose `autopilot` is the installed one. A coverage build's folder (`stella sut build
+bundled --coverage`) flies under coverage.py, its flights recording their coverage
+(sut_adapter/coverage.py).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
+from sut_adapter.coverage import coverage_build, python_command, python_record
 from sut_adapter.processes import ManagedProcess
 
 log = logging.getLogger(__name__)
@@ -59,13 +62,18 @@ class BundledAutopilot:
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float],
               spin_s: float = 0.0, sim_socket: str | None = None, sim_shared_memory: bool = False) -> SutHandle:
         sim = f"{'shm' if sim_shared_memory else 'unix'}:{sim_socket}" if sim_socket is not None else f"tcp:127.0.0.1:{sim_port}"
-        argv = [sys.executable, "-m", "autopilot", "--sim", sim, *self._arguments(api_port=api_port, workdir=workdir, params=params)]
+        measured = coverage_build(self.autopilot_dir)
+        interpreter = [sys.executable] if measured is None else python_command(measured, Path(self.autopilot_dir), workdir)
+        argv = [*interpreter, "-m", "autopilot", "--sim", sim, *self._arguments(api_port=api_port, workdir=workdir, params=params)]
         if spin_s > 0.0:
             argv += ["--spin-us", str(spin_s * 1e6)]
         env = None
         if self.autopilot_dir is not None:
             env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [self.autopilot_dir, os.environ.get("PYTHONPATH")]))}
-        return start_process(self.name, ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir, env=env))
+        process = ManagedProcess("autopilot", argv, log_dir=workdir, cwd=workdir, env=env)
+        if measured is None:
+            return start_process(self.name, process)
+        return start_process(self.name, process, coverage=lambda: python_record(Path(self.autopilot_dir), workdir))
 
     def _arguments(self, *, api_port: int, workdir: Path, params: Mapping[str, float]) -> list[str]:
         argv = ["--api", f"udp:127.0.0.1:{api_port}"]

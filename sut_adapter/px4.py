@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Mapping
 
 from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
+from sut_adapter.coverage import coverage_build, gcov_environment, gcov_record
 from sut_adapter.processes import ManagedProcess, non_empty, printed
 
 AIRFRAME = "10016"
@@ -146,9 +147,14 @@ class Px4Sitl:
         px4_dir.mkdir()
         at_start = {**DEFAULT_PARAMS, **(flight_params or {}), **params} if self.capabilities.params_at_start else {}
         argv, env = self.command(instance=instance, workdir=px4_dir, params=at_start)
+        folder = self.binary.parent.parent
+        measured = coverage_build(folder)
+        if measured is not None:
+            env.update(gcov_environment(measured, workdir))
         process = ManagedProcess("px4", argv, log_dir=workdir, cwd=px4_dir, env=env)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(px4_dir, [process.stdout_path, process.stderr_path]),
-                             mavlink_params=dict(params) if at_start else {**DEFAULT_PARAMS, **params}, booted=printed(process.stdout_path, STARTED_UP))
+                             mavlink_params=dict(params) if at_start else {**DEFAULT_PARAMS, **params}, booted=printed(process.stdout_path, STARTED_UP),
+                             **({} if measured is None else {"coverage": lambda: gcov_record(measured, folder, workdir)}))
 
 
 def collect_artifacts(px4_dir: Path, console_logs: list[Path]) -> list[Path]:

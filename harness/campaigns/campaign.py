@@ -19,6 +19,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from harness.campaigns.coverage import CodeNovelty
 from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.screen import Screen, ScreenSettings
@@ -38,6 +39,9 @@ from sut_adapter import SutConfig
 log = logging.getLogger(__name__)
 
 SEEDS_FROM_BEST = 5
+# What a differential pair's fitness is, by the campaign's objective: with safety properties the
+# subject's (each property compares the two); a coverage-guided search looks for differences.
+PAIR_OBJECTIVES = {"properties": "subject", "coverage": "difference"}
 EXPLORE_POOL = 2000
 
 
@@ -292,7 +296,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
         from harness.campaigns.pairs import PairedFlights, ReferenceCache
 
         # With properties the pair's fitness is the subject's; the problem makes the objectives of its properties.
-        pairs = PairedFlights(executor, config.reference, objective="subject" if config.objective == "properties" else config.objective, confirm=config.confirm,
+        pairs = PairedFlights(executor, config.reference, objective=PAIR_OBJECTIVES.get(config.objective, config.objective), confirm=config.confirm,
                               cache=reference_cache or ReferenceCache(store.path))
     summary = CampaignSummary()
     for scenario_file, logical in zip(config.scenarios, documents.scenarios):
@@ -309,6 +313,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                                                                   comparable=config.reference is None or config.objective != "difference")
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
+                                          novelty=CodeNovelty() if config.objective == "coverage" else None,
                                           each_property=config.objective == "properties", screen=screen)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
+from harness.campaigns.coverage import CodeNovelty, reached
 from harness.campaigns.store import Store, evaluation_name, vector_key
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
@@ -68,6 +69,7 @@ class Trial:
     log_path: str | None = field(default=None, compare=False)
     robustness: float | None = None  # the least of the safety properties' asked (None: none scored)
     robustness_each: tuple[float | None, ...] = ()  # each property's asked, in the order asked (None: not scored)
+    reached: frozenset[str] = field(default=frozenset(), compare=False)  # a coverage build's: the lines and branches it ran
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,7 @@ class CampaignProblem:
     confirm: int = 0  # re-flights of each violation, to tell a steady one from a flaky one
     pairs: PairedFlights | None = None  # each candidate flown against a reference SUT too, confirmed there
     diversity: FailureModes | None = None  # the optimizer is told fitness shared over failure modes (--objective diverse)
+    novelty: CodeNovelty | None = None  # the optimizer is told of code no flight reached before (--objective coverage)
     each_property: bool = False  # the optimizer is told one objective per property (--objective properties)
     screen: Screen | None = None  # each batch flown on a cheap model first, the real SUT only where it pays (--screen)
 
@@ -227,7 +230,7 @@ class CampaignProblem:
             if stored is not None:
                 self.replayed += 1
                 self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path,
-                                   least_robustness(stored.properties), self._robustness_each(stored.properties)))
+                                   least_robustness(stored.properties), self._robustness_each(stored.properties), reached(stored.coverage)))
                 self._learn(candidate.key)
                 continue
             # Its id in the store, known now so that its log carries it: one number for an
@@ -310,7 +313,8 @@ class CampaignProblem:
         could not finish or was not flown, gets the flight's penalty)."""
         if self.each_property:
             return [trial.fitness if value is None else value for value in trial.robustness_each]
-        return self.objective_of(trial) if self.diversity is None else self.diversity.shared(trial, self._trials.values())
+        told = self.objective_of(trial) if self.diversity is None else self.diversity.shared(trial, self._trials.values())
+        return told if self.novelty is None else self.novelty.told(told, trial, self._trials.values())
 
     def _confirmed(self, violations: list[tuple[Job, EvaluationResult]]) -> list[tuple[Job, EvaluationResult]]:
         """Each violation with the outcome of flying it `confirm` more times (same scenario and
@@ -336,5 +340,5 @@ class CampaignProblem:
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
         self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,
-                           result.log_path, least_robustness(result.properties), self._robustness_each(result.properties)))
+                           result.log_path, least_robustness(result.properties), self._robustness_each(result.properties), reached(result.coverage)))
         self.on_result(result)

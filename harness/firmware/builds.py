@@ -14,6 +14,10 @@ equivalence, used to drop equivalent and duplicate mutants).
 The bundled autopilot: its package copied, the patches applied, and the patched modules that the
 project compiles (setup.py) compiled again the way `make setup` does; the digest is the Python
 bytecode's (line numbers left out), which is what a compiled module computes too.
+
+A coverage build (`coverage_paths`) is another build configuration: its flights record which of
+those paths' lines and branches ran (sut_adapter/coverage.py). The bundled autopilot then runs as
+its Python sources, under coverage.py.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from typing import Iterable, Sequence
 
 from harness.errors import InputError, Problem, StellaError
 from harness.paths import write_atomically
+from sut_adapter.coverage import GCOV_TOOL, NOTES_DIR, PYTHON_TOOL, mark_coverage_build
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +46,8 @@ PX4_CONFIG = "px4_sitl_default"
 BUNDLED_CONFIG = "bundled"
 VARIANT_FILE = "variant.json"
 BUILD_LOG = "build.log"
+# What a coverage build measures unless told: the collision prevention.
+DEFAULT_COVERAGE_PATHS = {"bundled": ("autopilot/collision.py",), "px4": ("src/lib/collision_prevention",)}
 
 
 class BuildFailed(StellaError):
@@ -146,16 +153,21 @@ def _save(variant: Variant) -> Variant:
 
 
 def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequence[Path] = (), jobs: int | None = None,
-          watch: Sequence[str] = (), worktree_command: str | None = None) -> Variant:
+          watch: Sequence[str] = (), worktree_command: str | None = None, coverage_paths: Sequence[str] | None = None) -> Variant:
     """The variant of the source tree at commit with the patches applied, from the cache or built;
-    its `objects` digest the compiled code of the patched files and of those in `watch`."""
+    its `objects` digest the compiled code of the patched files and of those in `watch`.
+    `coverage_paths` (files or folders of the tree) make it a coverage build measuring them."""
     source = Path(source).expanduser().resolve()
     if not source.is_dir():
         raise InputError([Problem(str(source), "", "no such folder: give --source the root of a PX4-Autopilot tree or of this project")])
     kind = tree_kind(source)
     digests = tuple(patch_digest(Path(p)) for p in patches)
     resolved = resolve_commit(source, commit) if kind == "px4" or commit else None
-    key = variant_key(kind, resolved, digests, PX4_CONFIG if kind == "px4" else BUNDLED_CONFIG)
+    config = PX4_CONFIG if kind == "px4" else BUNDLED_CONFIG
+    if coverage_paths is not None:
+        coverage_paths = _coverage_paths(source, kind, coverage_paths)
+        config += "+coverage:" + ",".join(coverage_paths)
+    key = variant_key(kind, resolved, digests, config)
     folder = Path(out).expanduser().resolve() / key
     found = _cached(folder)
     if found is not None:
@@ -166,9 +178,16 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     started = time.monotonic()
     # A failed build keeps its folder for the log, but has no VARIANT_FILE: never taken for a build.
     if kind == "px4":
-        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch, worktree_command)
+        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch, worktree_command,
+                             coverage_paths)
     else:
         objects = _build_bundled(source, resolved, [Path(p) for p in patches], folder, watch)
+        if coverage_paths is not None:
+            # coverage.py traces Python sources, which compute what the compiled modules do; the
+            # compiled ones reach each other's C functions (cimport), so none of them can stay.
+            for compiled in (folder / "autopilot").glob("*.so"):
+                compiled.unlink()
+            mark_coverage_build(folder, PYTHON_TOOL, coverage_paths)
     return _save(Variant(key, kind, str(source), resolved, digests, str(folder), time.monotonic() - started, objects))
 
 
@@ -222,8 +241,38 @@ def _object_digest(build_dir: Path, source_file: str) -> str | None:
         return hashlib.sha256(Path(stripped.name).read_bytes()).hexdigest()
 
 
+# A coverage build's CMake, included by PX4's configuration (CMAKE_PROJECT_INCLUDE): once every
+# directory is configured, the targets of the measured folders (and the measured files) compile
+# with gcov's instrumentation, their notes naming sources relative to the tree, and px4 links
+# gcov's runtime. Atomic counters, as PX4's own Coverage build type: PX4 runs many threads.
+COVERAGE_CMAKE = """# Written by stella (harness/firmware/builds.py): gcov on STELLA_COVERAGE_PATHS only.
+if(NOT STELLA_COVERAGE_DEFERRED)
+  set(STELLA_COVERAGE_DEFERRED TRUE)
+  cmake_language(DEFER DIRECTORY ${CMAKE_SOURCE_DIR} CALL stella_coverage_flags)
+endif()
+function(stella_coverage_flags)
+  set(flags --coverage -fprofile-update=atomic -fprofile-prefix-map=${CMAKE_SOURCE_DIR}=.)
+  string(REPLACE "," ";" paths "${STELLA_COVERAGE_PATHS}")
+  foreach(path IN LISTS paths)
+    set(measured ${CMAKE_SOURCE_DIR}/${path})
+    if(IS_DIRECTORY ${measured})
+      get_property(targets DIRECTORY ${measured} PROPERTY BUILDSYSTEM_TARGETS)
+      foreach(target IN LISTS targets)
+        target_compile_options(${target} PRIVATE ${flags})
+      endforeach()
+    else()
+      get_filename_component(folder ${measured} DIRECTORY)
+      set_property(SOURCE ${measured} DIRECTORY ${folder} APPEND PROPERTY COMPILE_OPTIONS ${flags})
+    endif()
+  endforeach()
+  target_link_options(px4 PRIVATE --coverage)
+endfunction()
+"""
+COVERAGE_SUFFIX = "_coverage"  # its build folder beside px4_sitl_default: switching between them recompiles nothing
+
+
 def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
-               worktree_command: str | None) -> dict[str, str]:
+               worktree_command: str | None, coverage_paths: Sequence[str] | None = None) -> dict[str, str]:
     log_path = folder / BUILD_LOG
     with open(log_path, "w") as log_file:
         tree = _worktree(source, commit, cache, log_file, worktree_command)
@@ -233,19 +282,51 @@ def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cac
             # submodule update would reach for the network.
             env = {**os.environ, "GIT_SUBMODULES_ARE_EVIL": "1"}
             argv = ["make", PX4_CONFIG, f"-j{jobs or len(os.sched_getaffinity(0))}"]
+            build_dir = tree / "build" / PX4_CONFIG
+            if coverage_paths is not None:
+                include = cache / "stella_coverage.cmake"
+                include.write_text(COVERAGE_CMAKE)
+                argv += [f"BUILD_DIR_SUFFIX={COVERAGE_SUFFIX}",
+                         f"CMAKE_ARGS=-DCMAKE_PROJECT_INCLUDE={include} -DSTELLA_COVERAGE_PATHS={','.join(coverage_paths)}"]
+                build_dir = tree / "build" / (PX4_CONFIG + COVERAGE_SUFFIX)
             log_file.write(f"$ {' '.join(argv)}  (in {tree})\n")
             log_file.flush()
             built = subprocess.run(argv, cwd=tree, stdout=log_file, stderr=subprocess.STDOUT, env=env)
             if built.returncode != 0:
                 raise BuildFailed(f"PX4 {commit[:12]} with {len(patches)} patch(es)", log_path, _tail(log_path))
-            build_dir = tree / "build" / PX4_CONFIG
             objects = {name: digest for name in dict.fromkeys([*touched, *watch]) if (digest := _object_digest(build_dir, name))}
             for part in ("bin", "etc"):
                 shutil.copytree(build_dir / part, folder / part, symlinks=True)
+            if coverage_paths is not None:
+                _keep_notes(tree, build_dir, folder, coverage_paths)
+                mark_coverage_build(folder, GCOV_TOOL, coverage_paths, build_dir=str(build_dir))
         finally:
             if touched:  # the next variant starts from the commit's own files
                 git(tree, "checkout", "--", *touched, check=False)
     return objects
+
+
+def _keep_notes(tree: Path, build_dir: Path, folder: Path, paths: Sequence[str]) -> None:
+    """A PX4 coverage build's notes (.gcno) of the measured objects and the sources they were
+    compiled from (patches applied), kept in the variant: a flight's counters are read against
+    them, whatever the worktree holds by then."""
+    notes = folder / NOTES_DIR
+    for path in paths:
+        objects = build_dir / path
+        for gcno in sorted(objects.glob("**/*.gcno") if objects.is_dir() else objects.parent.glob(f"**/{objects.name}.gcno")):
+            target = notes / gcno.relative_to(build_dir)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(gcno, target)
+        measured = tree / path
+        target = notes / "src" / path
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if measured.is_dir():
+            shutil.copytree(measured, target, dirs_exist_ok=True)
+        else:
+            shutil.copy2(measured, target)
+    if not any(notes.glob("**/*.gcno")):
+        raise BuildFailed(f"the coverage build of {', '.join(paths)}", folder / BUILD_LOG,
+                          f"no object of {', '.join(paths)} was compiled with gcov: do they hold sources that px4_sitl_default compiles?")
 
 
 def _tail(path: Path, lines: int = 25) -> str:
@@ -305,6 +386,21 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
                 raise BuildFailed(f"the bundled autopilot with {len(patches)} patch(es)", log_path, str(error)) from None
         _compile_again(folder, [name for name in dict.fromkeys([*changed, *touched]) if name.endswith(".py")], log_file, log_path)
     return objects
+
+
+def _coverage_paths(source: Path, kind: str, paths: Sequence[str]) -> list[str]:
+    """The paths a coverage build measures (the default where none are given), each checked to be
+    in the tree."""
+    chosen = list(paths) or list(DEFAULT_COVERAGE_PATHS[kind])
+    missing = [path for path in chosen if not (source / path).exists()]
+    if missing:
+        raise InputError([Problem("--coverage-path", "", f"{', '.join(missing)}: not in {source}: give files or folders relative to the tree's root")])
+    if kind == "bundled":
+        outside = [path for path in chosen if Path(path).parts[0] != "autopilot"]
+        if outside:
+            raise InputError([Problem("--coverage-path", "", f"{', '.join(outside)}: the bundled autopilot's flights run its autopilot/ package only: "
+                                                             "measure paths in it")])
+    return chosen
 
 
 def _compile_again(folder: Path, modules: Iterable[str], log_file, log_path: Path) -> None:

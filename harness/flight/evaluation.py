@@ -205,7 +205,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     flight_logs: list[Path] = []
 
     def finish(score: Score, log_path: Path | None, failures_refused: list[dict[str, Any]] | None = None,
-               properties: dict[str, dict[str, Any]] | None = None) -> EvaluationResult:
+               properties: dict[str, dict[str, Any]] | None = None, coverage: dict[str, Any] | None = None) -> EvaluationResult:
         summary = outcome.summary
         in_run = summary.get("wall_in_run_s") or 0.0
         run_time = summary.get("run_time_s") or 0.0
@@ -231,6 +231,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             failures_refused=failures_refused or [],
             first_touchdown_s=summary.get("first_touchdown_s"),
             properties=properties or {},
+            coverage=coverage,
         )
 
     try:
@@ -249,6 +250,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
             stopping = time.monotonic()
         timings["stop_s"] = time.monotonic() - stopping
+        coverage = stack.sut.coverage()
         failure = outcome.failure
         if failure is None and lost:
             failure = Failure(Status.SUT_CRASHED, lost)
@@ -270,7 +272,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         timings["score_s"] = time.monotonic() - t0
         if options.keeps_sut_log(score.status, outcome.end_reason):
             artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
-        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])), properties)
+        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])), properties, coverage)
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(), "placement": stack.placement,

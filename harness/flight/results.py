@@ -115,6 +115,9 @@ class EvaluationResult:
     first_touchdown_s: float | None = None
     # Each property asked for (RunOptions.properties): {name: {"verdict", "robustness", "unit"}}.
     properties: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # A coverage build's: the lines and branches of its measured sources the flight ran
+    # (sut_adapter/coverage.py); None for any other build.
+    coverage: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

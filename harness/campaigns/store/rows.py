@@ -50,6 +50,7 @@ class StoredEvaluation:
     algorithm: str = ""
     run_index: int = 0
     properties: Mapping[str, Any] = field(default_factory=dict)  # each safety property scored: verdict, robustness, unit
+    coverage: Mapping[str, Any] | None = None  # a coverage build's flight: the code it ran (sut_adapter/coverage.py)
 
     @property
     def flaky(self) -> bool:

@@ -67,6 +67,7 @@ CREATE TABLE IF NOT EXISTS evaluations (
     differential TEXT,
     failures_refused TEXT,
     properties TEXT,
+    coverage TEXT,
     UNIQUE (run_id, vector_key),
     UNIQUE (run_id, ordinal)
 );
@@ -100,8 +101,8 @@ CREATE TABLE IF NOT EXISTS screen_flights (
 # selects (the order of _evaluation's arguments), each with its own WHERE and ORDER BY.
 _SELECT = (
     "SELECT e.id, e.run_id, e.ordinal, e.vector, e.vector_key, e.fitness, e.status, e.log_path, e.seed, e.why, e.min_clearance_m, e.sim_time_s,"
-    " e.wall_time_s, e.created, {concrete}, e.confirmations, e.reveals, {differential}, e.properties, r.scenario, r.scenario_file, r.algorithm,"
-    " r.run_index"
+    " e.wall_time_s, e.created, {concrete}, e.confirmations, e.reveals, {differential}, e.properties, e.coverage, r.scenario, r.scenario_file,"
+    " r.algorithm, r.run_index"
     " FROM evaluations e JOIN runs r ON r.id = e.run_id"
 )
 EVALUATIONS = _SELECT.format(concrete="e.concrete", differential="e.differential")
@@ -120,10 +121,10 @@ def _json(text: str | None) -> Any:
 
 
 def _evaluation(id, run_id, ordinal, vector, key, fitness, status, log_path, seed, why, min_clearance_m, sim_time_s, wall_time_s, created,
-                concrete, confirmations, reveals, differential, properties, scenario, scenario_file, algorithm, run_index) -> StoredEvaluation:
+                concrete, confirmations, reveals, differential, properties, coverage, scenario, scenario_file, algorithm, run_index) -> StoredEvaluation:
     return StoredEvaluation(id, run_id, ordinal, np.array(json.loads(vector)), key, fitness, Status(status), log_path, seed, why, min_clearance_m,
                             sim_time_s, wall_time_s, created, _json(concrete), _json(confirmations), Reveal(reveals) if reveals else None,
-                            _json(differential), scenario, scenario_file, algorithm, run_index, _json(properties) or {})
+                            _json(differential), scenario, scenario_file, algorithm, run_index, _json(properties) or {}, _json(coverage))
 
 
 class Store:
@@ -180,6 +181,8 @@ class Store:
             self.db.execute("ALTER TABLE evaluations ADD COLUMN failures_refused TEXT")
         if "properties" not in columns:  # ... or before safety properties were scored
             self.db.execute("ALTER TABLE evaluations ADD COLUMN properties TEXT")
+        if "coverage" not in columns:  # ... or before coverage builds recorded their flights' coverage
+            self.db.execute("ALTER TABLE evaluations ADD COLUMN coverage TEXT")
         # Stores from before campaigns and runs were known by the content of their documents.
         if "sources" not in {row[1] for row in self.db.execute("PRAGMA table_info(campaigns)")}:
             self.db.execute("ALTER TABLE campaigns ADD COLUMN sources TEXT")
@@ -281,7 +284,7 @@ class Store:
         with self.db:
             self.db.execute(
                 "INSERT INTO evaluations (id, run_id, ordinal, step, optimizer, vector, vector_key, concrete, fitness, status, why, min_clearance_m, sim_time_s, wall_time_s, log_path, seed, created, attempts, confirmations,"
-                " reveals, differential, failures_refused, properties) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " reveals, differential, failures_refused, properties, coverage) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     evaluation_id, run_id, ordinal, step, optimizer, json.dumps(np.asarray(vector).tolist()), vector_key(vector),
                     json.dumps(concrete) if concrete is not None else None, result.fitness, str(result.status), result.why,
@@ -292,6 +295,7 @@ class Store:
                     json.dumps(result.differential) if result.differential else None,
                     json.dumps(result.failures_refused) if result.failures_refused else None,
                     json.dumps(result.properties) if result.properties else None,
+                    json.dumps(result.coverage) if result.coverage else None,
                 ),
             )
 

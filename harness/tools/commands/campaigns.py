@@ -20,8 +20,8 @@ from harness.scenario.logical import load_logical
 from harness.scenario.profile import load_profile
 from harness.search import DEFAULT_BATCH
 from harness.tools.commands.common import RefusingParser, add_options, command, emit, non_negative_int, positive_float, positive_int, seed_int, share
-from harness.tools.commands.sut_options import (add_reference_options, add_sut_logs_option, add_sut_options, check_rig, check_transport, mission_plan,
-                                                reference_spec, sut_spec)
+from harness.tools.commands.sut_options import (add_reference_options, add_sut_logs_option, add_sut_options, check_coverage_build, check_rig,
+                                                check_transport, mission_plan, reference_spec, sut_spec)
 from sim_bridge.sut_link import TRANSPORTS
 
 if TYPE_CHECKING:
@@ -130,6 +130,8 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
                                                     "(a differential campaign then compares the properties of both sides too)")])
     if config.objective == "properties" and len(config.properties) < 2:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
+    if config.objective == "coverage":
+        check_coverage_build(sut)
     config = replace(config, screen=screen_settings(args, sut, drives, config.objective), rig=args.rig)
     documents = config.read()
     for logical in documents.scenarios:
@@ -261,6 +263,23 @@ def cmd_report(args: argparse.Namespace) -> int:
     with Store.existing(Path(args.store)) as store:
         write_report(store, Path(args.out), args.worst, args.baseline)
     emit(args, {"report": args.out}, f"wrote {args.out}")
+    return 0
+
+
+def _coverage_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("stores", nargs="+", metavar="DB", help="campaign stores (a suite's, a search's, a mutation run's) flown with a coverage build")
+    p.add_argument("--source", metavar="FILE", help="only this source file (its path, or the end of it: CollisionPrevention.cpp)")
+
+
+@command("coverage", "lines and branches of the firmware that a coverage build's flights reached, merged over campaigns", _coverage_options)
+def cmd_coverage(args: argparse.Namespace) -> int:
+    from harness.campaigns.coverage import merged, stored_flights, table, uncovered_text
+
+    files = merged(stored_flights([Path(s) for s in args.stores]), args.source)
+    if not files:
+        raise InputError([Problem(args.stores[0], "", "no flight of these stores recorded coverage" + (f" of {args.source}" if args.source else "")
+                                  + ": fly a coverage build (`stella sut build KIND --coverage`)")])
+    emit(args, {"files": [f.as_dict() for f in files]}, table(files) + "\n" + uncovered_text(files))
     return 0
 
 

@@ -53,11 +53,13 @@ def add_reference_options(p: argparse.ArgumentParser, *, campaign: bool = False)
     group.add_argument("--reference-sut-param", action="append", metavar="NAME=VALUE", help="a reference parameter (over the subject's); repeatable")
     group.add_argument("--reference-sut-fault", metavar="NAME", help="a seeded fault of the reference's bundled autopilot")
     if campaign:
-        p.add_argument("--objective", choices=["subject", "difference", "diverse", "properties"], default="subject",
+        p.add_argument("--objective", choices=["subject", "difference", "diverse", "properties", "coverage"], default="subject",
                        help="what the search minimises: the fitness (default; with --property, the least robustness of the properties); with a "
                             "reference, f_subject - f_reference (difference: where the subject is worse); without one, the fitness shared over "
                             "failure modes (diverse: new failures before repeats; docs/diversity.md); with --property, each property's robustness "
-                            "as an objective of its own (properties: NSGA-II and SMPSO keep a Pareto front over them; docs/properties.md)")
+                            "as an objective of its own (properties: NSGA-II and SMPSO keep a Pareto front over them; docs/properties.md); "
+                            "with a coverage build, the fitness (with a reference, the difference) less a reward for code no earlier flight "
+                            "reached (coverage; docs/coverage.md)")
     else:
         group.add_argument("--objective", choices=["subject", "difference"], default="subject",
                            help="the pair's fitness: the subject's (default), or f_subject - f_reference (where the subject is worse)")
@@ -83,6 +85,15 @@ def rigged(space: SearchSpace, args: argparse.Namespace) -> SearchSpace:
     if not getattr(args, "rig", None):
         return space
     return space_with_rig(space, args.rig)
+
+
+def check_coverage_build(sut: SutConfig) -> None:
+    """Exit 2 where the SUT is no coverage build: a coverage-guided search has nothing to go by."""
+    from sut_adapter.coverage import build_folder_of, coverage_build
+
+    if coverage_build(build_folder_of(sut)) is None:
+        raise InputError([Problem("--objective", "", "coverage is guided by the code each flight ran, which only a coverage build records: fly the "
+                                                     "--px4-bin or --autopilot-dir that `stella sut build px4|bundled --coverage` prints")])
 
 
 def check_rig(rig: Mapping[str, Any] | None, *suts: SutConfig | None) -> None:

@@ -1,0 +1,144 @@
+"""Code coverage of the firmware under test, per flight.
+
+A coverage build (`stella sut build KIND --coverage`) carries COVERAGE_FILE in its folder: which
+tool measures it and which source paths. Its flights record coverage without another option:
+the adapter starts the SUT so that the tool measures it, and once the SUT has stopped, the
+counters it left in the flight's working directory are summarised into the evaluation's record
+(`coverage`): what `stella coverage` merges, and a coverage-guided search reads.
+
+The bundled autopilot is measured by coverage.py: the build removes its compiled modules, so that
+it runs as the Python sources they are compiled from (which compute the same), and the adapter
+starts it under `coverage run --branch`. A branch is an arc of coverage.py ("from>to" line
+numbers; a negative "to" leaves the function).
+
+PX4 is measured by gcov: the build compiles the measured paths only with `--coverage` (a CMake
+file of ours that PX4's configuration includes), in a build folder of its own, and keeps their
+notes files (.gcno) and sources. Each flight's PX4 writes its counters (.gcda) at its orderly
+exit under the flight's working directory (GCOV_PREFIX), not into the build folder, so that
+parallel flights keep theirs apart; gcovr summarises them. A branch is gcovr's: "line:index"
+of the line's branches in gcov's order.
+
+A record: {"tool": ..., "files": {path: {"lines_hit": [...], "lines_missed": [...],
+"branches_hit": [...], "branches_missed": [...]}}}, each path relative to the source tree, each
+list sorted. Hit and missed together are all of a file's lines (branches), so records of
+several flights merge by union of what was hit.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
+
+if TYPE_CHECKING:
+    from sut_adapter.base import SutConfig
+
+COVERAGE_FILE = "coverage.json"
+PYTHON_TOOL = "coverage.py"
+PYTHON_DATA = "flight.coverage"  # coverage.py's data file in the flight's working directory
+
+
+def coverage_build(folder: Path | str | None) -> dict[str, Any] | None:
+    """The coverage settings of a build folder (None: not a coverage build)."""
+    if folder is None:
+        return None
+    marker = Path(folder) / COVERAGE_FILE
+    return json.loads(marker.read_text()) if marker.is_file() else None
+
+
+def build_folder_of(sut: "SutConfig") -> Path | None:
+    """The build folder of a SUT configuration: the bundled autopilot's folder, or PX4's (its
+    binary lies in bin/ under it)."""
+    if sut.autopilot_dir:
+        return Path(sut.autopilot_dir)
+    if sut.px4_bin:
+        given = Path(sut.px4_bin)
+        return given.parent.parent if given.is_file() else given
+    return None
+
+
+def mark_coverage_build(folder: Path, tool: str, paths: Sequence[str], **settings: Any) -> None:
+    (folder / COVERAGE_FILE).write_text(json.dumps({"tool": tool, "paths": list(paths), **settings}, indent=1) + "\n")
+
+
+# -- the bundled autopilot: coverage.py -----------------------------------------------------------
+
+
+def python_command(build: Mapping[str, Any], root: Path, workdir: Path) -> list[str]:
+    """The interpreter's arguments that run a module under coverage.py, measuring the build's
+    paths (files or folders, relative to `root`) into the working directory."""
+    rcfile = workdir / "coveragerc"
+    include = [str(root / path) + ("/*" if (root / path).is_dir() else "") for path in build["paths"]]
+    rcfile.write_text("[run]\nbranch = True\ndata_file = {}\ninclude =\n{}\n".format(workdir / PYTHON_DATA, "".join(f"    {p}\n" for p in include)))
+    return [sys.executable, "-m", "coverage", "run", f"--rcfile={rcfile}"]
+
+
+def python_record(root: Path, workdir: Path) -> dict[str, Any] | None:
+    """The flight's coverage of the measured paths (None: the SUT left no data, as a SUT killed
+    before its orderly exit does)."""
+    import coverage
+
+    data_file = workdir / PYTHON_DATA
+    if not data_file.is_file():
+        return None
+    measured = coverage.Coverage(data_file=str(data_file), config_file=str(workdir / "coveragerc"))
+    measured.load()
+    report = workdir / "coverage-report.json"
+    measured.json_report(outfile=str(report), show_contexts=False, ignore_errors=True)
+    files = {}
+    for name, entry in json.loads(report.read_text())["files"].items():
+        relative = Path(name).resolve().relative_to(root.resolve()).as_posix() if Path(name).is_absolute() else name
+        files[relative] = {"lines_hit": sorted(entry["executed_lines"]), "lines_missed": sorted(entry["missing_lines"]),
+                           "branches_hit": sorted(_arcs(entry.get("executed_branches", []))),
+                           "branches_missed": sorted(_arcs(entry.get("missing_branches", [])))}
+    return {"tool": PYTHON_TOOL, "files": files}
+
+
+def _arcs(pairs: Iterable[Sequence[int]]) -> list[str]:
+    return [f"{start}>{end}" for start, end in pairs]
+
+
+
+# -- PX4: gcov through gcovr ----------------------------------------------------------------------
+
+GCOV_TOOL = "gcov"
+GCOV_DIR = "gcov"  # where a flight's PX4 writes its counters, under its working directory
+NOTES_DIR = "coverage"  # in a PX4 coverage build's folder: the measured objects' .gcno and sources
+
+
+def gcov_environment(build: Mapping[str, Any], workdir: Path) -> dict[str, str]:
+    """The environment that makes a gcov-instrumented process write its counters under workdir:
+    the build folder's absolute path, where the objects were compiled, is stripped."""
+    return {"GCOV_PREFIX": str(workdir / GCOV_DIR), "GCOV_PREFIX_STRIP": str(len(Path(build["build_dir"]).parts) - 1)}
+
+
+def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[str, Any] | None:
+    """The flight's coverage of the measured paths from the counters its PX4 left (None: none,
+    as a PX4 killed before its orderly exit leaves none)."""
+    counters = workdir / GCOV_DIR
+    found = sorted(counters.glob("**/*.gcda")) if counters.is_dir() else []
+    if not found:
+        return None
+    notes = folder / NOTES_DIR
+    for gcda in found:
+        shutil.copy2(notes / gcda.relative_to(counters).with_suffix(".gcno"), gcda.with_suffix(".gcno"))
+    report = workdir / "gcovr.json"
+    # The build maps the tree's root to "." in the notes (-fprofile-prefix-map): the sources kept
+    # beside them are found from here.
+    root = notes / "src"
+    done = subprocess.run([sys.executable, "-m", "gcovr", "--root", str(root), "--json", str(report), "--object-directory", str(counters), str(counters)],
+                          cwd=root, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"gcovr failed on the flight's counters: {done.stderr.strip()[-600:]}")
+    files = {}
+    for entry in json.loads(report.read_text())["files"]:
+        lines = entry["lines"]
+        hit = sorted({line["line_number"] for line in lines if line["count"] > 0})
+        branches = [(f"{line['line_number']}:{branch['branchno']}", branch["count"] > 0) for line in lines for branch in line["branches"]]
+        files[entry["file"]] = {"lines_hit": hit, "lines_missed": sorted({line["line_number"] for line in lines} - set(hit)),
+                                "branches_hit": sorted(key for key, taken in branches if taken),
+                                "branches_missed": sorted(key for key, taken in branches if not taken)}
+    return {"tool": GCOV_TOOL, "files": files}

@@ -1,0 +1,188 @@
+"""Code coverage of the firmware under test: coverage builds, each flight's record, `stella
+coverage` over stores, and the coverage-guided search; on the bundled autopilot, through
+coverage.py, so that the whole path runs without PX4."""
+
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from harness.campaigns.coverage import NOVELTY_WEIGHT_M, CodeNovelty, merged, reached
+from harness.campaigns.problem import Trial
+from harness.flight.fitness import Status
+from harness.tools.cli import main
+
+WALL = ROOT / "scenarios" / "examples" / "wall_concrete.json"
+
+
+@pytest.fixture(scope="module")
+def coverage_build(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("builds")
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--coverage", "--out", str(out)]) == 0
+    [folder] = [path for path in out.iterdir() if (path / "variant.json").is_file()]
+    return folder
+
+
+def function_lines(module: Path, qualified: str) -> set[int]:
+    """The lines of a function's body (its docstring too), found by name, not by number."""
+    tree = ast.parse(module.read_text())
+    scope: list = tree.body
+    for name in qualified.split("."):
+        node = next(n for n in scope if isinstance(n, (ast.ClassDef, ast.FunctionDef)) and n.name == name)
+        scope = node.body
+    return set(range(node.body[0].lineno, node.end_lineno + 1))
+
+
+def test_a_coverage_build_runs_the_sources_and_is_cached_apart(coverage_build, tmp_path, capsys):
+    marker = json.loads((coverage_build / "coverage.json").read_text())
+    assert marker == {"tool": "coverage.py", "paths": ["autopilot/collision.py"]}
+    assert not list((coverage_build / "autopilot").glob("*.so"))
+    out = coverage_build.parent
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--coverage", "--out", str(out), "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["cached"] and again["fly_with"] == {"--autopilot-dir": str(coverage_build)}
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--coverage", "--coverage-path", "autopilot", "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["folder"] != str(coverage_build)
+
+
+@pytest.mark.parametrize("arguments, says", [
+    (["--coverage", "--coverage-path", "sim_bridge/world.py"], "the bundled autopilot's flights run its autopilot/ package only"),
+    (["--coverage", "--coverage-path", "autopilot/nothing.py"], "autopilot/nothing.py: not in"),
+    (["--coverage-path", "autopilot/collision.py"], "add --coverage"),
+])
+def test_a_coverage_path_it_cannot_measure_exits_2_naming_it(tmp_path, capsys, arguments, says):
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), *arguments, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("--coverage-path: ") and says in err
+
+
+def test_a_coverage_guided_search_needs_a_coverage_build(tmp_path, capsys):
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "2",
+                 "--objective", "coverage", "--store", str(tmp_path / "c.db")]) == 2
+    assert "--objective: coverage is guided by the code each flight ran" in capsys.readouterr().err
+    assert not (tmp_path / "c.db").exists()
+
+
+def trial(ordinal: int, fitness: float, lines: list[int]) -> Trial:
+    record = {"files": {"a.py": {"lines_hit": lines, "lines_missed": [], "branches_hit": [], "branches_missed": []}}}
+    return Trial(ordinal, np.zeros(1), str(ordinal), fitness, Status.OK, reached=reached(record))
+
+
+def test_the_search_is_told_of_code_no_earlier_flight_reached_and_nothing_else():
+    first, second, third = trial(0, 5.0, [1, 2, 3]), trial(1, 4.0, [2, 3, 4, 5]), trial(2, 3.0, [1, 5])
+    history = [third, first, second]  # finished in any order: told by ordinal
+    novelty = CodeNovelty()
+    assert novelty.told(5.0, first, history) == pytest.approx(5.0 - 3 * NOVELTY_WEIGHT_M)
+    assert novelty.told(4.0, second, history) == pytest.approx(4.0 - 2 * NOVELTY_WEIGHT_M)
+    assert novelty.told(3.0, third, history) == 3.0
+    assert novelty.told(2.0, Trial(3, np.zeros(1), "3", 2.0, Status.OK), history) == 2.0  # a flight without coverage
+
+
+def test_merged_coverage_names_the_first_flight_to_reach_each_line():
+    from harness.campaigns.coverage import Flight
+
+    records = [(Flight("b.db", 7, 2.0), {"files": {"src/x.cpp": {"lines_hit": [1, 2], "lines_missed": [3, 4], "branches_hit": ["1:0"], "branches_missed": ["1:1"]}}}),
+               (Flight("a.db", 3, 1.0), {"files": {"src/x.cpp": {"lines_hit": [2, 3], "lines_missed": [1, 4], "branches_hit": [], "branches_missed": ["1:0", "1:1"]}}})]
+    [x] = merged(records, "x.cpp")
+    summary = x.as_dict()
+    assert (summary["lines_hit"], summary["lines_total"], summary["branches_hit"], summary["branches_total"]) == (3, 4, 1, 2)
+    assert summary["uncovered_lines"] == [4]
+    assert summary["first_reached"] == {"1": {"store": "b.db", "evaluation": 7}, "2": {"store": "a.db", "evaluation": 3},
+                                        "3": {"store": "a.db", "evaluation": 3}}
+    assert merged(records, "y.cpp") == []
+
+
+@pytest.mark.slow
+def test_each_flight_records_the_code_it_ran_and_the_rigs_code_only_with_a_rig(coverage_build, tmp_path, capsys):
+    """A coverage build flies as the compiled autopilot does (same clearance); the DISTANCE_SENSOR
+    code of the collision prevention runs only in the flight with rangefinders, and `stella
+    coverage` over both campaigns names that flight as the first to reach it."""
+    plain, rigged = tmp_path / "plain.db", tmp_path / "rigged.db"
+    for store, rig in ((plain, []), (rigged, ["--rig", "four_rangefinders"])):
+        assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "RANDOM", "--evaluations", "2", "--drive", "pilot",
+                     "--autopilot-dir", str(coverage_build), "--sut-param", "CP_STICK_ACCEL=1", "--store", str(store), *rig]) == 0
+    capsys.readouterr()
+    assert main(["coverage", str(plain), str(rigged), "--source", "collision.py", "--json"]) == 0
+    [report] = json.loads(capsys.readouterr().out)["files"]
+    assert report["file"] == "autopilot/collision.py" and 0 < report["lines_hit"] < report["lines_total"]
+    assert report["lines_total"] - report["lines_hit"] == len(report["uncovered_lines"])
+    reached_first = {int(line): where for line, where in report["first_reached"].items()}
+    rangefinders = function_lines(coverage_build / "autopilot" / "collision.py", "ObstacleMap.update_distance_sensor") & set(reached_first)
+    assert len(rangefinders) > 5 and {reached_first[line]["store"] for line in rangefinders} == {str(rigged)}
+    # The compiled autopilot flies the same flight
+    from harness.campaigns.store import Store
+    from harness.flight.evaluation import evaluate
+    from harness.flight.results import RunOptions
+    from harness.scenario.world import space_from_concrete
+    from sut_adapter import SutConfig
+
+    with Store.existing(plain) as store:
+        flown = next(e for e in store.all_evaluations() if e.coverage)
+    space = space_from_concrete(flown.concrete, "stored")
+    compiled = evaluate(space, space.from_concrete(flown.concrete, "stored"), seed=flown.seed, out_dir=tmp_path,
+                        options=RunOptions(cores=1, sut=SutConfig("bundled", {"CP_STICK_ACCEL": 1})), name="compiled")
+    assert compiled.coverage is None and compiled.min_clearance_m == flown.min_clearance_m
+
+
+@pytest.mark.slow
+def test_a_coverage_guided_campaign_stores_each_flights_coverage(coverage_build, tmp_path, capsys):
+    store = tmp_path / "guided.db"
+    assert main(["campaign", str(ROOT / "scenarios" / "examples" / "wall.json"), "--algorithm", "NSGAII", "--evaluations", "8", "--population", "4",
+                 "--drive", "pilot", "--autopilot-dir", str(coverage_build), "--objective", "coverage", "--store", str(store)]) == 0
+    from harness.campaigns.store import Store
+
+    with Store.existing(store) as opened:
+        flown = [e for e in opened.all_evaluations() if e.status != Status.INFEASIBLE]
+    assert flown and all(e.coverage["files"]["autopilot/collision.py"]["lines_hit"] for e in flown)
+
+
+def toy_firmware(tree: Path) -> None:
+    """A tree shaped as PX4's: an executable `px4` of two libraries, one of them measured."""
+    (tree / "src" / "lib" / "measured").mkdir(parents=True)
+    (tree / "src" / "other").mkdir(parents=True)
+    (tree / "CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.19)\nproject(toy C)\nadd_subdirectory(src/lib/measured)\n"
+                                         "add_subdirectory(src/other)\nadd_executable(px4 main.c)\ntarget_link_libraries(px4 measured other)\n")
+    (tree / "src" / "lib" / "measured" / "CMakeLists.txt").write_text("add_library(measured STATIC guard.c)\n")
+    (tree / "src" / "lib" / "measured" / "guard.c").write_text(
+        "int guard(int distance)\n{\n\tif (distance < 2) {\n\t\treturn 0;\n\t}\n\n\treturn distance;\n}\n")
+    (tree / "src" / "other" / "CMakeLists.txt").write_text("add_library(other STATIC other.c)\n")
+    (tree / "src" / "other" / "other.c").write_text("int other(int x)\n{\n\treturn x > 3 ? 1 : 2;\n}\n")
+    (tree / "main.c").write_text("int guard(int);\nint other(int);\nint main(void)\n{\n\treturn guard(5) + other(1) == 7 ? 0 : 1;\n}\n")
+
+
+def test_a_gcov_build_measures_its_paths_only_and_each_flight_keeps_its_own_counters(tmp_path):
+    """PX4's coverage build on a tree of PX4's shape: our CMake include instruments the measured
+    folder's targets only, the variant keeps their notes and sources, and a run's counters,
+    written under its own working directory, are summarised by gcovr, whatever the tree holds by
+    then."""
+    import subprocess
+
+    from harness.firmware.builds import COVERAGE_CMAKE, _keep_notes
+    from sut_adapter.coverage import gcov_environment, gcov_record, mark_coverage_build
+
+    tree, build_dir, folder, flight = tmp_path / "tree", tmp_path / "tree" / "build" / "sitl_coverage", tmp_path / "variant", tmp_path / "flight"
+    toy_firmware(tree)
+    include = tmp_path / "stella_coverage.cmake"
+    include.write_text(COVERAGE_CMAKE)
+    subprocess.run(["cmake", "-S", str(tree), "-B", str(build_dir), f"-DCMAKE_PROJECT_INCLUDE={include}", "-DSTELLA_COVERAGE_PATHS=src/lib/measured"],
+                   check=True, capture_output=True)
+    subprocess.run(["cmake", "--build", str(build_dir)], check=True, capture_output=True)
+    assert [p.name for p in build_dir.glob("**/*.gcno")] == ["guard.c.gcno"]
+    folder.mkdir()
+    _keep_notes(tree, build_dir, folder, ["src/lib/measured"])
+    mark_coverage_build(folder, "gcov", ["src/lib/measured"], build_dir=str(build_dir))
+    (tree / "src" / "lib" / "measured" / "guard.c").write_text("moved on\n")  # the worktree of the next variant
+    flight.mkdir()
+    build = json.loads((folder / "coverage.json").read_text())
+    subprocess.run([str(build_dir / "px4")], check=True, env={"PATH": "/usr/bin:/bin", **gcov_environment(build, flight)})
+    assert not list(build_dir.glob("**/*.gcda"))  # the build folder is left alone
+    # guard(5): the function's line and the test ran, the early return did not; the test's branch
+    # to it was not taken, the other was
+    assert gcov_record(build, folder, flight) == {"tool": "gcov", "files": {"src/lib/measured/guard.c": {
+        "lines_hit": [1, 3, 7], "lines_missed": [4], "branches_hit": ["3:1"], "branches_missed": ["3:0"]}}}
+    assert gcov_record(build, folder, tmp_path / "no-flight") is None
