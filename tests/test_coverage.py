@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from harness.campaigns.coverage import NOVELTY_WEIGHT_M, CodeNovelty, merged, reached
+from harness.campaigns.coverage import NOVELTY_WEIGHT_M, CodeNovelty, code_reached, merged
 from harness.campaigns.problem import Trial
 from harness.flight.fitness import Status
 from harness.tools.cli import main
@@ -70,7 +70,7 @@ def test_a_coverage_guided_search_needs_a_coverage_build(tmp_path, capsys):
 
 def trial(ordinal: int, fitness: float, lines: list[int]) -> Trial:
     record = {"files": {"a.py": {"lines_hit": lines, "lines_missed": [], "branches_hit": [], "branches_missed": []}}}
-    return Trial(ordinal, np.zeros(1), str(ordinal), fitness, Status.OK, reached=reached(record))
+    return Trial(ordinal, np.zeros(1), str(ordinal), fitness, Status.OK, reached=code_reached(record))
 
 
 def test_the_search_is_told_of_code_no_earlier_flight_reached_and_nothing_else():

@@ -112,7 +112,7 @@ def _ranges(lines: Sequence[int]) -> str:
 NOVELTY_WEIGHT_M = 0.1
 
 
-def reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:
+def code_reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:
     """The lines and branches a flight ran, one name each."""
     if not coverage:
         return frozenset()

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
-from harness.campaigns.coverage import CodeNovelty, reached
+from harness.campaigns.coverage import CodeNovelty, code_reached
 from harness.campaigns.store import Store, evaluation_name, vector_key
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Reveal
@@ -230,7 +230,7 @@ class CampaignProblem:
             if stored is not None:
                 self.replayed += 1
                 self._record(Trial(ordinal, candidate.vector, candidate.key, stored.fitness, stored.status, stored.reveals, stored.log_path,
-                                   least_robustness(stored.properties), self._robustness_each(stored.properties), reached(stored.coverage)))
+                                   least_robustness(stored.properties), self._robustness_each(stored.properties), code_reached(stored.coverage)))
                 self._learn(candidate.key)
                 continue
             # Its id in the store, known now so that its log carries it: one number for an
@@ -340,5 +340,5 @@ class CampaignProblem:
         self.flown += 1 if result.status != Status.INFEASIBLE else 0
         reveals = result.differential["reveals"] if result.differential else None
         self._record(Trial(ordinal, candidate.vector, candidate.key, result.fitness, result.status, Reveal(reveals) if reveals else None,
-                           result.log_path, least_robustness(result.properties), self._robustness_each(result.properties), reached(result.coverage)))
+                           result.log_path, least_robustness(result.properties), self._robustness_each(result.properties), code_reached(result.coverage)))
         self.on_result(result)
