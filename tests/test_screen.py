@@ -111,15 +111,22 @@ def test_the_residual_model_learns_where_the_subject_parts_from_the_cheap_model_
     assert [p.objective for p in again.predict(np.array(xs[30:]), cheap[30:])] == predicted
 
 
+def earlier_run_parting(tmp_path: Path, space: SearchSpace, xs: list[np.ndarray]) -> Store:
+    """A store whose earlier run of the scenario flew these candidates both ways, all alike on the
+    cheap model (3 m), the subject parting from it by where the candidate lies."""
+    earlier = screen_with(tmp_path, space, {}, run=0)
+    for i, x in enumerate(xs):
+        earlier.store.add_screen_flight(earlier.run_id, vector_key(x), cheap_flight(3.0))
+        earlier.store.add_evaluation(earlier.run_id, ordinal=i, step=0, optimizer="RANDOM", vector=x, result=stored_result(parted(space, x, 3.0), "ok"),
+                                     concrete=None)
+    return earlier.store
+
+
 def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_optimizer_hears_its_prediction(tmp_path, space):
     # GIVEN a store's earlier run of the scenario: 12 candidates flown both ways, the subject parting from the cheap model
     store_path = tmp_path / "c.db"
-    earlier = screen_with(tmp_path, space, {}, run=0)
-    store = earlier.store
     xs = spread_over(space, 32, seed=2)
-    for i, x in enumerate(xs[:12]):
-        store.add_screen_flight(earlier.run_id, vector_key(x), cheap_flight(3.0))
-        store.add_evaluation(earlier.run_id, ordinal=i, step=0, optimizer="RANDOM", vector=x, result=stored_result(parted(space, x, 3.0), "ok"), concrete=None)
+    store = earlier_run_parting(tmp_path, space, xs[:12])
     # AND this run's batch, all alike on the cheap model
     batch = {f"k{i}": x for i, x in enumerate(xs[12:])}
     campaign = store.campaign({"test": True})
@@ -147,6 +154,33 @@ def test_a_trained_correction_chooses_where_the_subject_comes_close_and_the_opti
     summary = screen.summary()
     assert summary["rank_correlation"] is None and summary["corrected_rank_correlation"] > 0.9
     assert summary["training_pairs"] == 12 + 9
+
+
+def test_a_correction_that_ranks_worse_than_the_cheap_flights_is_set_aside_and_the_optimizer_hears_the_cheap_ones(tmp_path, space):
+    # GIVEN a correction trained on an earlier run in which the subject parted from the cheap model by where the candidate lay
+    xs = spread_over(space, 36, seed=4)
+    store = earlier_run_parting(tmp_path, space, xs[:12])
+    # AND a run in which it flies as the cheap model does
+    first = {vector_key(x): (x, 1.0 + i) for i, x in enumerate(xs[12:24])}
+    second = {vector_key(x): (x, 20.0 + i) for i, x in enumerate(xs[24:])}
+    run_id, _finished = store.run(store.campaign({"test": True}), "s.json", "s", "RANDOM", 1, 8, scenario_key="sha256:s")
+    for key, (_x, cheap) in {**first, **second}.items():
+        store.add_screen_flight(run_id, key, cheap_flight(cheap))
+    settings = ScreenSettings(SutConfig(), share=0.3, explore=0.0, min_pairs=10)
+    screen = Screen(settings, SequentialExecutor(), store, run_id, 8, tmp_path, RunOptions(), space)
+    assert screen.correction_ranks_better  # nothing judged yet
+    screen.choose([(key, x) for key, (x, _c) in first.items()])
+    for key, (x, cheap) in first.items():  # WHEN its predictions meet the real flights
+        screen.learn(key, x, cheap)
+    # THEN the cheap flights ranked them better, and the screen ranks the next batch by them
+    assert not screen.correction_ranks_better and screen.rank_correlation == pytest.approx(1.0) and screen.corrected_rank_correlation < 0.99
+    chosen = screen.choose([(key, x) for key, (x, _c) in second.items()])
+    assert chosen == set(list(second)[:4])
+    # AND the optimizer hears the cheap objective of those screened out, in a resumed run too
+    out = list(second)[-1]
+    assert screen.told(out) == 31.0 and screen.summary()["ranked_by_cheap"] == 12
+    resumed = Screen(settings, SequentialExecutor(), Store(tmp_path / "c.db"), run_id, 8, tmp_path, RunOptions(), space)
+    assert resumed.choose([(key, x) for key, (x, _c) in second.items()]) == chosen and resumed.told(out) == 31.0
 
 
 def test_the_cheap_model_takes_the_subjects_px4_parameters_calibrated_by_drive_and_never_its_seeded_fault():

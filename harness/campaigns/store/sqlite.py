@@ -92,6 +92,7 @@ CREATE TABLE IF NOT EXISTS screen_flights (
     created REAL NOT NULL,
     predicted_mean REAL,
     predicted_sd REAL,
+    ranked_by_cheap INTEGER,
     PRIMARY KEY (run_id, vector_key)
 );
 """
@@ -191,6 +192,8 @@ class Store:
         if "predicted_mean" not in {row[1] for row in self.db.execute("PRAGMA table_info(screen_flights)")}:  # screened before the correction
             self.db.execute("ALTER TABLE screen_flights ADD COLUMN predicted_mean REAL")
             self.db.execute("ALTER TABLE screen_flights ADD COLUMN predicted_sd REAL")
+        if "ranked_by_cheap" not in {row[1] for row in self.db.execute("PRAGMA table_info(screen_flights)")}:  # ... or before it chose between the two
+            self.db.execute("ALTER TABLE screen_flights ADD COLUMN ranked_by_cheap INTEGER")
         self.db.commit()
 
     def close(self) -> None:
@@ -307,22 +310,24 @@ class Store:
                             (run_id, key, result.fitness, str(result.status), json.dumps(result.properties) if result.properties else None,
                              result.log_path, time.time()))
 
-    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool], predicted: Mapping[str, tuple[float, float]]) -> None:
-        """Which cheaply flown candidates the screen chose for a real flight, and what its
-        correction predicted of them (mean and standard deviation, where one was trained): kept,
-        so that a resumed run decides as the first did and measures the correction alike."""
+    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool], predicted: Mapping[str, tuple[float, float]], ranked_by_cheap: bool = False) -> None:
+        """Which cheaply flown candidates the screen chose for a real flight, what its correction
+        predicted of them (mean and standard deviation, where one was trained) and whether it
+        ranked them by the cheap flights all the same: kept, so that a resumed run decides as the
+        first did and measures the correction alike."""
         with self.db:
-            self.db.executemany("UPDATE screen_flights SET chosen = ?, predicted_mean = ?, predicted_sd = ? WHERE run_id = ? AND vector_key = ?",
-                                [(int(flag), *predicted.get(key, (None, None)), run_id, key) for key, flag in chosen.items()])
+            self.db.executemany("UPDATE screen_flights SET chosen = ?, predicted_mean = ?, predicted_sd = ?, ranked_by_cheap = ? WHERE run_id = ? AND vector_key = ?",
+                                [(int(flag), *predicted.get(key, (None, None)), int(ranked_by_cheap), run_id, key) for key, flag in chosen.items()])
 
     def screen_flights(self, run_id: int) -> dict[str, dict[str, Any]]:
         """A run's cheap flights by their vector's key: fitness, status, properties, whether the
         screen chose it for a real flight (None: not decided yet) and what its correction
         predicted (mean and standard deviation; None: no correction trained)."""
         return {key: {"fitness": fitness, "status": status, "properties": _json(properties) or {}, "chosen": None if chosen is None else bool(chosen),
-                      "predicted": None if mean is None else (mean, sd)}
-                for key, fitness, status, properties, chosen, mean, sd in self.db.execute(
-                    "SELECT vector_key, fitness, status, properties, chosen, predicted_mean, predicted_sd FROM screen_flights WHERE run_id = ?", (run_id,))}
+                      "predicted": None if mean is None else (mean, sd), "ranked_by_cheap": bool(by_cheap)}
+                for key, fitness, status, properties, chosen, mean, sd, by_cheap in self.db.execute(
+                    "SELECT vector_key, fitness, status, properties, chosen, predicted_mean, predicted_sd, ranked_by_cheap FROM screen_flights WHERE run_id = ?",
+                    (run_id,))}
 
     def earlier_screen_pairs(self, run_id: int) -> list[dict[str, Any]]:
         """The candidates flown both ways, cheaply and for real to the end, in the store's runs
