@@ -27,6 +27,7 @@ several flights merge by union of what was hit.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -124,15 +125,24 @@ def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[s
         return None
     notes = folder / NOTES_DIR
     for gcda in found:
-        shutil.copy2(notes / gcda.relative_to(counters).with_suffix(".gcno"), gcda.with_suffix(".gcno"))
+        shutil.copy2(notes / "notes" / gcda.relative_to(counters).with_suffix(".gcno"), gcda.with_suffix(".gcno"))
+    # gcov, run beside a copy of the kept sources (the build names them relative to the tree's
+    # root: -fprofile-prefix-map), writes its reports there; gcovr reads those of the measured paths.
+    # (gcovr running gcov itself would want every file the objects inline, other libraries'
+    # headers and generated ones, which a build keeps no sources of.)
+    text = workdir / "gcov-text"
+    shutil.copytree(notes / "sources", text, dirs_exist_ok=True)
+    for folder_of_counters in sorted({gcda.parent for gcda in found}):
+        ran = subprocess.run(["gcov", "--branch-probabilities", "--branch-counts", "--preserve-paths", "--object-directory", str(folder_of_counters),
+                              *[str(g) for g in found if g.parent == folder_of_counters]], cwd=text, capture_output=True, text=True)
+        if ran.returncode != 0:
+            raise RuntimeError(f"gcov failed on the flight's counters: {ran.stderr.strip()[-600:]}")
     report = workdir / "gcovr.json"
-    # The build maps the tree's root to "." in the notes (-fprofile-prefix-map): the sources kept
-    # beside them are found from here.
-    root = notes / "src"
-    done = subprocess.run([sys.executable, "-m", "gcovr", "--root", str(root), "--json", str(report), "--object-directory", str(counters), str(counters)],
-                          cwd=root, capture_output=True, text=True)
+    filters = [argument for path in build["paths"] for argument in ("--filter", re.escape(path) + ("/" if (notes / "sources" / path).is_dir() else "$"))]
+    done = subprocess.run([sys.executable, "-m", "gcovr", "--root", str(text), "--use-gcov-files", *filters, "--json", str(report), str(text)],
+                          cwd=text, capture_output=True, text=True)
     if done.returncode != 0:
-        raise RuntimeError(f"gcovr failed on the flight's counters: {done.stderr.strip()[-600:]}")
+        raise RuntimeError(f"gcovr failed on the flight's gcov reports: {done.stderr.strip()[-600:]}")
     files = {}
     for entry in json.loads(report.read_text())["files"]:
         lines = entry["lines"]

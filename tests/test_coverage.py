@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -186,3 +187,68 @@ def test_a_gcov_build_measures_its_paths_only_and_each_flight_keeps_its_own_coun
     assert gcov_record(build, folder, flight) == {"tool": "gcov", "files": {"src/lib/measured/guard.c": {
         "lines_hit": [1, 3, 7], "lines_missed": [4], "branches_hit": ["3:1"], "branches_missed": ["3:0"]}}}
     assert gcov_record(build, folder, tmp_path / "no-flight") is None
+
+
+def test_a_coverage_guided_mutation_run_needs_mutants_built_for_coverage(tmp_path, capsys):
+    from harness.firmware import mutants
+
+    folder = tmp_path / "mutation"
+    mutants.generate(ROOT, "autopilot/collision.py", folder, limit=2, seed=1)
+    (folder / mutants.BUILT).write_text(json.dumps({"mutants": {}, "original": {"folder": str(ROOT)}}))
+    assert main(["mutants", "run", str(folder), "--suite", str(WALL), "--objective", "coverage"]) == 2
+    assert "--objective: coverage is guided by the code each flight ran: build the mutants with `stella mutants build --coverage`" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_mutants_built_for_coverage_record_it_and_their_searches_are_guided_by_it(tmp_path):
+    from harness.campaigns.store import Store
+    from harness.firmware import mutants
+
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, "autopilot/collision.py", folder)
+    # range data counts as fresh for longer: the wall does not kill it, so it is searched
+    quiet = next(m for m in index["mutants"] if m["original"].strip() == "STALE_AFTER_S = 0.5" and m["mutated"].strip() == "STALE_AFTER_S = 1.0")
+    index["mutants"] = [quiet]
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+    assert main(["mutants", "build", str(folder), "--coverage"]) == 0
+    assert main(["mutants", "build", str(folder)]) == 2  # built with coverage: not again without
+    assert main(["mutants", "run", str(folder), "--suite", str(WALL), "--scenario", str(ROOT / "scenarios" / "examples" / "wall.json"),
+                 "--algorithm", "NSGAII", "--evaluations", "3", "--population", "2", "--objective", "coverage", "--workers", "1"]) == 0
+    [search] = sorted((folder / "search").glob("*/*.db"))
+    with Store.existing(search) as store:
+        flights = [e for e in store.all_evaluations() if e.status != Status.INFEASIBLE]
+    assert flights and all(e.coverage["files"]["autopilot/collision.py"]["lines_hit"] for e in flights)
+
+
+def body_lines(source: Path, signature: str) -> set[int]:
+    """The lines of a C++ function's body: from its signature's line to the closing brace at the
+    start of a line."""
+    lines = source.read_text().splitlines()
+    start = next(number for number, text in enumerate(lines, start=1) if signature in text)
+    end = next(number for number, text in enumerate(lines[start:], start=start + 1) if text.startswith("}"))
+    return set(range(start, end + 1))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("STELLA_PX4_COVERAGE_BIN"), reason="needs a PX4 coverage build (`stella sut build px4 --coverage`: STELLA_PX4_COVERAGE_BIN)")
+def test_px4s_coverage_shows_which_range_data_its_collision_prevention_used(tmp_path):
+    """A flight with the profile's sensor (DISTANCE_SENSOR) runs _addDistanceSensorData and not
+    _addObstacleSensorData; one with a depth camera on the companion link (OBSTACLE_DISTANCE) the
+    other way round."""
+    from harness.flight.evaluation import evaluate
+    from harness.flight.results import RunOptions
+    from harness.scenario.world import load_concrete, space_with_rig
+    from sut_adapter import SutConfig
+
+    build = Path(os.environ["STELLA_PX4_COVERAGE_BIN"])
+    source = build / "coverage" / "sources" / "src" / "lib" / "collision_prevention" / "CollisionPrevention.cpp"
+    obstacle_distance = body_lines(source, "CollisionPrevention::_addObstacleSensorData(")
+    distance_sensor = body_lines(source, "CollisionPrevention::_addDistanceSensorData(")
+    space, x = load_concrete(WALL, "pilot")
+    options = RunOptions(sut=SutConfig("px4", {"CP_DIST": 1.5}, px4_bin=str(build)), sut_logs="failures")
+    hit = {}
+    for name, flown in (("profile", space), ("depth_camera", space_with_rig(space, "depth_camera"))):
+        result = evaluate(flown, x, seed=0, out_dir=tmp_path, options=options, name=name)
+        hit[name] = set(result.coverage["files"]["src/lib/collision_prevention/CollisionPrevention.cpp"]["lines_hit"])
+    assert hit["profile"] & distance_sensor and not hit["profile"] & obstacle_distance
+    assert hit["depth_camera"] & obstacle_distance and not hit["depth_camera"] & distance_sensor

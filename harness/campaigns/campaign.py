@@ -310,7 +310,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                     continue
                 screen = None if config.screen is None else Screen(config.screen, executor, store, run_id, seed, out_dir / f"run{run_id}" / "screen",
                                                                   options, space, config.properties,
-                                                                  comparable=config.reference is None or config.objective != "difference")
+                                                                  comparable=config.reference is None or PAIR_OBJECTIVES.get(config.objective, config.objective) != "difference")
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
                                           novelty=CodeNovelty() if config.objective == "coverage" else None,

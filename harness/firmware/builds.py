@@ -165,7 +165,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     resolved = resolve_commit(source, commit) if kind == "px4" or commit else None
     config = PX4_CONFIG if kind == "px4" else BUNDLED_CONFIG
     if coverage_paths is not None:
-        coverage_paths = _coverage_paths(source, kind, coverage_paths)
+        coverage_paths = coverage_paths_of(source, kind, coverage_paths)
         config += "+coverage:" + ",".join(coverage_paths)
     key = variant_key(kind, resolved, digests, config)
     folder = Path(out).expanduser().resolve() / key
@@ -314,11 +314,11 @@ def _keep_notes(tree: Path, build_dir: Path, folder: Path, paths: Sequence[str])
     for path in paths:
         objects = build_dir / path
         for gcno in sorted(objects.glob("**/*.gcno") if objects.is_dir() else objects.parent.glob(f"**/{objects.name}.gcno")):
-            target = notes / gcno.relative_to(build_dir)
+            target = notes / "notes" / gcno.relative_to(build_dir)
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(gcno, target)
         measured = tree / path
-        target = notes / "src" / path
+        target = notes / "sources" / path
         target.parent.mkdir(parents=True, exist_ok=True)
         if measured.is_dir():
             shutil.copytree(measured, target, dirs_exist_ok=True)
@@ -388,7 +388,7 @@ def _build_bundled(source: Path, commit: str | None, patches: list[Path], folder
     return objects
 
 
-def _coverage_paths(source: Path, kind: str, paths: Sequence[str]) -> list[str]:
+def coverage_paths_of(source: Path, kind: str, paths: Sequence[str]) -> list[str]:
     """The paths a coverage build measures (the default where none are given), each checked to be
     in the tree."""
     chosen = list(paths) or list(DEFAULT_COVERAGE_PATHS[kind])

@@ -216,9 +216,10 @@ def load_index(out: Path) -> dict:
 
 
 def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, only: Sequence[str] = (), worktree_command: str | None = None,
-              progress: Callable[[str], None] = lambda _line: None) -> dict:
+              progress: Callable[[str], None] = lambda _line: None, coverage_paths: Sequence[str] | None = None) -> dict:
     """Build the original and each mutant (cached); sort them into built, stillborn, equivalent
-    and duplicate; write out/built.json after each, so an interrupted build resumes."""
+    and duplicate; write out/built.json after each, so an interrupted build resumes.
+    `coverage_paths`: coverage builds (builds.build), whose flights record the code they ran."""
     out = Path(out)
     index = load_index(out)
     cache = Path(cache) if cache else out / "builds"
@@ -226,7 +227,12 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
     commit = index["commit"] if index["kind"] == "px4" else None
     built_path = out / BUILT
     record = json.loads(built_path.read_text()) if built_path.is_file() else {"mutants": {}}
-    original = builds.build(source, out=cache, commit=commit, jobs=jobs, watch=[index["file"]], worktree_command=worktree_command)
+    coverage = None if coverage_paths is None else builds.coverage_paths_of(source, index["kind"], coverage_paths)
+    if record["mutants"] and record.get("coverage") != coverage:
+        raise InputError([Problem(str(built_path), "/coverage", f"this folder's mutants were built {'with coverage of ' + ', '.join(record['coverage']) if record.get('coverage') else 'without coverage'}: "
+                                                                 "build them alike, or generate the mutants again into another folder (the same --seed gives the same ones)")])
+    record["coverage"] = coverage
+    original = builds.build(source, out=cache, commit=commit, jobs=jobs, watch=[index["file"]], worktree_command=worktree_command, coverage_paths=coverage)
     baseline = original.objects.get(index["file"])
     record["original"] = {"folder": original.folder, "build_s": original.build_s, "key": original.key, "digest": baseline}
     by_digest: dict[str, str] = {}
@@ -240,7 +246,8 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
             continue
         patch = out / "mutants" / f"{mutant['id']}.patch"
         try:
-            variant = builds.build(source, out=cache, commit=commit, patches=[patch], jobs=jobs, watch=[index["file"]], worktree_command=worktree_command)
+            variant = builds.build(source, out=cache, commit=commit, patches=[patch], jobs=jobs, watch=[index["file"]], worktree_command=worktree_command,
+                                   coverage_paths=coverage)
         except builds.BuildFailed as failed:
             entry = {"id": mutant["id"], "state": "stillborn", "log": str(failed.log_path)}
         else:

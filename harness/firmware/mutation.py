@@ -139,6 +139,9 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
     if not built_path.is_file():
         raise InputError([Problem(str(built_path), "", "the mutants are not built: run `stella mutants build` first")])
     built = json.loads(built_path.read_text())
+    if plan.objective == "coverage" and not built.get("coverage"):
+        raise InputError([Problem("--objective", "", "coverage is guided by the code each flight ran: build the mutants with "
+                                                     "`stella mutants build --coverage` (into a folder of their own)")])
     cases = _suite_cases(plan)
     reference = _sut(index["kind"], built["original"]["folder"], plan.sut_params)
     run_path = mutants_dir / RUN

@@ -45,6 +45,8 @@ def _build_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", help="the build cache (default: FOLDER/builds)")
     p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
+    p.add_argument("--coverage", action="store_true", help="coverage builds: their flights record the code they ran (`stella coverage`, --objective coverage)")
+    p.add_argument("--coverage-path", action="append", default=[], metavar="PATH", help="a file or folder to measure; repeatable (default: the collision prevention)")
     worktree_option(p)
 
 
@@ -52,8 +54,11 @@ def _build_options(p: argparse.ArgumentParser) -> None:
 def mutants_build(args: argparse.Namespace) -> int:
     from harness.firmware import mutants
 
+    if args.coverage_path and not args.coverage:
+        raise InputError([Problem("--coverage-path", "", "says what a coverage build measures: add --coverage")])
     record = mutants.build_all(Path(args.folder), cache=Path(args.cache) if args.cache else None, jobs=args.jobs, only=args.only,
-                               worktree_command=args.worktree_command, progress=lambda line: print(line, file=sys.stderr))
+                               worktree_command=args.worktree_command, progress=lambda line: print(line, file=sys.stderr),
+                               coverage_paths=args.coverage_path if args.coverage else None)
     counts = mutants.counts(record)
     emit(args, {**record, "counts": counts}, ", ".join(f"{n} {state}" for state, n in counts.items()))
     return 0
@@ -70,7 +75,9 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--confirm", type=non_negative_int, default=0, help="fly a revealing pair N more times on both sides before it kills (PX4: 2 or more)")
     p.add_argument("--seed", type=non_negative_int, default=0)
     p.add_argument("--drive", choices=["mission", "pilot"], help="fly every case and scenario with this drive (PX4's CP acts in pilot only)")
-    p.add_argument("--objective", choices=["subject", "difference"], default="difference", help="what the searches minimise (default difference)")
+    p.add_argument("--objective", choices=["subject", "difference", "coverage"], default="difference",
+                   help="what the searches minimise (default difference; coverage: the difference less a reward for code no earlier flight reached, "
+                        "with mutants built with --coverage)")
     p.add_argument("--rig", metavar="NAME|FILE", help="fly every case and search with this sensor rig (`stella rigs`, or a rig file) instead of the profile's sensor")
     add_screen_options(p)
     p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
@@ -95,7 +102,8 @@ def mutants_run(args: argparse.Namespace) -> int:
                                  args.evaluations, args.population, args.confirm, args.seed, args.drive, args.objective, params,
                                  sut_logs=args.sut_logs,
                                  # the cheap model: the bundled autopilot unmutated, with the parameters of both sides
-                                 screen=screen_settings(args, SutConfig("bundled", params), {args.drive or "mission"}, args.objective), rig=args.rig)
+                                 screen=screen_settings(args, SutConfig("bundled", params), {args.drive or "mission"},
+                                                        "difference" if args.objective == "coverage" else args.objective), rig=args.rig)
     executor = LocalExecutor(args.workers or len(os.sched_getaffinity(0)))
     try:
         document = mutation.run(Path(args.folder), plan, executor, only=args.only, progress=lambda line: print(line, file=sys.stderr))
