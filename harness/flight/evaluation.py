@@ -250,7 +250,6 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
             stack.clean = outcome.failure is None and outcome.end_reason in NORMAL_ENDS
             stopping = time.monotonic()
         timings["stop_s"] = time.monotonic() - stopping
-        coverage = stack.sut.coverage()
         failure = outcome.failure
         if failure is None and lost:
             failure = Failure(Status.SUT_CRASHED, lost)
@@ -272,7 +271,7 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
         timings["score_s"] = time.monotonic() - t0
         if options.keeps_sut_log(score.status, outcome.end_reason):
             artifacts = _keep_artifacts(flight_logs, kept_dir) + artifacts
-        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])), properties, coverage)
+        result = finish(score, log_path, refused_failures(m for _t, _ns, m in recording.messages(["/events"])), properties, stack.sut.coverage())
         logs.merge(recording, log_path, api_records=api_records, extra_metadata={
             "concrete_scenario": concrete, "result": result.as_dict(),
             "sut": options.sut.identity(), "placement": stack.placement,

@@ -17,11 +17,11 @@ import numpy as np
 from harness.errors import InputError, Problem
 from harness.scenario import units
 from harness.scenario.documents import pointer
-from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario, programme_interval
+from harness.scenario.logical import SIZE_DIMENSIONS, LogicalScenario, programme_interval, rigged_profile
 from harness.scenario.footprints import Footprints
 from harness.scenario.motion import PATH_SAMPLES, RouteTiming, arc_points, intruder_speed, smooth_points
 from harness.scenario.plan import Plan
-from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile, with_rig_document
+from harness.scenario.profile import SIMULATED_WEATHER, Interval, Profile
 from harness.scenario.rig import SENSOR_BEHAVIOUR
 from sim_bridge.terrain import max_height_on_segment_m
 
@@ -150,8 +150,7 @@ class SearchSpace:
 
     def __init__(self, logical: LogicalScenario, profile: Profile):
         self.logical = logical
-        profile = profile if logical.rig is None else with_rig_document(profile, logical.rig)
-        self.profile = profile
+        self.profile = profile = rigged_profile(profile, logical.document)
         self.mission = mission_for(logical, profile)
         self.area = logical.document["environment"]["flight area"].get("area") or (
             self.mission.plan.area() if self.mission.plan else profile.landforms[logical.landform].area)

@@ -13,7 +13,7 @@ from typing import Any
 from harness.errors import InputError, Problem
 from harness.tools.commands.campaigns import add_screen_options, screen_settings
 from harness.tools.commands.common import command, command_with_actions, emit, non_negative_int, positive_float, positive_int
-from harness.tools.commands.sut import worktree_option
+from harness.tools.commands.sut import coverage_options, coverage_paths, worktree_option
 from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
 from sut_adapter import SutConfig
 
@@ -45,8 +45,7 @@ def _build_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", help="the build cache (default: FOLDER/builds)")
     p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
     p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
-    p.add_argument("--coverage", action="store_true", help="coverage builds: their flights record the code they ran (`stella coverage`, --objective coverage)")
-    p.add_argument("--coverage-path", action="append", default=[], metavar="PATH", help="a file or folder to measure; repeatable (default: the collision prevention)")
+    coverage_options(p)
     worktree_option(p)
 
 
@@ -54,11 +53,9 @@ def _build_options(p: argparse.ArgumentParser) -> None:
 def mutants_build(args: argparse.Namespace) -> int:
     from harness.firmware import mutants
 
-    if args.coverage_path and not args.coverage:
-        raise InputError([Problem("--coverage-path", "", "says what a coverage build measures: add --coverage")])
     record = mutants.build_all(Path(args.folder), cache=Path(args.cache) if args.cache else None, jobs=args.jobs, only=args.only,
                                worktree_command=args.worktree_command, progress=lambda line: print(line, file=sys.stderr),
-                               coverage_paths=args.coverage_path if args.coverage else None)
+                               coverage_paths=coverage_paths(args))
     counts = mutants.counts(record)
     emit(args, {**record, "counts": counts}, ", ".join(f"{n} {state}" for state, n in counts.items()))
     return 0

@@ -51,12 +51,23 @@ def _build_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--patch", action="append", default=[], metavar="FILE", help="apply this unified diff first; repeatable, applied in order")
     p.add_argument("--out", required=True, help="the build cache: one folder per variant, worktrees/ for PX4's commits")
     p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
+    coverage_options(p)
+    worktree_option(p)
+
+
+def coverage_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--coverage", action="store_true",
-                   help="a coverage build: its flights record the lines and branches of --coverage-path that ran (`stella coverage` reports them)")
+                   help="coverage builds: their flights record the lines and branches of --coverage-path that ran (`stella coverage`, --objective coverage)")
     p.add_argument("--coverage-path", action="append", default=[], metavar="PATH",
                    help="a file or folder of the tree to measure; repeatable (default: the collision prevention, "
                         "src/lib/collision_prevention or autopilot/collision.py)")
-    worktree_option(p)
+
+
+def coverage_paths(args: argparse.Namespace) -> list[str] | None:
+    """The paths a coverage build measures ([]: the default ones), None for no coverage build."""
+    if args.coverage_path and not args.coverage:
+        raise InputError([Problem("--coverage-path", "", "says what a coverage build measures: add --coverage")])
+    return args.coverage_path if args.coverage else None
 
 
 @command("sut build", "build a firmware variant from a source tree (a commit, patches), cached; prints the SUT options that fly it", _build_options,
@@ -68,10 +79,8 @@ def sut_build(args: argparse.Namespace) -> int:
     source = Path(args.source).expanduser()
     if source.is_dir() and builds.tree_kind(source.resolve()) != args.kind:
         raise InputError([Problem(str(source), "", f"is a {builds.tree_kind(source.resolve())} tree, not {args.kind}: give the kind it is")])
-    if args.coverage_path and not args.coverage:
-        raise InputError([Problem("--coverage-path", "", "says what a coverage build measures: add --coverage")])
     variant = builds.build(source, out=Path(args.out), commit=args.commit, patches=[Path(p) for p in args.patch], jobs=args.jobs,
-                           worktree_command=args.worktree_command, coverage_paths=args.coverage_path if args.coverage else None)
+                           worktree_command=args.worktree_command, coverage_paths=coverage_paths(args))
     option = "--px4-bin" if variant.kind == "px4" else "--autopilot-dir"
     text = (f"{'cached' if variant.cached else 'built'}: {variant.folder} ({variant.build_s:.1f} s to build)\n"
             f"fly it with: {option} {variant.folder}\nbuild log: {Path(variant.folder) / builds.BUILD_LOG}")
