@@ -31,6 +31,7 @@ from sim_bridge.bridge import Bridge
 from sim_bridge.bridge_io import BridgeConfig
 from sim_bridge.channel import ControlChannel
 from sim_bridge.recording import COMPANION_TOPIC, COMPRESSIONS, RIG_TOPIC, Recorder
+from sim_bridge.rig import DISTANCE_SENSOR_CONVENTIONS
 from sim_bridge.control import EXIT_CUT_SHORT, EndReason, Finished, Load, Loaded, LoadRefused, Quit, Rejected
 from sim_bridge.frames import RANGE_MESSAGES
 from sim_bridge.spec import WorldSpec
@@ -164,6 +165,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--companion-port", type=_port, help="send the rig's --companion-messages to this UDP port, a companion computer's "
                                                             "MAVLink link to the SUT (PX4's onboard link), instead of the simulator link")
     parser.add_argument("--companion-messages", default="", type=_range_messages, help="comma-separated: which of a rig's messages go to --companion-port")
+    parser.add_argument("--companion-connects", action="store_true",
+                        help="the SUT sends to --companion-port from a port of its own (ArduPilot SITL's udpclient:): listen there and answer it")
+    parser.add_argument("--distance-sensor-convention", choices=sorted(DISTANCE_SENSOR_CONVENTIONS), default="px4",
+                        help="how a rig's DISTANCE_SENSOR is written: px4, its direction a custom rotation's quaternion, nothing within reach "
+                             "read as the maximum; ardupilot, one of MAV_SENSOR_ROTATION's eight yaws, nothing read beyond the maximum")
     parser.add_argument("--control-port", type=_port, default=0, help="harness control channel; 0 = none")
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--mcap", help="where to record the flight")
@@ -239,6 +245,7 @@ def main(argv: list[str] | None = None, inline_sut: Callable[[], SutLink] | None
                           stall_timeout_s=args.stall_timeout_s,
                           range_messages=args.range_messages, spin_s=args.spin_us * 1e-6, protocol=args.sim_protocol,
                           rc_port=args.rc_port, companion_port=args.companion_port, companion_messages=args.companion_messages,
+                          companion_connects=args.companion_connects, distance_sensor_convention=args.distance_sensor_convention,
                           lockstep_from_start=args.lockstep_from_start, answer_times_echoed=args.answer_times_echoed)
     control_listener = listen(args.control_port, args.host) if args.control_port else None
     if not args.serve:

@@ -133,6 +133,10 @@ class JsonSteps:
             if spec.delivery == "simulator" and spec.unit != "distance sensor":
                 on_event(0.0, "failure_refused", {"unit": spec.unit, "type": spec.type, "delivery": "simulator",
                                                        "result": "UNSUPPORTED: ArduPilot's JSON backend makes its own GPS from the true position"})
+        unsent = [sensor.name for sensor in world.spec.rig or () if sensor.message not in config.companion_messages or config.companion_port is None]
+        if unsent:
+            raise ValueError(f"the rig's {', '.join(unsent)}: ArduPilot's JSON link carries no MAVLink; send them on its companion link "
+                             "(--companion-port, --companion-messages)")
         if first_frame is not None:
             # The frame that opened the link was sent before any state: no step answers it.
             self.frames.classify(decode_servo_frame(first_frame).frame_count)
@@ -147,7 +151,10 @@ class JsonSteps:
             self.link.sock.sendto(rc_packet(self.readings.pilot_frame(time_us, rc_channels)), self._rc_address)
         s = world.state
         imu = world.imu()
-        if step % self.every["sensor"] == 0:
+        if self.readings.rig is not None:
+            # A rig reaches ArduPilot over MAVLink, its proximity backend's (the bridge's companion link)
+            self.readings.rig_frames(step, time_us)
+        elif step % self.every["sensor"] == 0:
             distances = self.readings.range_reading(time_us)
             # Held until the next reading: ArduPilot prints the fields it got whenever they change.
             self._ranges = [] if distances is None else rangefinder_distances_m(distances, world.sector_visible.tolist(), SECTOR_DEG, world.range_m)

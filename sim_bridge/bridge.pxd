@@ -11,7 +11,7 @@ cdef class Bridge:
     cdef public SensorFrames frames
     cdef public dict _every
     cdef public bytearray _link_out, _link_in, _link_companion
-    cdef public object _companion, _companion_address
+    cdef public object _companion
     cdef public tuple _clearance_batch
     cdef public bint _hold_announced
 

@@ -34,6 +34,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sim_bridge.ardupilot_link import JsonSteps
 from sim_bridge.bridge_io import BridgeConfig, Summary
 from sim_bridge.channel import ControlChannel
+from sim_bridge.companion import CompanionLink
 from sim_bridge.control import (STEP_TIMERS, EndReason, Event, FailureInjected, Holding, InjectFailure, LockstepStarted, ObstacleOp, Op, RcModeSlot,
                                 Rejected, Run, Stop, SutConnected)
 from sim_bridge.failures import FailureSchedule
@@ -83,14 +84,12 @@ class Bridge:
         self._hold_announced = False
         self.failures = FailureSchedule(world.failures or (), lambda event, detail: self._event(self.world.time_s, event, detail))
         self.frames = SensorFrames(self.world, config.range_messages, recorder, self.failures, self._every,
-                                   config.companion_messages if config.companion_port is not None else ())
+                                   config.companion_messages if config.companion_port is not None else (), config.distance_sensor_convention)
         self._link_companion = bytearray()
-        # The companion computer's link: where a rig's messages go that the SUT does not read on
-        # the simulator link (PX4's OBSTACLE_DISTANCE), sent over UDP in step with the simulation.
-        self._companion: socket.socket | None = None
-        self._companion_address = ("127.0.0.1", config.companion_port or 0)
+        # Where a rig's messages go that the SUT does not read on the simulator link.
+        self._companion: CompanionLink | None = None
         if config.companion_port is not None and any(s.message in config.companion_messages for s in world.rig or ()):
-            self._companion = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._companion = CompanionLink(config.companion_port, sut_connects=config.companion_connects)
         self._awaiting_injection: dict[str, Any] | None = None
         self._json: JsonSteps | None = None  # the exchange with an ArduPilot (protocol "ardupilot-json")
 
@@ -396,12 +395,7 @@ class Bridge:
     def _send_companion(self, frames: list[bytes]) -> None:
         """This step's companion frames, before the step's simulator frames: PX4 stamps a reading
         with its clock when its MAVLink thread reads it, which the next HIL_SENSOR moves on."""
-        for frame in frames:
-            try:
-                self._companion.sendto(frame, self._companion_address)
-            except OSError:  # the SUT is not listening (yet): a companion's datagram is lost as on a real link
-                pass
-            self._link_companion += frame
+        self._link_companion += self._companion.send(frames)
 
     def close(self) -> None:
         if self._companion is not None:

@@ -41,6 +41,11 @@ class BridgeConfig:
     # its simulator link): the UDP port it takes it on, and the rig's messages sent there.
     companion_port: int | None = None
     companion_messages: tuple[str, ...] = ()
+    # The SUT opens the companion link from a port of its own to companion_port (ArduPilot SITL's
+    # `udpclient:`), rather than listening on it (PX4): sim_bridge/companion.py.
+    companion_connects: bool = False
+    # How a rig's DISTANCE_SENSOR is written for the SUT (sim_bridge/rig.py: DISTANCE_SENSOR_CONVENTIONS).
+    distance_sensor_convention: str = "px4"
     # The SUT answers every HIL_SENSOR from the first: wait for each answer from step 0 on.
     lockstep_from_start: bool = False
     # Its HIL_ACTUATOR_CONTROLS carry the time_usec of the HIL_SENSOR they answer.

@@ -33,7 +33,7 @@ class SensorFrames:
     truth, sensor, rc), as the bridge counts them."""
 
     def __init__(self, world: World, range_messages: tuple[str, ...], recorder: Recorder, failures: FailureSchedule, every: Mapping[str, int],
-                 companion_messages: tuple[str, ...] = ()):
+                 companion_messages: tuple[str, ...] = (), distance_sensor_convention: str = "px4"):
         self.world = world
         self.range_messages = range_messages
         self.recorder = recorder
@@ -48,7 +48,7 @@ class SensorFrames:
         self.rig = None if world.spec.rig is None else RigFrames(
             world.spec.rig, 1.0 / world.dt, world.hull_offset, world.nearest, self.encode,
             lambda topic, time_us, message: recorder.write(topic, time_ns=time_us * 1000, message=message),
-            companion_messages, self.encode_companion)
+            companion_messages, self.encode_companion, distance_sensor_convention)
 
     def next_seq(self) -> int:
         seq = self.seq
@@ -99,8 +99,7 @@ class SensorFrames:
                 _milli_g(s.az_m_s2),
             ))
         if self.rig is not None:
-            simulator, self.companion_out = self.rig.step_frames(step, time_us, s.yaw_rad, self.rig_reading)
-            frames.extend(simulator)
+            frames.extend(self.rig_frames(step, time_us))
         elif step % every["sensor"] == 0:
             frames.extend(self.obstacle_distance(time_us))
         if world.pilot is not None and step % every["rc"] == 0:
@@ -109,6 +108,12 @@ class SensorFrames:
         # however TCP splits the stream. Sequence numbers count up in the order frames are sent.
         frames.append(codec.encode_hil_sensor(seq=self.next_seq(), sysid=SYSTEM_ID, compid=COMPONENT_ID, time_usec=time_us, values=imu, fields_updated=FIELDS_ALL))
         return b"".join(frames)
+
+    def rig_frames(self, step: int, time_us: int) -> list[bytes]:
+        """This step's rig messages for the simulator link; those for the companion link are
+        left in companion_out."""
+        simulator, self.companion_out = self.rig.step_frames(step, time_us, self.world.state.yaw_rad, self.rig_reading)
+        return simulator
 
     def gps_fix(self) -> dict[str, Any] | None:
         """This step's HIL_GPS fields as the receiver delivers them (None: nothing delivered)."""

@@ -37,6 +37,22 @@ def sector_layout(sensor: RigSensor) -> tuple[int, float]:
     return count, sensor.yaw_deg - count * sensor.increment_deg / 2.0 + sensor.increment_deg / 2.0
 
 
+# How an autopilot reads DISTANCE_SENSOR, which MAVLink leaves open: the direction as a custom
+# rotation's quaternion (PX4; a named rotation too) or as one of the eight yaws
+# MAV_SENSOR_ROTATION_NONE..YAW_315 names (ArduPilot's proximity backend drops any other), and
+# "nothing within reach" as a reading at the maximum (PX4 takes current_distance < max_distance
+# as an obstacle) or beyond it (ArduPilot takes a reading at the maximum as an obstacle there).
+DISTANCE_SENSOR_CONVENTIONS = {"px4": (False, 0), "ardupilot": (True, 1)}
+
+
+def named_rotation_of(yaw_deg: float) -> int:
+    """MAV_SENSOR_ROTATION_NONE .. YAW_315 for a yaw that is a multiple of 45 degrees."""
+    eighths = yaw_deg / 45.0
+    if not float(eighths).is_integer():
+        raise ValueError(f"a named sensor rotation faces a multiple of 45 degrees, not {yaw_deg}")
+    return int(eighths) % 8
+
+
 def _fan(centre_deg: float, width_deg: float) -> list[float]:
     """Ray angles across a width centred on centre_deg, its edges included, at most MAX_RAY_GAP_DEG apart."""
     if width_deg <= 0.0:
@@ -48,7 +64,7 @@ def _fan(centre_deg: float, width_deg: float) -> list[float]:
 class _Sensor:
     """One sensor's rays (degrees from the nose or from north, by frame) and which reading each is part of."""
 
-    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int, companion: bool):
+    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int, companion: bool, convention: str):
         self.spec = sensor
         self.companion = companion
         self.sensor_id = sensor_id
@@ -67,6 +83,10 @@ class _Sensor:
         self.world_fixed = sensor.message == "OBSTACLE_DISTANCE" and sensor.frame == "local"
         half_fov = math.radians(sensor.fov_deg) / 2.0
         self.quaternion = [math.cos(math.radians(sensor.yaw_deg) / 2.0), 0.0, 0.0, math.sin(math.radians(sensor.yaw_deg) / 2.0)]
+        named_rotation, beyond_cm = DISTANCE_SENSOR_CONVENTIONS[convention]
+        self.orientation = named_rotation_of(sensor.yaw_deg) if named_rotation else mavlink.MAV_SENSOR_ROTATION_CUSTOM
+        # A DISTANCE_SENSOR's reading where nothing is within its reach.
+        self.nothing_cm = self.reach_cm + beyond_cm
         self.fov_rad = 2.0 * half_fov
 
 
@@ -76,13 +96,15 @@ class RigFrames:
     reach_m): the distance from the centre to the nearest obstacle along each ray (None: none
     within reach); encode(codec, *fields): a MAVLink frame of the simulator link;
     record(topic, time_us, message). The sensors whose message is one of companion_messages go
-    to a companion computer's link instead, each frame made by encode_companion."""
+    to a companion computer's link instead, each frame made by encode_companion. A
+    DISTANCE_SENSOR is written as the SUT reads it: distance_sensor_convention, one of
+    DISTANCE_SENSOR_CONVENTIONS."""
 
     def __init__(self, rig: tuple[RigSensor, ...], rate_hz: float, hull_offset: Callable[[np.ndarray], np.ndarray],
                  nearest: Callable[[np.ndarray, float], np.ndarray | None], encode, record,
-                 companion_messages: tuple[str, ...] = (), encode_companion=None):
+                 companion_messages: tuple[str, ...] = (), encode_companion=None, distance_sensor_convention: str = "px4"):
         self.sensors = [_Sensor(sensor, index, max(1, int(round(rate_hz / sensor.rate_hz))), int(round(sensor.latency_s * rate_hz)),
-                                sensor.message in companion_messages)
+                                sensor.message in companion_messages, distance_sensor_convention)
                         for index, sensor in enumerate(rig)]
         self.hull_offset = hull_offset
         self.nearest = nearest
@@ -150,11 +172,11 @@ class RigFrames:
             increment = int(spec.increment_deg) if float(spec.increment_deg).is_integer() else 0
             return codec.OBSTACLE_DISTANCE, (time_us, mavlink.MAV_DISTANCE_SENSOR_LASER, distances, increment, sensor.min_cm, sensor.reach_cm,
                                              spec.increment_deg, sensor.first_deg, FRAMES[spec.frame])
-        current_cm = min(readings[0], sensor.reach_cm)
+        current_cm = min(readings[0], sensor.nothing_cm)
         self.record(f"/sensor/rig/{spec.name}", time_us, {"t": time_us / 1e6, "message": spec.message, "range_m": spec.range_m,
                                                            "yaw_deg": spec.yaw_deg, "fov_deg": spec.fov_deg, "distance_cm": current_cm})
         return codec.DISTANCE_SENSOR, (time_us // 1000, sensor.min_cm, sensor.reach_cm, current_cm, mavlink.MAV_DISTANCE_SENSOR_LASER,
-                                       sensor.sensor_id, mavlink.MAV_SENSOR_ROTATION_CUSTOM, 0, sensor.fov_rad, sensor.fov_rad, sensor.quaternion, 0)
+                                       sensor.sensor_id, sensor.orientation, 0, sensor.fov_rad, sensor.fov_rad, sensor.quaternion, 0)
 
 
 def wrong_rig_reading(readings: list[int], reach_cm: int) -> list[int]:

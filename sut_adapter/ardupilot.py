@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import signal
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
 from sut_adapter.ardupilot_failures import SUT_FAILURE_UNITS, failure_params
@@ -36,6 +36,9 @@ HOLD_PACE = 20.0
 SPEEDUP = 10000
 # RC input (ArduPilot's AP_RCProtocol_UDP) on its own port per port block.
 RC_PORT_BASE = 34560
+# A rig's messages reach its MAVLink proximity backend on SERIAL1, which sends from a port of its
+# own to this one per port block (harness/flight/ports.py: at most 200 blocks above RC's).
+COMPANION_PORT_BASE = 34760
 # Why each: docs/suts.md, "ArduPilot". Keys are ArduPilot's parameter names.
 DEFAULT_PARAMS: dict[str, float] = {
     # The F450: a quad in X, motors on outputs 1-4 in ArduCopter's order (sim_bridge/ardupilot_json.py).
@@ -143,6 +146,21 @@ def rc_port_for(instance: int) -> int:
     return RC_PORT_BASE + instance
 
 
+def companion_port_for(instance: int) -> int:
+    """The UDP port its SERIAL1 sends to in this port block: the companion computer's."""
+    return COMPANION_PORT_BASE + instance
+
+
+def rig_sensor_problem(sensor: Mapping[str, Any]) -> str | None:
+    """What ArduPilot's MAVLink proximity backend (AP_Proximity_MAV) cannot read of a rig's sensor."""
+    if sensor["message"] == "DISTANCE_SENSOR" and not (float(sensor.get("yaw_deg", 0.0)) / 45.0).is_integer():
+        return ("ArduPilot reads a rangefinder's direction only as one of eight yaws 45 degrees apart (MAV_SENSOR_ROTATION_NONE to "
+                "YAW_315) and drops its readings otherwise; give yaw_deg a multiple of 45")
+    if sensor["message"] == "OBSTACLE_DISTANCE" and sensor.get("frame", "body") != "body":
+        return "ArduPilot reads OBSTACLE_DISTANCE's sectors from the nose whatever its frame says; give it frame body"
+    return None
+
+
 def format_params(params: Mapping[str, float]) -> str:
     """A .parm file ArduPilot reads with --defaults: NAME VALUE per line."""
     return "".join(f"{name} {float(value):.9g}\n" for name, value in params.items())
@@ -177,6 +195,14 @@ class ArduPilotSitl:
         injects_failures=False,
         failure_params=failure_params,
         sut_failure_units=SUT_FAILURE_UNITS,
+        # A rig reaches its MAVLink proximity backend (PRX1_TYPE 2) on SERIAL1 as a companion
+        # computer's messages; its JSON rangefinders are then off (world_params).
+        rig_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"),
+        companion_messages=("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"),
+        companion_port_for=companion_port_for,
+        companion_connects=True,
+        distance_sensor_convention="ardupilot",
+        rig_sensor_problem=rig_sensor_problem,
     )
 
     def __init__(self, config: Mapping[str, str]):
@@ -188,12 +214,14 @@ class ArduPilotSitl:
     def check_params(self, params: Mapping[str, float]) -> None:
         """Its parameters are known only to the running SUT, which reports a bad one when set."""
 
-    def command(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, origin: tuple[float, float, float]) -> list[str]:
+    def command(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, origin: tuple[float, float, float],
+                rigged: bool = False) -> list[str]:
         lat_deg, lon_deg, ground_msl_m = origin
         rc_port = rc_port_for(instance)
         return [str(self.binary), "--model", "JSON:127.0.0.1", "--instance", str(instance), "--sim-port-out", str(sim_port),
-                "--rc-in-port", str(rc_port), "--serial0", f"udpclient:127.0.0.1:{api_port}", "--home", f"{lat_deg:.8f},{lon_deg:.8f},{ground_msl_m:.2f},0",
-                "--speedup", str(SPEEDUP), "--defaults", str(workdir / PARAMS_FILE)]
+                "--rc-in-port", str(rc_port), "--serial0", f"udpclient:127.0.0.1:{api_port}",
+                *(["--serial1", f"udpclient:127.0.0.1:{companion_port_for(instance)}"] if rigged else []),
+                "--home", f"{lat_deg:.8f},{lon_deg:.8f},{ground_msl_m:.2f},0", "--speedup", str(SPEEDUP), "--defaults", str(workdir / PARAMS_FILE)]
 
     def start(self, *, sim_port: int, api_port: int, instance: int, workdir: Path, params: Mapping[str, float], spin_s: float = 0.0,
               world: "WorldSpec") -> SutHandle:
@@ -202,7 +230,7 @@ class ArduPilotSitl:
         # The user's parameters go in at boot too: some take effect only then (RNGFNDn_TYPE, OA_TYPE).
         (ardupilot_dir / PARAMS_FILE).write_text(format_params({**DEFAULT_PARAMS, **world_params(world), **params}))
         origin = (world.origin.lat_deg, world.origin.lon_deg, world.start_msl_m)
-        argv = self.command(sim_port=sim_port, api_port=api_port, instance=instance, workdir=ardupilot_dir, origin=origin)
+        argv = self.command(sim_port=sim_port, api_port=api_port, instance=instance, workdir=ardupilot_dir, origin=origin, rigged=bool(world.rig))
         # Its SIGTERM handler only sets a flag its scheduler reads, on the clock our steps advance:
         # once the flight or the harness is gone nothing reads it (2 s lost at each stop, an
         # arducopter left after kill -9 of a campaign). Its dataflash log is written as it goes.
@@ -214,7 +242,10 @@ class ArduPilotSitl:
 def world_params(world: "WorldSpec") -> dict[str, float]:
     """What ArduPilot must know of the world: its rangefinders reach as far as the range sensor
     (our reading beyond it is "out of range high"), and there are none where the sensor sees
-    nothing (one without data fails ArduPilot's pre-arm check)."""
+    nothing (one without data fails ArduPilot's pre-arm check). With a rig there are none at all:
+    the rig's messages reach the MAVLink proximity backend on SERIAL1."""
+    if world.rig:
+        return {**{f"RNGFND{n}_TYPE": 0 for n in range(1, len(RANGEFINDER_ORIENTATION) + 1)}, "PRX1_TYPE": 2, "SERIAL1_PROTOCOL": 2}
     params: dict[str, float] = {}
     for n, in_view in enumerate(rangefinders_in_view(world.sensor.fov_deg), start=1):
         params[f"RNGFND{n}_MAX"] = float(world.sensor.range_m)

@@ -158,6 +158,16 @@ class Capabilities:
     rig_messages: tuple[str, ...] = ()
     companion_messages: tuple[str, ...] = ()
     companion_port_for: Callable[[int], int] | None = None
+    # It opens the companion link itself, sending from a port of its own to companion_port
+    # (ArduPilot SITL's `udpclient:`), rather than listening there (PX4).
+    companion_connects: bool = False
+    # How it reads a rig's DISTANCE_SENSOR (sim_bridge/rig.py: DISTANCE_SENSOR_CONVENTIONS): "px4",
+    # its direction a custom rotation's quaternion and nothing within reach read as the maximum;
+    # "ardupilot", one of MAV_SENSOR_ROTATION's eight named yaws and nothing read beyond the maximum.
+    distance_sensor_convention: str = "px4"
+    # Why it cannot read one sensor of a rig (a rig document's sensor; None: it can), beyond the
+    # sensor's message.
+    rig_sensor_problem: Callable[[Mapping[str, Any]], str | None] | None = None
     # How many DISTANCE_SENSOR devices it tells apart (None: any number).
     distance_sensor_limit: int | None = None
     # How many times faster than real time a paced hold may run. PX4 stretches its timeouts by

@@ -10,8 +10,13 @@ forget an answer (so its frame comes again), skip frame counts, restart its coun
 datagrams between its frames. It prints one JSON line of what it saw when the bridge stops
 answering.
 
+With --serial1-port it opens SERIAL1 as ArduPilot's `--serial1 udpclient:127.0.0.1:PORT` does: a
+heartbeat from a port of its own at start and each simulated second, and it counts the
+DISTANCE_SENSOR and OBSTACLE_DISTANCE messages that come back, as its MAVLink proximity backend
+would read them.
+
     python tests/fake_ardupilot.py --port SIM_PORT [--frames N] [--pwm 1000] [--junk K --seed S]
-        [--ignore-every N] [--skip-every N] [--restart-at N]
+        [--ignore-every N] [--skip-every N] [--restart-at N] [--serial1-port PORT]
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ import re
 import socket
 import struct
 import sys
+
+from pymavlink.dialects.v20 import common as mavlink
 
 FRAME = struct.Struct("<HHI16H")
 MAGIC = 18458
@@ -76,6 +83,42 @@ def junk_datagram(rng: random.Random, count: int) -> bytes:
     return struct.pack("<HHI32H", MAGIC, 400, count, *([1500] * 32))
 
 
+class Serial1:
+    """SERIAL1 as a MAVLink UDP client: heartbeats out each simulated second, proximity messages in."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self.target = ("127.0.0.1", port)
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.parser = mavlink.MAVLink(None)
+        self.last_heartbeat_s: float | None = None
+        self.seen: dict[str, object] = {"DISTANCE_SENSOR": 0, "OBSTACLE_DISTANCE": 0, "orientations": [], "first_t": None, "sources": []}
+
+    def step(self, time_s: float) -> None:
+        if self.last_heartbeat_s is None or time_s - self.last_heartbeat_s >= 1.0:
+            self.last_heartbeat_s = time_s
+            heartbeat = self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+            self.sock.sendto(heartbeat.pack(self.mav), self.target)
+        while True:
+            try:
+                datagram = self.sock.recv(65536)
+            except BlockingIOError:
+                return
+            for message in self.parser.parse_buffer(datagram) or []:
+                kind = message.get_type()
+                if kind not in ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"):
+                    continue
+                self.seen[kind] += 1
+                self.seen["first_t"] = self.seen["first_t"] if self.seen["first_t"] is not None else time_s
+                source = [message.get_srcSystem(), message.get_srcComponent()]
+                if source not in self.seen["sources"]:
+                    self.seen["sources"].append(source)
+                if kind == "DISTANCE_SENSOR" and message.orientation not in self.seen["orientations"]:
+                    self.seen["orientations"].append(message.orientation)
+
+
 def _timestamp(line: bytes) -> float | None:
     try:
         return parse_like_ardupilot(line.decode())["timestamp"]
@@ -96,7 +139,9 @@ def main() -> int:
     parser.add_argument("--resend-after-s", type=float, default=1.0, help="as ArduPilot: the same frame again after this long without a line")
     parser.add_argument("--quiet-after-s", type=float, default=3.0, help="give up when nothing comes for this long")
     parser.add_argument("--start-timeout-s", type=float, default=60.0, help="give up when the first line does not come for this long")
+    parser.add_argument("--serial1-port", type=int, help="SERIAL1 as a MAVLink UDP client of this port: count the proximity messages")
     args = parser.parse_args()
+    serial1 = Serial1(args.serial1_port) if args.serial1_port else None
     rng = random.Random(args.seed)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
@@ -145,6 +190,8 @@ def main() -> int:
             continue
         resent += resends  # those the simulator answered, not those after it stopped
         timestamps.append(fields["timestamp"])
+        if serial1 is not None:
+            serial1.step(fields["timestamp"])
         ranges_seen += any(key.startswith("rng_") for key in fields)
         parsed += 1
         count += 1
@@ -154,7 +201,8 @@ def main() -> int:
             count = 0
     steps = [round((b - a) * 1e6) for a, b in zip(timestamps, timestamps[1:])]
     print(json.dumps({"parsed": parsed, "resent": resent, "ignored": ignored, "duplicates": duplicates, "junk": junk, "bad_lines": bad_lines[:5],
-                      "step_us": sorted(set(steps)), "ranges_seen": ranges_seen, "first_t": timestamps[0] if timestamps else None}), flush=True)
+                      "step_us": sorted(set(steps)), "ranges_seen": ranges_seen, "first_t": timestamps[0] if timestamps else None,
+                      **({"serial1": serial1.seen} if serial1 is not None else {})}), flush=True)
     return 0
 
 

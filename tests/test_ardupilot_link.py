@@ -14,6 +14,7 @@ import subprocess
 import sys
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from conftest import ROOT
 from fake_ardupilot import parse_like_ardupilot
@@ -26,7 +27,7 @@ from sim_bridge.ardupilot_link import accept, listen_udp
 from sim_bridge.spec import WorldSpec
 from simlink.failures import TYPE_BY_NAME, UNIT_BY_NAME
 from sut_adapter import SutError, get
-from sut_adapter.ardupilot import DEFAULT_PARAMS, PARAMS_FILE
+from sut_adapter.ardupilot import DEFAULT_PARAMS, PARAMS_FILE, ArduPilotSitl
 from sut_adapter.ardupilot_failures import failure_params
 from test_bridge_lockstep import world
 
@@ -175,11 +176,18 @@ def test_arducopter_is_started_on_the_port_blocks_ports_at_the_worlds_origin_wit
 
 # -- the bridge against an ArduPilot that obeys the protocol ---------------------------------
 
-def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0, failures=(), bridge_args=()):
-    """The bridge (protocol ardupilot-json) against tests/fake_ardupilot.py: (exit code, bridge summary, what the fake saw)."""
+def fly_fake(tmp_path, *fake_args: str, time_limit_s: float = 4.0, stall_timeout_s: float = 5.0, failures=(), bridge_args=(), rig=None):
+    """The bridge (protocol ardupilot-json) against tests/fake_ardupilot.py: (exit code, bridge summary, what the fake saw).
+    With a rig, its messages go to the fake's SERIAL1 as the ArduPilot adapter has them sent."""
     world_path = tmp_path / "world.json"
-    world_path.write_text(json.dumps({**world(time_limit_s=time_limit_s), "failures": list(failures)}))
+    world_path.write_text(json.dumps({**world(time_limit_s=time_limit_s), "failures": list(failures), **({"rig": rig} if rig else {})}))
     with PortLease(first_slot=120) as ports:
+        if rig:
+            capabilities = ArduPilotSitl.capabilities
+            companion_port = str(capabilities.companion_port(ports.slot))
+            bridge_args = (*bridge_args, "--companion-port", companion_port, "--companion-messages", ",".join(capabilities.companion_messages),
+                           "--companion-connects", "--distance-sensor-convention", capabilities.distance_sensor_convention)
+            fake_args = (*fake_args, "--serial1-port", companion_port)
         bridge = subprocess.Popen(
             [sys.executable, "-m", "sim_bridge", "--world", str(world_path), "--sim-port", str(ports.sim), "--mcap", str(tmp_path / "run.mcap"),
              "--sim-protocol", "ardupilot-json", "--hold-after-s", "0", "--stall-timeout-s", str(stall_timeout_s), "--connect-timeout-s", "20",
@@ -211,6 +219,25 @@ def test_each_servo_frame_is_answered_by_one_step_and_the_lines_are_what_ardupil
     assert seen["parsed"] == summary["steps"] and seen["step_us"] == [2500] and seen["bad_lines"] == []
     # No frame was sent again but one whose line was still on the way (a second's wait on a loaded machine).
     assert seen["ranges_seen"] == seen["parsed"] and seen["resent"] == seen["duplicates"] and summary["bad_frames"] == 0
+
+
+@pytest.mark.slow
+def test_a_rig_reaches_ardupilot_as_mavlink_on_its_serial1_and_its_json_carries_no_rangefinders(tmp_path):
+    """ArduPilot's proximity backend reads a rig's OBSTACLE_DISTANCE and DISTANCE_SENSOR on a
+    MAVLink serial port that sends to the bridge from a port of its own (`udpclient:`)."""
+    from dataclasses import asdict
+
+    from harness.scenario.profile import load_profile
+    from harness.scenario.rig import load_rig, rig_sensors
+
+    rig = [asdict(sensor) for sensor in rig_sensors(load_rig("lidar_and_rangefinders"), load_profile().sensor, 10000.0)]
+    code, summary, seen = fly_fake(tmp_path, rig=rig)
+    assert code == 0 and summary["end_reason"] == "time_limit" and seen["parsed"] == summary["steps"] == 4 * 400
+    serial1 = seen["serial1"]
+    # From its first heartbeat, at its first step, on: the lidar at 10 Hz, front and back at 25 Hz each, 4 s
+    assert serial1["first_t"] <= 0.1 and serial1["OBSTACLE_DISTANCE"] >= 39 and serial1["DISTANCE_SENSOR"] >= 2 * 99
+    assert sorted(serial1["orientations"]) == [mavlink.MAV_SENSOR_ROTATION_NONE, mavlink.MAV_SENSOR_ROTATION_YAW_180]
+    assert serial1["sources"] == [[1, mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE]] and seen["ranges_seen"] == 0
 
 
 @pytest.mark.slow

@@ -143,6 +143,52 @@ def test_obstacle_distance_goes_to_a_companion_link_where_the_sut_reads_it_there
     assert lidar.get_type() == "OBSTACLE_DISTANCE" and lidar.get_srcComponent() == mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE and lidar.get_seq() == 0
 
 
+def test_for_ardupilot_every_reading_goes_to_the_companion_link_a_rangefinder_facing_one_of_eight_named_yaws():
+    """ArduPilot's MAVLink proximity backend reads DISTANCE_SENSOR's orientation 0-7 (yaw in
+    steps of 45 degrees) and drops a custom rotation's quaternion."""
+    profile = load_profile()
+    sensors = rig_sensors(load_rig("four_rangefinders"), profile.sensor, 10000.0)
+    companion_seq = iter(range(100))
+    frames = RigFrames(sensors, 250.0, hull, wall_north(3.3), lambda codec, *fields: pytest.fail("nothing goes on the simulator link"),
+                       lambda topic, time_us, message: None, ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"),
+                       lambda codec, *fields: codec.encode(next(companion_seq), 1, mavlink.MAV_COMP_ID_OBSTACLE_AVOIDANCE, *fields),
+                       distance_sensor_convention="ardupilot")
+    simulator, companion = frames.step_frames(0, 0, 0.0, lambda name, readings, reach_cm: readings)
+    assert simulator == []
+    # Nothing within reach reads beyond it: ArduPilot takes a reading at the maximum as an obstacle there
+    assert [(m.orientation, m.current_distance, m.max_distance) for m in decoded(companion)] == [
+        (mavlink.MAV_SENSOR_ROTATION_NONE, 300, 1200), (mavlink.MAV_SENSOR_ROTATION_YAW_90, 1201, 1200),
+        (mavlink.MAV_SENSOR_ROTATION_YAW_180, 1201, 1200), (mavlink.MAV_SENSOR_ROTATION_YAW_270, 1201, 1200)]
+
+
+def test_a_companion_link_the_sut_opens_answers_where_it_was_last_heard_from():
+    """ArduPilot SITL's `--serial1 udpclient:HOST:PORT` sends from a port of its own: nothing
+    reaches it before it is heard, and a restarted SUT is answered at its new port."""
+    import socket
+
+    from sim_bridge.companion import CompanionLink
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    link = CompanionLink(port, sut_connects=True)
+    suts = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2)]
+    try:
+        assert link.send([b"lost"]) == b""
+        for sut in suts:
+            sut.settimeout(2.0)
+            sut.sendto(b"heartbeat", ("127.0.0.1", port))  # on loopback, queued for the link before sendto returns
+            assert link.send([b"reading"]) == b"reading"
+            assert sut.recv(100) == b"reading"
+        suts[0].setblocking(False)
+        with pytest.raises(BlockingIOError):  # the second reading went only to the SUT heard last
+            suts[0].recv(100)
+    finally:
+        link.close()
+        for sut in suts:
+            sut.close()
+
+
 def test_the_distance_sensor_failure_fails_every_sensor_of_the_rig():
     events = []
     schedule = FailureSchedule((FailureSpec(unit="distance sensor", type="wrong", onset_s=0.0, duration_s=10.0, delivery="simulator"),),
@@ -310,12 +356,27 @@ def test_bad_searched_sensor_behaviour_exits_2_naming_the_field(tmp_path, capsys
     assert f"{path}: {pointer}:" in err and says in err
 
 
-def test_a_rig_a_sut_cannot_read_is_refused_naming_each_sensor():
-    from harness.scenario.rig import rig_problem_for
+ARDUPILOT_UNREADABLE = {"name": "askew", "sensors": [
+    {"name": "front_left", "message": "DISTANCE_SENSOR", "yaw_deg": -30, "fov_deg": 5, "min_range_m": 0.1, "max_range_m": 12, "rate_hz": 50},
+    {"name": "lidar", "message": "OBSTACLE_DISTANCE", "fov_deg": 360, "frame": "local", "min_range_m": 0.2, "max_range_m": 30, "rate_hz": 10},
+    {"name": "back", "message": "DISTANCE_SENSOR", "yaw_deg": 180, "fov_deg": 5, "min_range_m": 0.1, "max_range_m": 12, "rate_hz": 50}]}
 
-    assert rig_problem_for(load_rig("four_rangefinders"), "px4", ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")) is None
-    problem = rig_problem_for(load_rig("lidar_and_rangefinders"), "ardupilot", ())
-    assert "lidar (OBSTACLE_DISTANCE), front (DISTANCE_SENSOR), back (DISTANCE_SENSOR)" in problem and "ardupilot" in problem
+
+def test_a_rig_a_sut_cannot_read_is_refused_naming_each_sensor_and_why():
+    from harness.scenario.rig import rig_problem_for
+    from sut_adapter.ardupilot import ArduPilotSitl
+    from sut_adapter.base import Capabilities
+    from sut_adapter.px4 import Px4Sitl
+
+    for rig in preset_names():
+        assert rig_problem_for(load_rig(rig), "px4", Px4Sitl.capabilities) is None
+        assert rig_problem_for(load_rig(rig), "ardupilot", ArduPilotSitl.capabilities) is None
+    problem = rig_problem_for(ARDUPILOT_UNREADABLE, "ardupilot", ArduPilotSitl.capabilities)
+    assert "front_left (DISTANCE_SENSOR): ArduPilot reads a rangefinder's direction only as one of eight yaws" in problem
+    assert "lidar (OBSTACLE_DISTANCE): ArduPilot reads OBSTACLE_DISTANCE's sectors from the nose" in problem and "back" not in problem
+    assert rig_problem_for(ARDUPILOT_UNREADABLE, "px4", Px4Sitl.capabilities) is None
+    problem = rig_problem_for(load_rig("lidar_and_rangefinders"), "simple", Capabilities(hold_mode="frozen", range_messages=()))
+    assert "lidar (OBSTACLE_DISTANCE), front (DISTANCE_SENSOR), back (DISTANCE_SENSOR)" in problem and "simple" in problem
 
 
 def test_validate_checks_a_scenario_that_searches_sensors_as_a_scenario_against_the_rig_given(tmp_path, capsys):
@@ -381,11 +442,11 @@ def test_a_scenarios_rig_file_lies_beside_it_and_a_rig_without_its_preset_exits_
 
 
 def test_a_campaign_refuses_a_scenarios_rig_its_sut_cannot_read(tmp_path, capsys):
-    path = scenario_with_rig(tmp_path, "lidar_360")
+    path = scenario_with_rig(tmp_path, ARDUPILOT_UNREADABLE)
     arducopter = tmp_path / "bin" / "arducopter"  # never started: the rig is refused first
     arducopter.parent.mkdir()
     arducopter.write_text("#!/bin/sh\n")
     arducopter.chmod(0o755)
     assert main(["campaign", str(path), "--algorithm", "RANDOM", "--sut", "ardupilot", "--ardupilot-bin", str(tmp_path), "--evaluations", "2",
                  "--store", str(tmp_path / "c.db")]) == 2
-    assert "rig lidar_360: lidar (OBSTACLE_DISTANCE)" in capsys.readouterr().err
+    assert "rig askew: front_left (DISTANCE_SENSOR): ArduPilot reads" in capsys.readouterr().err

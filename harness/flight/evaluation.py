@@ -12,6 +12,7 @@ import logging
 import shutil
 import signal
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping, Sequence
 
@@ -30,6 +31,7 @@ from harness.flight.stack import Stack, simulation_stack
 from harness.properties.signals import mode_of
 from harness.scenario.space import SearchSpace
 from harness.scenario.logical import DATA_LINK
+from harness.scenario.rig import rig_problem_for
 from harness.scenario.world import world_spec
 from sim_bridge.control import EXIT_CUT_SHORT, NORMAL_ENDS, STEP_TIMERS, EndReason, FailureInjected, Finished, Holding, InjectFailure, Loaded, LoadRefused, Run, Stop
 from sim_bridge.spec import WorldSpec
@@ -237,10 +239,10 @@ def fly(world: WorldSpec, concrete: Mapping[str, Any], *, seed: int, out_dir: Pa
     try:
         system = sut_adapter.system_for(options.sut)
         world = system.capabilities.with_failure_deliveries(world)
-        refused = [sensor for sensor in world.rig or () if sensor.message not in system.capabilities.rig_messages]
-        if refused:
-            raise sut_adapter.SutError(system.name, f"does not read the rig's {', '.join(f'{s.name} ({s.message})' for s in refused)} "
-                                                    "on its simulator link (`stella run --rig` says why)")
+        if world.rig:
+            problem = rig_problem_for({"name": "flown", "sensors": [asdict(sensor) for sensor in world.rig]}, system.name, system.capabilities)
+            if problem is not None:
+                raise sut_adapter.SutError(system.name, f"cannot read the {problem}")
         started = time.monotonic()
         with simulation_stack(world, options, system, workdir) as stack:
             timings["start_s"] = time.monotonic() - started

@@ -194,6 +194,8 @@ class _Simulator:
                        *(["--rc-port", str(rc_port)] if rc_port is not None else []),
                        *(["--companion-port", str(companion_port), "--companion-messages", ",".join(capabilities.companion_messages)]
                          if companion_port is not None else []),
+                       *(["--companion-connects"] if companion_port is not None and capabilities.companion_connects else []),
+                       "--distance-sensor-convention", capabilities.distance_sensor_convention,
                        *(["--lockstep-from-start"] if capabilities.answers_every_step else []),
                        *(["--answer-times-echoed"] if capabilities.echoes_step_time else []),
                        # Read once and rewritten compressed into the evaluation's log (logs.merge): compressing it here too would be wasted.

@@ -167,23 +167,27 @@ def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visib
                  for s in rig["sensors"])
 
 
-def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, rig_messages: tuple[str, ...], distance_sensor_limit: int | None = None) -> str | None:
-    """Why this SUT cannot fly with this rig (None: it can): a sensor whose message it does not
-    read, or more DISTANCE_SENSOR devices than it tells apart."""
+def rig_problem_for(rig: Mapping[str, Any] | None, sut: str, capabilities) -> str | None:
+    """Why this SUT (its adapter's Capabilities) cannot fly with this rig (None: it can): a
+    sensor whose message it does not read, or one it cannot read otherwise, or more
+    DISTANCE_SENSOR devices than it tells apart."""
     if rig is None:
         return None
     devices = sum(1 for s in rig["sensors"] if s["message"] == "DISTANCE_SENSOR")
-    if distance_sensor_limit is not None and devices > distance_sensor_limit:
-        return f"rig {rig['name']}: {devices} DISTANCE_SENSOR devices, of which {sut} reads the first {distance_sensor_limit} only"
-    refused = [s for s in rig["sensors"] if s["message"] not in rig_messages]
-    if not refused:
-        return None
-    names = ", ".join(f'{s["name"]} ({s["message"]})' for s in refused)
-    if not rig_messages:
-        why = f"{sut} takes its range data another way than the simulator's MAVLink messages; rigs do not reach it yet"
-    else:
-        why = f"{sut} reads only {', '.join(rig_messages)} on its simulator link"
-    return f"rig {rig['name']}: {names}: {why}"
+    limit = capabilities.distance_sensor_limit
+    if limit is not None and devices > limit:
+        return f"rig {rig['name']}: {devices} DISTANCE_SENSOR devices, of which {sut} reads the first {limit} only"
+    refused = [s for s in rig["sensors"] if s["message"] not in capabilities.rig_messages]
+    if refused:
+        names = ", ".join(f'{s["name"]} ({s["message"]})' for s in refused)
+        if not capabilities.rig_messages:
+            why = f"{sut} takes its range data another way than the simulator's MAVLink messages; rigs do not reach it yet"
+        else:
+            why = f"{sut} reads only {', '.join(capabilities.rig_messages)}"
+        return f"rig {rig['name']}: {names}: {why}"
+    unreadable = [(s, capabilities.rig_sensor_problem(s)) for s in rig["sensors"]] if capabilities.rig_sensor_problem is not None else []
+    problems = [f'{s["name"]} ({s["message"]}): {why}' for s, why in unreadable if why is not None]
+    return f"rig {rig['name']}: {'; '.join(problems)}" if problems else None
 
 
 def describe(rig: Mapping[str, Any]) -> dict[str, Any]:

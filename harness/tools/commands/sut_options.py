@@ -105,7 +105,7 @@ def check_rig(rig: Mapping[str, Any] | None, *suts: SutConfig | None) -> None:
         if sut is None:
             continue
         capabilities = sut_adapter.system_for(sut).capabilities
-        problem = rig_problem_for(rig, sut.name, capabilities.rig_messages, capabilities.distance_sensor_limit)
+        problem = rig_problem_for(rig, sut.name, capabilities)
         if problem is not None:
             raise InputError([Problem("--rig", "", problem)])
 
