@@ -18,9 +18,9 @@ exit under the flight's working directory (GCOV_PREFIX), not into the build fold
 parallel flights keep theirs apart; gcovr summarises them. A branch is gcovr's: "line:index"
 of the line's branches in gcov's order.
 
-A record: {"tool": ..., "files": {path: {"lines_hit": [...], "lines_missed": [...],
-"branches_hit": [...], "branches_missed": [...]}}}, each path relative to the source tree, each
-list sorted. Hit and missed together are all of a file's lines (branches), so records of
+A record: {"tool": ..., "sources": the source tree, "files": {path: {"lines_hit": [...],
+"lines_missed": [...], "branches_hit": [...], "branches_missed": [...]}}}, each path relative
+to the source tree (for PX4 the copy of the measured sources its build kept), each list sorted. Hit and missed together are all of a file's lines (branches), so records of
 several flights merge by union of what was hit.
 """
 
@@ -95,7 +95,7 @@ def python_record(root: Path, workdir: Path) -> dict[str, Any] | None:
         files[relative] = {"lines_hit": sorted(entry["executed_lines"]), "lines_missed": sorted(entry["missing_lines"]),
                            "branches_hit": sorted(_arcs(entry.get("executed_branches", []))),
                            "branches_missed": sorted(_arcs(entry.get("missing_branches", [])))}
-    return {"tool": PYTHON_TOOL, "files": files}
+    return {"tool": PYTHON_TOOL, "sources": str(root.resolve()), "files": files}
 
 
 def _arcs(pairs: Iterable[Sequence[int]]) -> list[str]:
@@ -151,4 +151,4 @@ def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[s
         files[entry["file"]] = {"lines_hit": hit, "lines_missed": sorted({line["line_number"] for line in lines} - set(hit)),
                                 "branches_hit": sorted(key for key, taken in branches if taken),
                                 "branches_missed": sorted(key for key, taken in branches if not taken)}
-    return {"tool": GCOV_TOOL, "files": files}
+    return {"tool": GCOV_TOOL, "sources": str((notes / "sources").resolve()), "files": files}

@@ -98,6 +98,25 @@ def test_merged_coverage_names_the_first_flight_to_reach_each_line():
     assert merged(records, "y.cpp") == []
 
 
+def test_the_html_report_shows_each_line_with_how_many_flights_ran_it(tmp_path):
+    import re
+
+    from harness.campaigns.coverage import Flight, write_html
+
+    tree = tmp_path / "tree"
+    (tree / "src").mkdir(parents=True)
+    (tree / "src" / "x.cpp").write_text("int a;\nint b;\nint c;\nint d;\n")
+    records = [(Flight("b.db", 7, 2.0), {"files": {"src/x.cpp": {"lines_hit": [1, 2], "lines_missed": [3, 4], "branches_hit": ["1:0"], "branches_missed": ["1:1"]}}}),
+               (Flight("a.db", 3, 1.0), {"files": {"src/x.cpp": {"lines_hit": [2, 3], "lines_missed": [1, 4], "branches_hit": [], "branches_missed": ["1:0", "1:1"]}}})]
+    index = write_html(merged(records), tree, tmp_path / "html")
+    summary = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", index.read_text()))
+    assert "Lines: 3 / 4 75.0%" in summary and "Branches: 1 / 2 50.0%" in summary
+    [page] = (tmp_path / "html").glob("index.x.cpp.*.html")
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", page.read_text()))
+    # each line's count is the number of flights that ran it; line 4 none
+    assert "1 int a ; 2 2 int b ; 3 1 int c ; 4 &cross; int d ;" in text
+
+
 @pytest.mark.slow
 def test_each_flight_records_the_code_it_ran_and_the_rigs_code_only_with_a_rig(coverage_build, tmp_path, capsys):
     """A coverage build flies as the compiled autopilot does (same clearance); the DISTANCE_SENSOR
@@ -115,6 +134,11 @@ def test_each_flight_records_the_code_it_ran_and_the_rigs_code_only_with_a_rig(c
     reached_first = {int(line): where for line, where in report["first_reached"].items()}
     rangefinders = function_lines(coverage_build / "autopilot" / "collision.py", "ObstacleMap.update_distance_sensor") & set(reached_first)
     assert len(rangefinders) > 5 and {reached_first[line]["store"] for line in rangefinders} == {str(rigged)}
+    # The HTML report shows the sources the coverage build ran
+    assert main(["coverage", str(plain), str(rigged), "--source", "collision.py", "--html", str(tmp_path / "html"), "--json"]) == 0
+    html = Path(json.loads(capsys.readouterr().out)["html"])
+    [page] = html.parent.glob("index.collision.py.*.html")
+    assert "update_distance_sensor" in page.read_text() and f"{report['lines_hit']} / {report['lines_total']}" in html.read_text()
     # The compiled autopilot flies the same flight
     from harness.campaigns.store import Store
     from harness.flight.evaluation import evaluate

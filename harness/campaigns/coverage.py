@@ -10,6 +10,10 @@ original) name different line numbers only where a patch moved them.
 
 from __future__ import annotations
 
+import collections
+import json
+import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -35,11 +39,16 @@ class FileCoverage:
     first_line: dict[int, Flight] = field(default_factory=dict)  # each line hit, with the first flight to hit it
     first_branch: dict[str, Flight] = field(default_factory=dict)
     flights: int = 0
+    # How many flights ran each line (branch): the counts of the HTML report.
+    line_flights: collections.Counter = field(default_factory=collections.Counter)
+    branch_flights: collections.Counter = field(default_factory=collections.Counter)
 
     def add(self, record: Mapping[str, Sequence], flight: Flight) -> None:
         self.flights += 1
         self.lines.update(record["lines_hit"], record["lines_missed"])
         self.branches.update(record["branches_hit"], record["branches_missed"])
+        self.line_flights.update(record["lines_hit"])
+        self.branch_flights.update(record["branches_hit"])
         for line in record["lines_hit"]:
             if line not in self.first_line or flight.created < self.first_line[line].created:
                 self.first_line[line] = flight
@@ -68,6 +77,49 @@ def merged(flights: Iterable[tuple[Flight, Mapping[str, Any]]], source: str | No
             if source is None or path == source or path.endswith("/" + source.lstrip("/")):
                 files.setdefault(path, FileCoverage(path)).add(entry, flight)
     return [files[path] for path in sorted(files)]
+
+
+def sources_of(flights: Iterable[tuple[Flight, Mapping[str, Any]]]) -> list[str]:
+    """The source trees the flights' records name (a coverage build keeps its measured sources)."""
+    return sorted({record["sources"] for _flight, record in flights if record.get("sources")})
+
+
+def _branch_place(branch: str) -> tuple[int, int]:
+    """A branch's line and its order there: gcovr's "line:index", coverage.py's arc "from>to"."""
+    line, _, rest = branch.replace(">", ":").partition(":")
+    return int(line), int(rest)
+
+
+def gcovr_tracefile(files: Sequence[FileCoverage]) -> dict[str, Any]:
+    """The merged coverage as a gcovr JSON tracefile, each line's and branch's count the number of
+    flights that ran it, for gcovr's reports."""
+    from gcovr.data_model.version import FORMAT_VERSION
+
+    entries = []
+    for f in files:
+        branches_at: dict[int, list[str]] = collections.defaultdict(list)
+        for branch in sorted(f.branches, key=_branch_place):
+            branches_at[_branch_place(branch)[0]].append(branch)
+        lines = [{"line_number": line, "count": f.line_flights[line],
+                  "branches": [{"branchno": index, "count": f.branch_flights[branch], "fallthrough": False, "throw": False}
+                               for index, branch in enumerate(branches_at.get(line, []))]}
+                 for line in sorted(f.lines | set(branches_at))]
+        entries.append({"file": f.path, "lines": lines, "functions": []})
+    return {"gcovr/format_version": FORMAT_VERSION, "files": entries}
+
+
+def write_html(files: Sequence[FileCoverage], sources: Path, out: Path) -> Path:
+    """gcovr's HTML report of the merged coverage, a page per source file read from `sources`
+    (the tree the records' paths are relative to); its index page."""
+    out.mkdir(parents=True, exist_ok=True)
+    tracefile = out / "coverage.gcovr.json"
+    tracefile.write_text(json.dumps(gcovr_tracefile(files)))
+    index = out / "index.html"
+    done = subprocess.run([sys.executable, "-m", "gcovr", "--json-add-tracefile", str(tracefile), "--root", str(sources),
+                           "--html-details", str(index), "--html-title", "Code reached by the flights"], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"gcovr could not write the HTML report: {done.stderr.strip()[-600:]}")
+    return index
 
 
 def stored_flights(stores: Sequence[Path]) -> list[tuple[Flight, Mapping[str, Any]]]:

@@ -269,18 +269,44 @@ def cmd_report(args: argparse.Namespace) -> int:
 def _coverage_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("stores", nargs="+", metavar="DB", help="campaign stores (a suite's, a search's, a mutation run's) flown with a coverage build")
     p.add_argument("--source", metavar="FILE", help="only this source file (its path, or the end of it: CollisionPrevention.cpp)")
+    p.add_argument("--html", metavar="DIR", help="also write gcovr's HTML report there: each line with how many flights ran it")
+    p.add_argument("--sources", metavar="TREE", help="with --html: the source tree to show (default: the one the flights' coverage build kept)")
 
 
 @command("coverage", "lines and branches of the firmware that a coverage build's flights reached, merged over campaigns", _coverage_options)
 def cmd_coverage(args: argparse.Namespace) -> int:
     from harness.campaigns.coverage import merged, stored_flights, table, uncovered_text
 
-    files = merged(stored_flights([Path(s) for s in args.stores]), args.source)
+    flights = stored_flights([Path(s) for s in args.stores])
+    files = merged(flights, args.source)
     if not files:
         raise InputError([Problem(args.stores[0], "", "no flight of these stores recorded coverage" + (f" of {args.source}" if args.source else "")
                                   + ": fly a coverage build (`stella sut build KIND --coverage`)")])
-    emit(args, {"files": [f.as_dict() for f in files]}, table(files) + "\n" + uncovered_text(files))
+    text = table(files) + "\n" + uncovered_text(files)
+    summary: dict = {"files": [f.as_dict() for f in files]}
+    if args.html:
+        summary["html"] = str(_coverage_html(args, flights, files))
+        text += f"\nHTML report: {summary['html']}"
+    emit(args, summary, text)
     return 0
+
+
+def _coverage_html(args: argparse.Namespace, flights, files) -> Path:
+    from harness.campaigns.coverage import sources_of, write_html
+
+    if args.sources:
+        sources, where = Path(args.sources), "--sources"
+    else:
+        trees = sources_of(flights)
+        if len(trees) != 1:
+            why = (f"the flights' coverage builds kept several source trees ({', '.join(trees)})" if trees
+                   else "the flights' records name no source tree (flown before coverage builds kept one)")
+            raise InputError([Problem("--sources", "", f"{why}: give the tree to show with --sources")])
+        sources, where = Path(trees[0]), args.stores[0]
+    missing = [f.path for f in files if not (sources / f.path).is_file()]
+    if missing:
+        raise InputError([Problem(where, "", f"{sources} has no {missing[0]}: give the source tree the flights' build was made of with --sources")])
+    return write_html(files, sources, Path(args.html))
 
 
 def _rejudge_options(p: argparse.ArgumentParser) -> None:
