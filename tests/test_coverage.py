@@ -84,6 +84,18 @@ def test_the_search_is_told_of_code_no_earlier_flight_reached_and_nothing_else()
     assert novelty.told(2.0, Trial(3, np.zeros(1), "3", 2.0, Status.OK), history) == 2.0  # a flight without coverage
 
 
+def test_a_flight_that_runs_the_target_line_ranks_before_every_flight_that_does_not():
+    from harness.campaigns.coverage import TARGET_WEIGHT_M, line_name
+
+    target = line_name("a.py", 9)
+    novelty = CodeNovelty([target])
+    far_but_on_target, close_elsewhere = trial(0, 40.0, [1, 9]), trial(1, -5.0, [1, 2, 3, 4, 5, 6])
+    history = [far_but_on_target, close_elsewhere]
+    on_target = novelty.told(40.0, far_but_on_target, history)
+    assert on_target == pytest.approx(40.0 - 2 * NOVELTY_WEIGHT_M - TARGET_WEIGHT_M)
+    assert on_target < novelty.told(-5.0, close_elsewhere, history) == pytest.approx(-5.0 - 5 * NOVELTY_WEIGHT_M)
+
+
 def test_merged_coverage_names_the_first_flight_to_reach_each_line():
     from harness.campaigns.coverage import Flight
 
@@ -241,7 +253,10 @@ def test_mutants_built_for_coverage_record_it_and_their_searches_are_guided_by_i
     [search] = sorted((folder / "search").glob("*/*.db"))
     with Store.existing(search) as store:
         flights = [e for e in store.all_evaluations() if e.status != Status.INFEASIBLE]
+        identity = store.campaign_config()
     assert flights and all(e.coverage["files"]["autopilot/collision.py"]["lines_hit"] for e in flights)
+    # the search aims at the mutated line first
+    assert identity["coverage_target"] == [f"autopilot/collision.py:L{quiet['line']}"]
 
 
 def body_lines(source: Path, signature: str) -> set[int]:

@@ -81,6 +81,8 @@ class CampaignConfig:
     # Each batch flown on a cheap model first, the real SUT only where it pays (harness/campaigns/screen.py).
     screen: ScreenSettings | None = None
     rig: str | None = None  # a sensor rig (preset name or file) instead of the profile's range sensors
+    # --objective coverage: code (coverage.line_name) every flight that runs it is rewarded for first.
+    coverage_target: tuple[str, ...] = ()
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
@@ -150,6 +152,8 @@ class CampaignConfig:
             overrides["properties"] = [prop.as_dict() for prop in self.properties]
         if self.screen is not None:  # other candidates flown for real
             overrides["screen"] = self.screen.identity()
+        if self.coverage_target:  # the optimizer hears other values
+            overrides["coverage_target"] = list(self.coverage_target)
         return {
             "scenarios": scenarios,
             "algorithms": list(self.algorithms),
@@ -313,7 +317,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
                                                                   comparable=config.reference is None or PAIR_OBJECTIVES.get(config.objective, config.objective) != "difference")
                 problem = CampaignProblem(space, store, run_id, executor, seed, termination_for(config), out_dir / f"run{run_id}", options, on_result,
                                           confirm=config.confirm, pairs=pairs, diversity=FailureModes() if config.objective == "diverse" else None,
-                                          novelty=CodeNovelty() if config.objective == "coverage" else None,
+                                          novelty=CodeNovelty(config.coverage_target) if config.objective == "coverage" else None,
                                           each_property=config.objective == "properties", screen=screen)
                 run_sequence(combination, problem, budget=config.evaluations, seed=seed, population=config.population, batch=config.batch)
                 store.finish_run(run_id)

@@ -162,6 +162,14 @@ def _ranges(lines: Sequence[int]) -> str:
 # What one line or branch that no earlier flight of the run reached is worth to the search, in
 # metres of clearance.
 NOVELTY_WEIGHT_M = 0.1
+# What reaching a target (a mutant's mutated line) is worth: more than any difference in clearance
+# between two flights, so that every flight that ran it ranks before every one that did not.
+TARGET_WEIGHT_M = 1000.0
+
+
+def line_name(path: str, line: int) -> str:
+    """A line as code_reached names it."""
+    return f"{path}:L{line}"
 
 
 def code_reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:
@@ -179,10 +187,18 @@ class CodeNovelty:
     resumed run tells the same values). A flight that reaches nothing new is told its objective as
     it is, so among those the search still goes for the closest; the stored fitness is never
     changed. Applied to what any optimizer is told, as the failure-mode sharing is
-    (harness/campaigns/diversity.py)."""
+    (harness/campaigns/diversity.py).
+
+    A target (line_name of a mutant's mutated line: a flight that does not run it cannot tell
+    the mutant from its original) is worth TARGET_WEIGHT_M to every flight that ran it, so the
+    search goes for it first and, once there, for the difference among the flights that run it."""
+
+    def __init__(self, target: Iterable[str] = ()):
+        self.target = frozenset(target)
 
     def told(self, objective: float, trial, history: Iterable) -> float:
         if not trial.reached:
             return objective
         earlier = set().union(*(other.reached for other in history if other.ordinal < trial.ordinal))
-        return objective - NOVELTY_WEIGHT_M * len(trial.reached - earlier)
+        on_target = TARGET_WEIGHT_M if trial.reached & self.target else 0.0
+        return objective - NOVELTY_WEIGHT_M * len(trial.reached - earlier) - on_target

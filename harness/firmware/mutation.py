@@ -33,6 +33,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 from scipy.stats import fisher_exact
 
 from harness.campaigns.campaign import CampaignConfig, run_campaign, run_line
+from harness.campaigns.coverage import line_name
 from harness.campaigns.pairs import PairedFlights, ReferenceCache
 from harness.campaigns.rejudge import Rejudgement, complete_references, rejudge as rejudge_store
 from harness.campaigns.screen import ScreenSettings
@@ -168,7 +169,7 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
                     if Path(scenario).stem in done:
                         continue
                     done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir,
-                                                        progress)
+                                                        progress, mutated_line(index, entry["id"]))
                     write_json_atomically(run_path, document)
                     progress(f"{entry['id']}: {describe(outcome)}")
     finally:
@@ -204,12 +205,20 @@ def _fails_to_start_again(job: Job, times: int, executor: Executor) -> bool:
     return all(_started_badly(result) for _job, result in executor.run(again))
 
 
+def mutated_line(index: Mapping[str, Any], mutant: str) -> str:
+    """The mutant's mutated line as a flight's coverage names it (a mutation changes one line in place)."""
+    found = next(m for m in index["mutants"] if m["id"] == mutant)
+    return line_name(found["file"], found["line"])
+
+
 def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: MutationPlan, algorithm: str, scenario: str, executor: Executor,
-            cache: ReferenceCache, folder: Path, progress: Callable[[str], None]) -> dict[str, Any]:
+            cache: ReferenceCache, folder: Path, progress: Callable[[str], None], target: str) -> dict[str, Any]:
     """One differential campaign of the algorithm on the scenario against the mutant: when it
-    first revealed a difference, and at which level."""
+    first revealed a difference, and at which level. Guided by coverage, it aims at the mutated
+    line (target) first."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
-                            confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig)
+                            confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig,
+                            coverage_target=(target,) if plan.objective == "coverage" else ())
     store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,
