@@ -53,6 +53,17 @@ def named_rotation_of(yaw_deg: float) -> int:
     return int(eighths) % 8
 
 
+def sensor_rays(sensor: RigSensor) -> list[tuple[int, float]]:
+    """A sensor's rays as (which of its readings, angle in degrees from the nose, or from north for
+    a `local` source): a sector of 5 degrees or less one ray at its centre, a wider sector or a
+    DISTANCE_SENSOR's field of view a fan of rays."""
+    if sensor.message == "OBSTACLE_DISTANCE":
+        count, first_deg = sector_layout(sensor)
+        return [(sector, angle) for sector in range(count)
+                for angle in _fan(first_deg + sector * sensor.increment_deg, sensor.increment_deg if sensor.increment_deg > 5.0 else 0.0)]
+    return [(0, angle) for angle in _fan(sensor.yaw_deg, sensor.fov_deg)]
+
+
 def _fan(centre_deg: float, width_deg: float) -> list[float]:
     """Ray angles across a width centred on centre_deg, its edges included, at most MAX_RAY_GAP_DEG apart."""
     if width_deg <= 0.0:
@@ -74,10 +85,7 @@ class _Sensor:
         self.min_cm = int(sensor.min_range_m * 100)
         if sensor.message == "OBSTACLE_DISTANCE":
             self.count, self.first_deg = sector_layout(sensor)
-            rays = [(sector, angle) for sector in range(self.count)
-                    for angle in _fan(self.first_deg + sector * sensor.increment_deg, sensor.increment_deg if sensor.increment_deg > 5.0 else 0.0)]
-        else:
-            rays = [(0, angle) for angle in _fan(sensor.yaw_deg, sensor.fov_deg)]
+        rays = sensor_rays(sensor)
         self.ray_reading = np.array([reading for reading, _angle in rays])
         self.ray_rad = np.radians([angle for _reading, angle in rays])
         self.world_fixed = sensor.message == "OBSTACLE_DISTANCE" and sensor.frame == "local"

@@ -230,7 +230,7 @@ def _moment(t_s: float, distance_m: float | None) -> Moment:
     ([40.0, 20.0, 17.0], "it never came within the sensor's reach of 16.5 m"),
 ])
 def test_an_obstacle_never_reported_is_said_to_be_passed_over_when_the_closest_approach_was_above_or_below(distances, why):
-    world = SimpleNamespace(safety_distance_m=1.0, sensor=SimpleNamespace(range_m=16.5, fov_deg=100.0))
+    world = SimpleNamespace(safety_distance_m=1.0, sensor=SimpleNamespace(range_m=16.5, fov_deg=100.0), rig=None)
     moments = [_moment(float(t), d) for t, d in enumerate(distances)]
     mechanism, evidence = _classify(0.5, world, moments, None, None, {"own_closing_final_m_s": 0.0, "obstacle_closing_final_m_s": 0.0},
                                     {"failures": []}, Limits.of({"name": "bundled"}))

@@ -250,6 +250,14 @@ def test_a_depth_cameras_short_reach_and_latency_let_the_default_autopilot_into_
     camera = evaluate(SearchSpace(space.logical, with_rig_named(space.profile, "depth_camera")), x, seed=0, out_dir=tmp_path, options=options,
                       name="depth-camera")
     assert plain.min_clearance_m > 1.0 and camera.status == "violation" and camera.min_clearance_m < 1.0
+    # Explained from the camera's readings: seen within its 10 m, got 0.1 s later, too late to stop from the pilot's speed
+    from harness.campaigns.explain import explain
+
+    report = explain(Path(camera.log_path))
+    timeline = {entry["what"]: entry for entry in report["timeline"]}
+    assert report["mechanism"] == "seen_late" and report["context"]["sensor"]["rig"][0]["name"] == "depth"
+    assert timeline["in view"]["distance_m"] <= 10.0 and timeline["reported to the SUT"]["t_s"] >= timeline["in view"]["t_s"] + 0.1 - 0.04
+    assert report["numbers"]["stopping_distance_needed_m"] > report["numbers"]["distance_at_report_m"] > 8.0
 
 
 @pytest.mark.slow

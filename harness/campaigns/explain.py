@@ -1,14 +1,15 @@
 """`stella explain`: why a flight came as close as it did, from its log alone.
 
 The log holds the world (obstacles and their motion, the range sensor's reach and field of view,
-wind, gust and failures), the ground truth every physics step, what the range sensor delivered
-to the SUT (/sensor/obstacle_distance: what the SUT's collision prevention got, after any
-failure), the wind the vehicle flew in (/wind), the pilot's sticks (/pilot) and the run's
-events. From these, at the closest approach to its obstacle, the timeline:
+or the sensors of the vehicle's rig, wind, gust and failures), the ground truth every physics
+step, what the range sensor delivered to the SUT (/sensor/obstacle_distance, or each rig
+sensor's /sensor/rig/NAME, measured its latency before the SUT got it: what the SUT's collision
+prevention got, after any failure), the wind the vehicle flew in (/wind), the pilot's sticks
+(/pilot) and the run's events. From these, at the closest approach to its obstacle, the timeline:
 
-* in view: the obstacle first inside the sensor's field of view and reach, computed from the
-  world as an ideal sensor would see it (the final sighting: an earlier glimpse that was lost
-  again does not count);
+* in view: the obstacle first inside the sensor's field of view and reach (with a rig, met by a
+  ray of any of its sensors within that sensor's reach), computed from the world as an ideal
+  sensor would see it (the final sighting: an earlier glimpse that was lost again does not count);
 * reported: the first delivered reading that shows it (a sector holding a distance no farther
   than the ideal one); a failed sensor delivers nothing, or values that do not show it;
 * entered: the clearance fell below the safety distance; closest: the least clearance.
@@ -46,6 +47,8 @@ from harness.errors import InputError, Problem
 from harness.flight import logs
 from harness.flight.fitness import min_clearance
 from sim_bridge.obstacles import Obstacle, ray_distances
+from sim_bridge.recording import RIG_TOPIC
+from sim_bridge.rig import sensor_rays
 
 MECHANISMS = ("unseen", "seen_late", "braked_too_little", "outrun", "pushed", "other", "none")
 SECTOR_DEG = 5.0  # OBSTACLE_DISTANCE's sectors as sim_bridge/world.py reads them (its SECTOR_DEG)
@@ -157,8 +160,27 @@ def _hull_offset(body: Any, relative_rad: float) -> float:
     return min(half_l / c if c > 1e-9 else math.inf, half_w / s if s > 1e-9 else math.inf)
 
 
+@dataclass(frozen=True)
+class RigView:
+    """One sensor of a rig as an ideal sensor reads the obstacle: its rays (radians from the nose,
+    or from north where world_fixed), which of its readings each is part of, and its reach."""
+
+    name: str
+    reach_m: float
+    reading: np.ndarray
+    angles_rad: np.ndarray
+    world_fixed: bool
+
+    @classmethod
+    def of(cls, sensor: Any) -> "RigView":
+        rays = sensor_rays(sensor)
+        return cls(sensor.name, sensor.range_m, np.array([reading for reading, _ in rays]), np.radians([angle for _, angle in rays]),
+                   sensor.message == "OBSTACLE_DISTANCE" and sensor.frame == "local")
+
+
 class Geometry:
-    """The obstacle of the closest approach seen from the vehicle, as the world spec moves it."""
+    """The obstacle of the closest approach seen from the vehicle, as the world spec moves it,
+    and as the profile's sensor or each sensor of the vehicle's rig would read it."""
 
     def __init__(self, world: Any, spec: Mapping[str, Any], run_start_s: float):
         self.world, self.run_start_s = world, run_start_s
@@ -167,6 +189,7 @@ class Geometry:
         half = world.sensor.fov_deg / 2.0
         self.sectors = [i for i in range(int(360 / SECTOR_DEG)) if min(i * SECTOR_DEG, 360.0 - i * SECTOR_DEG) <= half + 1e-9]
         self.sector_angles = np.radians(np.array(self.sectors) * SECTOR_DEG)
+        self.rig = [RigView.of(sensor) for sensor in world.rig or ()]
 
     def placed(self, t_s: float) -> Obstacle:
         self.obstacle.move_to(max(0.0, t_s - self.run_start_s))
@@ -193,10 +216,39 @@ class Geometry:
         vn, ve, vd = state["v_ned_m_s"]
         own = vn * towards[0] + ve * towards[1] - vd * towards[2]
         moving = self.velocity(t)
-        relative = (math.atan2(towards[1], towards[0]) - yaw + math.pi) % (2.0 * math.pi) - math.pi
-        in_fov = cut is not None and abs(relative) <= self.half_fov_rad
-        in_view = in_fov and distance is not None and distance <= self.world.sensor.range_m
+        if self.rig:
+            # In a sensor's view where one of its rays meets it; in view where that is within its reach.
+            seen = self._rig_rays(state, cut)
+            in_fov = any(np.isfinite(distances).any() for _view, distances in seen)
+            in_view = any((distances <= view.reach_m).any() for view, distances in seen)
+        else:
+            relative = (math.atan2(towards[1], towards[0]) - yaw + math.pi) % (2.0 * math.pi) - math.pi
+            in_fov = cut is not None and abs(relative) <= self.half_fov_rad
+            in_view = in_fov and distance is not None and distance <= self.world.sensor.range_m
         return Moment(t, distance, towards, own, -float(np.dot(moving, towards)), in_fov, in_view)
+
+    def _rig_rays(self, state: Mapping[str, Any], cut) -> list[tuple[RigView, np.ndarray]]:
+        """Each rig sensor's rays' distances from the hull to this obstacle alone (inf: a miss)."""
+        if cut is None:
+            return []
+        yaw = state["rpy_rad"][2]
+        seen = []
+        for view in self.rig:
+            world_angles = view.angles_rad if view.world_fixed else view.angles_rad + yaw
+            rays = ray_distances(state["north_m"], state["east_m"], world_angles, cut)
+            hull = np.array([_hull_offset(self.world.uav.body, angle - yaw) for angle in world_angles.tolist()])
+            seen.append((view, np.maximum(0.0, rays - hull)))
+        return seen
+
+    def ideal_readings(self, state: Mapping[str, Any]) -> dict[tuple[str, int], float]:
+        """(rig sensor, reading) -> the distance from the hull at which an ideal sensor would read
+        this obstacle alone, for the readings that reach it."""
+        found: dict[tuple[str, int], float] = {}
+        for view, distances in self._rig_rays(state, self.placed(state["t"]).cross_section(state["up_m"])):
+            for reading, distance in zip(view.reading.tolist(), distances.tolist()):
+                if distance <= view.reach_m:
+                    found[(view.name, reading)] = min(found.get((view.name, reading), math.inf), distance)
+        return found
 
     @staticmethod
     def _vertical_or_centre(obstacle: Obstacle, state: Mapping[str, Any]) -> tuple[float, float, float]:
@@ -249,17 +301,25 @@ def _nearest(states: Sequence[Mapping[str, Any]], times: Sequence[float], t: flo
 
 def _first_report(readings: Sequence[Mapping[str, Any]], geometry: Geometry, states: Sequence[Mapping[str, Any]], times: Sequence[float],
                   run_start_s: float, t_closest: float) -> tuple[float | None, float | None]:
-    """When the final sighting in the delivered readings began, and the distance they showed then."""
+    """When the final sighting in the delivered readings (the profile's sensor's, or each rig
+    sensor's, in the order the SUT got them) began, and the distance they showed then."""
     shown = []
     for reading in readings:
-        if not run_start_s <= reading["t"] <= t_closest:
+        delivered_t = reading.get("delivered_t", reading["t"])
+        if not run_start_s <= delivered_t <= t_closest:
             continue
-        ideal = geometry.ideal_sectors(_nearest(states, times, reading["t"]))
-        # range_m + 1 cm is "nothing in reach" (and 65535 no reading): never a sighting.
-        delivered = {i: reading["distances_cm"][i] / 100.0 for i in ideal if reading["distances_cm"][i] / 100.0 <= reading["range_m"]}
+        state = _nearest(states, times, reading["t"])
+        if "sensor" in reading:  # a rig sensor's reading: sectors, or one over its field of view
+            name = reading["sensor"]
+            values = reading["distances_cm"] if "distances_cm" in reading else [reading["distance_cm"]]
+            ideal = {index: distance for (sensor, index), distance in geometry.ideal_readings(state).items() if sensor == name}
+        else:
+            values, ideal = reading["distances_cm"], geometry.ideal_sectors(state)
+        # Beyond range_m is "nothing in reach" (and 65535 no reading): never a sighting.
+        delivered = {i: values[i] / 100.0 for i in ideal if values[i] / 100.0 <= reading["range_m"]}
         seen = [value for i, value in delivered.items() if value <= ideal[i] + SHOWS_TOLERANCE_M]
         if seen:
-            shown.append((reading["t"], min(seen)))
+            shown.append((delivered_t, min(seen)))
     started = _final_sighting_start([t for t, _d in shown])
     return started, next((d for t, d in shown if t == started), None)
 
@@ -320,10 +380,20 @@ def explain(path: Path) -> dict[str, Any]:
     world = logs.world_of(path)
     if world is None:
         raise InputError([Problem(str(path), "", "no world metadata: not an evaluation log of this tool (give a log of `stella run` or a campaign)")])
+    rig_topics = [f"{RIG_TOPIC}{sensor.name}" for sensor in world.rig or ()]
+    latency_s = {sensor.name: sensor.latency_s for sensor in world.rig or ()}
     recorded: dict[str, list[Any]] = {topic: [] for topic in TOPICS}
+    readings: list[Mapping[str, Any]] = []
     # One pass: each pass over a log decompresses every chunk, whichever topics it wants.
-    for topic, _ns, message in logs.messages(path, TOPICS):
-        recorded[topic].append(message)
+    for topic, _ns, message in logs.messages(path, TOPICS + rig_topics):
+        if topic.startswith(RIG_TOPIC):
+            # A rig reading is recorded when it was measured and reaches the SUT its latency later.
+            name = topic[len(RIG_TOPIC):]
+            readings.append({**message, "sensor": name, "delivered_t": message["t"] + latency_s[name]})
+        else:
+            recorded[topic].append(message)
+    if not rig_topics:
+        readings = recorded["/sensor/obstacle_distance"]
     clearance = min_clearance(recorded["/clearance"])
     states, events = recorded["/uav/state"], recorded["/events"]
     run_start_s = next((e["t"] for e in events if e["event"] == "run"), states[0]["t"] if states else 0.0)
@@ -331,11 +401,6 @@ def explain(path: Path) -> dict[str, Any]:
             "min_clearance_m": clearance.min_clearance_m, "obstacle": clearance.obstacle}
     if not states or clearance.obstacle is None or clearance.at_s is None:
         return {**base, "mechanism": "other", "evidence": ["no obstacle at the closest approach (or no trajectory in the log)"], "timeline": []}
-    if world.rig is not None:
-        names = ", ".join(f"{sensor.name} ({sensor.message})" for sensor in world.rig)
-        return {**base, "mechanism": "other", "timeline": [],
-                "evidence": [f"the vehicle flew a sensor rig ({names}): the explanation reads the profile's one forward sensor and cannot "
-                             "say what the rig showed; its readings are in the log as /sensor/rig/NAME"]}
     spec = next((o for o in world.obstacles if o["id"] == clearance.obstacle), None)
     if spec is None:
         return {**base, "mechanism": "other", "evidence": [f"{clearance.obstacle} is not in the world spec: an injection added it"], "timeline": []}
@@ -347,7 +412,8 @@ def explain(path: Path) -> dict[str, Any]:
     flown = [s for s in states if run_start_s <= s["t"] <= t_closest]
     moments = [geometry.moment(s) for s in flown]
     in_view_at = _final_sighting_start([m.t_s for m in moments if m.in_view])
-    reported_at, reported_distance = _first_report(recorded["/sensor/obstacle_distance"], geometry, states, times, run_start_s, t_closest)
+    reported_at, reported_distance = _first_report(sorted(readings, key=lambda r: r.get("delivered_t", r["t"])), geometry, states, times, run_start_s,
+                                                   t_closest)
     if reported_at is not None and (in_view_at is None or reported_at < in_view_at):
         # A reading that shows it was taken in view: the poses, 25 a second, fell either side of it.
         in_view_at = reported_at
@@ -386,7 +452,8 @@ def explain(path: Path) -> dict[str, Any]:
         "sut": {"name": sut.get("name"), "fault": sut.get("fault"), "params": dict(sut.get("params") or {})},
         "limits": {**asdict(limits), "jerk_m_s3": limits.jerk_m_s3 if math.isfinite(limits.jerk_m_s3) else None,  # JSON has no infinity
                    "assumed": list(limits.assumed), "named": [list(pair) for pair in limits.named], "described": limits.describe()},
-        "sensor": {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg},
+        "sensor": ({"rig": [{"name": s.name, "message": s.message, "range_m": s.range_m, "fov_deg": s.fov_deg} for s in world.rig]}
+                   if world.rig else {"range_m": world.sensor.range_m, "fov_deg": world.sensor.fov_deg}),
     }
     numbers = {
         "own_closing_at_report_m_s": first.own_closing_m_s if first else None, "distance_at_report_m": reported_distance,
@@ -438,6 +505,12 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
         return "outrun", [f"over the final approach the obstacle closed at {theirs:.2f} m/s, the vehicle at {own:.2f} m/s "
                           "(collision prevention does not predict a moving obstacle)"]
     sensor_failed = [f for f in situation["failures"] if f["unit"] == "distance sensor"]
+    if world.rig:
+        reach_m = max(sensor.range_m for sensor in world.rig)
+        reach, field_of_view = f"the rig's reach of {reach_m:.1f} m", "any rig sensor's field of view"
+    else:
+        reach_m = world.sensor.range_m
+        reach, field_of_view = f"the sensor's reach of {reach_m:.1f} m", f"the {world.sensor.fov_deg:.0f} degree field of view"
     if reported_at is None:
         if in_view_at is not None and sensor_failed:
             why = f"the range sensor had failed ({sensor_failed[0]['type']} since run time {sensor_failed[0]['since_s']:.1f} s)"
@@ -445,13 +518,12 @@ def _classify(min_clearance_m: float, world: Any, moments: Sequence[Moment], in_
             why = "it was in view but no delivered reading showed it"
         elif all(m.distance_m is None for m in moments):
             why = "it was never at the height the sensor scans: it passed above or below it"
-        elif any(m.distance_m is not None and m.distance_m <= world.sensor.range_m for m in moments):
-            why = f"it was within reach but never inside the {world.sensor.fov_deg:.0f} degree field of view"
+        elif any(m.distance_m is not None and m.distance_m <= reach_m for m in moments):
+            why = f"it was within reach but never inside {field_of_view}"
         elif moments[-1].distance_m is None:
-            why = (f"it passed above or below it; at the height the sensor scans it never came within the sensor's reach of "
-                   f"{world.sensor.range_m:.1f} m")
+            why = f"it passed above or below it; at the height the sensor scans it never came within {reach}"
         else:
-            why = f"it never came within the sensor's reach of {world.sensor.range_m:.1f} m"
+            why = f"it never came within {reach}"
         seen = f"while in view from run time {in_view_at - moments[0].t_s:.1f} s" if in_view_at is not None and moments else "it was never in view"
         return "unseen", [f"never reported to the SUT before the closest approach: {why}", seen]
     distance, needed, first = numbers["distance_at_report_m"], numbers["stopping_distance_needed_m"], numbers["own_closing_at_report_m_s"]
