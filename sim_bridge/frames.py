@@ -48,7 +48,7 @@ class SensorFrames:
         self.rig = None if world.spec.rig is None else RigFrames(
             world.spec.rig, 1.0 / world.dt, world.hull_offset, world.nearest, self.encode,
             lambda topic, time_us, message: recorder.write(topic, time_ns=time_us * 1000, message=message),
-            companion_messages, self.encode_companion, distance_sensor_convention)
+            companion_messages, self.encode_companion, distance_sensor_convention, world.spec.seed)
 
     def next_seq(self) -> int:
         seq = self.seq

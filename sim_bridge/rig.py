@@ -75,8 +75,10 @@ def _fan(centre_deg: float, width_deg: float) -> list[float]:
 class _Sensor:
     """One sensor's rays (degrees from the nose or from north, by frame) and which reading each is part of."""
 
-    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int, companion: bool, convention: str):
+    def __init__(self, sensor: RigSensor, sensor_id: int, every_steps: int, latency_steps: int, companion: bool, convention: str, seed: int):
         self.spec = sensor
+        # Its noise, a stream of its own per sensor: the other sensors' and the IMU's stay as they were.
+        self.noise = np.random.default_rng([seed, 0x7267, sensor_id]) if sensor.noise_m > 0.0 else None
         self.companion = companion
         self.sensor_id = sensor_id
         self.every_steps = every_steps
@@ -106,13 +108,13 @@ class RigFrames:
     record(topic, time_us, message). The sensors whose message is one of companion_messages go
     to a companion computer's link instead, each frame made by encode_companion. A
     DISTANCE_SENSOR is written as the SUT reads it: distance_sensor_convention, one of
-    DISTANCE_SENSOR_CONVENTIONS."""
+    DISTANCE_SENSOR_CONVENTIONS. A sensor's noise is drawn from the world's seed."""
 
     def __init__(self, rig: tuple[RigSensor, ...], rate_hz: float, hull_offset: Callable[[np.ndarray], np.ndarray],
                  nearest: Callable[[np.ndarray, float], np.ndarray | None], encode, record,
-                 companion_messages: tuple[str, ...] = (), encode_companion=None, distance_sensor_convention: str = "px4"):
+                 companion_messages: tuple[str, ...] = (), encode_companion=None, distance_sensor_convention: str = "px4", seed: int = 0):
         self.sensors = [_Sensor(sensor, index, max(1, int(round(rate_hz / sensor.rate_hz))), int(round(sensor.latency_s * rate_hz)),
-                                sensor.message in companion_messages, distance_sensor_convention)
+                                sensor.message in companion_messages, distance_sensor_convention, seed)
                         for index, sensor in enumerate(rig)]
         self.hull_offset = hull_offset
         self.nearest = nearest
@@ -160,11 +162,14 @@ class RigFrames:
         nearest = self.nearest(world, sensor.spec.range_m + float(np.max(hull)))
         if nearest is None:
             return [nothing] * count
-        readings = [nothing] * count
+        closest = [math.inf] * count
         for reading, distance in zip(sensor.ray_reading.tolist(), (nearest - hull).tolist()):
             if distance <= sensor.spec.range_m:
-                readings[reading] = min(readings[reading], max(sensor.min_cm, int(distance * 100)))
-        return readings
+                closest[reading] = min(closest[reading], distance)
+        if sensor.noise is not None:
+            # Off by the noise, still within the range it reads: within reach an obstacle stays one.
+            closest = [min(sensor.spec.range_m, d + sensor.noise.normal(0.0, sensor.spec.noise_m)) if d < math.inf else d for d in closest]
+        return [max(sensor.min_cm, int(d * 100)) if d < math.inf else nothing for d in closest]
 
     def _measure(self, sensor: _Sensor, time_us: int, yaw_rad: float, delivered) -> tuple | None:
         """A reading as a message to send, (codec, fields), recorded; None: nothing is sent."""

@@ -112,7 +112,8 @@ class RigSensor:
     a DISTANCE_SENSOR device, one reading over its field of view, or an OBSTACLE_DISTANCE
     source, one reading per sector of increment_deg. Its field of view is centred on yaw_deg,
     clockwise from the nose; range_m is its reach in this world's visibility; its readings come
-    rate_hz times a second and reach the SUT latency_s after they were measured. frame: an
+    rate_hz times a second and reach the SUT latency_s after they were measured, each reading of
+    an obstacle within reach off by Gaussian noise of standard deviation noise_m. frame: an
     OBSTACLE_DISTANCE source's sectors relative to the nose ("body", MAV_FRAME_BODY_FRD) or to
     north ("local", MAV_FRAME_LOCAL_NED)."""
 
@@ -127,6 +128,7 @@ class RigSensor:
     latency_s: float = 0.0
     increment_deg: float = 5.0
     frame: str = "body"
+    noise_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -189,6 +189,26 @@ def test_a_companion_link_the_sut_opens_answers_where_it_was_last_heard_from():
             sut.close()
 
 
+def test_a_sensors_noise_is_drawn_from_the_worlds_seed_and_leaves_nothing_within_reach_as_it_was():
+    rig = load_rig("four_rangefinders")
+    rig["sensors"][0]["noise_m"] = 0.05
+    sensors = rig_sensors(rig, load_profile().sensor, 10000.0)
+
+    def readings(seed: int) -> list[tuple[int, ...]]:
+        counter = iter(range(10**6))
+        frames = RigFrames(sensors, 250.0, hull, wall_north(3.3), lambda codec, *fields: codec.encode(next(counter) & 0xFF, 1, 51, *fields),
+                           lambda topic, time_us, message: None, seed=seed)
+        return [tuple(m.current_distance for m in decoded(frames.step_frames(step, step * 4000, 0.0, lambda name, r, reach_cm: r)[0]))
+                for step in range(0, 1000, 5)]
+
+    first = readings(7)
+    assert first == readings(7) and first != readings(8)
+    front = np.array([reading[0] for reading in first])
+    # The wall 3.0 m from the hull ahead, read 5 cm off at random; nothing within reach on the other sides, no noise there
+    assert abs(front.mean() - 300) < 1.5 and 4.0 < front.std() < 6.0
+    assert {reading[1:] for reading in first} == {(1200, 1200, 1200)}
+
+
 def test_the_distance_sensor_failure_fails_every_sensor_of_the_rig():
     events = []
     schedule = FailureSchedule((FailureSpec(unit="distance sensor", type="wrong", onset_s=0.0, duration_s=10.0, delivery="simulator"),),

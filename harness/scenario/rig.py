@@ -163,7 +163,7 @@ def rig_sensors(rig: Mapping[str, Any], profile_sensor: Mapping[str, Any], visib
                            min_range_m=float(s["min_range_m"]), max_range_m=float(s["max_range_m"]),
                            range_m=reach_m(s, profile_sensor, visibility_m), rate_hz=float(s["rate_hz"]),
                            latency_s=float(s.get("latency_s", 0.0)), increment_deg=float(s.get("increment_deg", 5.0)),
-                           frame=s.get("frame", "body"))
+                           frame=s.get("frame", "body"), noise_m=float(s.get("noise_m", 0.0)))
                  for s in rig["sensors"])
 
 
