@@ -117,6 +117,25 @@ def test_a_bundled_build_at_a_commit_is_cached_and_flies(tmp_path, capsys):
     assert started.returncode == 0 and started.stdout.startswith(first["folder"]), started.stderr
 
 
+def test_a_variant_built_before_without_the_mutated_file_watched_still_tells_equivalent_mutants(tmp_path, capsys):
+    """`stella sut build` of the original into the cache that `mutants build --cache` then uses:
+    the original's digest of the mutated file is made when first asked for, so a mutant that
+    compiles to the same code is equivalent, not built."""
+    assert main(["sut", "build", "bundled", "--source", str(ROOT), "--out", str(tmp_path / "cache"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["objects"] == {}
+    folder = tmp_path / "m"
+    index = mutants.generate(ROOT, "autopilot/collision.py", folder, limit=1, seed=1)
+    [mutant] = index["mutants"]
+    # a mutant that changes no computation: the line's own text again, with a comment
+    patch = folder / "mutants" / f"{mutant['id']}.patch"
+    lines = patch.read_text().splitlines(keepends=True)
+    removed = next(line for line in lines if line.startswith("-") and not line.startswith("---"))
+    patch.write_text("".join(("+" + removed[1:].rstrip("\n") + "  # the same\n") if line.startswith("+") and not line.startswith("+++") else line
+                             for line in lines))
+    record = mutants.build_all(folder, cache=tmp_path / "cache")
+    assert record["original"]["digest"] and record["mutants"][mutant["id"]]["state"] == "equivalent"
+
+
 def test_bytecode_tells_computation_from_comments():
     source = "def f(x):\n    return x < 1.0\n"
     assert builds.bytecode_digest(source) == builds.bytecode_digest("def f(x):\n    # why\n\n    return x < 1.0  # note\n")

@@ -32,7 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -46,6 +46,7 @@ PX4_CONFIG = "px4_sitl_default"
 BUNDLED_CONFIG = "bundled"
 VARIANT_FILE = "variant.json"
 BUILD_LOG = "build.log"
+DIGEST_LOG = "digest.log"  # a compile again for the digests of files a cached variant did not watch
 # What a coverage build measures unless told: the collision prevention.
 DEFAULT_COVERAGE_PATHS = {"bundled": ("autopilot/collision.py",), "px4": ("src/lib/collision_prevention",)}
 
@@ -171,7 +172,17 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     folder = Path(out).expanduser().resolve() / key
     found = _cached(folder)
     if found is not None:
-        return found
+        unwatched = [name for name in watch if name not in found.objects]
+        if not unwatched:
+            return found
+        # Built before without these files watched (`stella sut build`): the digests a mutant's
+        # build is compared with are missing, and equivalent mutants would pass for built ones.
+        if kind == "px4":
+            objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, unwatched,
+                                 worktree_command, coverage_paths, keep=False)
+        else:
+            objects = {name: bytecode_digest((folder / name).read_text(), name) for name in unwatched}
+        return _save(replace(found, objects={**found.objects, **objects}))
     if folder.exists():  # a build that was interrupted: start it again
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
@@ -272,8 +283,11 @@ COVERAGE_SUFFIX = "_coverage"  # its build folder beside px4_sitl_default: switc
 
 
 def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
-               worktree_command: str | None, coverage_paths: Sequence[str] | None = None) -> dict[str, str]:
-    log_path = folder / BUILD_LOG
+               worktree_command: str | None, coverage_paths: Sequence[str] | None = None, keep: bool = True) -> dict[str, str]:
+    """Compile the commit with the patches in its worktree; the digests of the patched and watched
+    files' objects. keep: the variant's folder takes what a flight needs (else only the digests
+    are wanted, and the folder and its build log stay as they are)."""
+    log_path = folder / (BUILD_LOG if keep else DIGEST_LOG)
     with open(log_path, "w") as log_file:
         tree = _worktree(source, commit, cache, log_file, worktree_command)
         touched = apply_patches(tree, patches)
@@ -295,6 +309,8 @@ def _build_px4(source: Path, commit: str, patches: list[Path], folder: Path, cac
             if built.returncode != 0:
                 raise BuildFailed(f"PX4 {commit[:12]} with {len(patches)} patch(es)", log_path, _tail(log_path))
             objects = {name: digest for name in dict.fromkeys([*touched, *watch]) if (digest := _object_digest(build_dir, name))}
+            if not keep:
+                return objects
             for part in ("bin", "etc"):
                 shutil.copytree(build_dir / part, folder / part, symlinks=True)
             if coverage_paths is not None:
