@@ -120,6 +120,30 @@ def test_ardupilots_path_planner_and_its_simple_avoidance_keep_it_off_the_wall(c
     assert abs(relayed_cm - sensed_cm) <= 2
 
 
+def proximity_relayed_cm(log_path: Path, orientation: int) -> list[int]:
+    """What ArduPilot's proximity itself (component 1) reports facing one way on its API link; the
+    rig's own messages, which it forwards from SERIAL1, are the obstacle-avoidance component's."""
+    return [m.current_distance for m in api_messages(log_path, "DISTANCE_SENSOR")
+            if m.orientation == orientation and m.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1]
+
+
+def test_ardupilots_proximity_backend_reads_a_rig_on_its_serial1(capsys, tmp_path):
+    """A 360-degree lidar (OBSTACLE_DISTANCE) and four single-beam rangefinders (DISTANCE_SENSOR)
+    reach ArduPilot's MAVLink proximity backend: its proximity reports the wall ahead as the rig
+    read it. With the lidar, simple avoidance stops the pilot short of it, as with its own
+    rangefinders; a beam reaching 12 m leaves it too little room at the pilot's speed."""
+    lidar = run_wall(capsys, tmp_path, "lidar", "--drive", "pilot", "--rig", "lidar_360")
+    assert lidar["min_clearance_m"] > 0.3 and "blocked" in (lidar["why"] or ""), lidar["why"]
+    log_path = Path(lidar["log_path"])
+    read_cm = min(m["distances_cm"][0] for _t, _ns, m in logs.messages(log_path, ["/sensor/rig/lidar"]))
+    assert abs(min(proximity_relayed_cm(log_path, mavlink.MAV_SENSOR_ROTATION_NONE)) - read_cm) <= 2
+    beams = run_wall(capsys, tmp_path, "beams", "--drive", "pilot", "--rig", "four_rangefinders")
+    log_path = Path(beams["log_path"])
+    read_cm = min(m["distance_cm"] for _t, _ns, m in logs.messages(log_path, ["/sensor/rig/front"]))
+    assert abs(min(proximity_relayed_cm(log_path, mavlink.MAV_SENSOR_ROTATION_NONE)) - read_cm) <= 2
+    assert beams["min_clearance_m"] < lidar["min_clearance_m"]
+
+
 def test_a_gps_failure_reaches_ardupilots_sitl_through_its_parameters_and_one_without_a_means_is_refused(capsys, tmp_path):
     """GPS off is SIM_GPS1_ENABLE 0 from the onset to the end: ArduPilot's own GPS reports no fix
     on its API link then, a 3D fix before and after. A gyro failing intermittently has no SITL
