@@ -96,6 +96,19 @@ def test_a_flight_that_runs_the_target_line_ranks_before_every_flight_that_does_
     assert on_target < novelty.told(-5.0, close_elsewhere, history) == pytest.approx(-5.0 - 5 * NOVELTY_WEIGHT_M)
 
 
+def test_the_covering_suite_takes_the_flights_that_add_most_until_nothing_is_left():
+    from harness.campaigns.coverage import Flight, covering_suite
+
+    def flight(evaluation: int, lines: list[int], branches: list[str]):
+        record = {"files": {"src/x.cpp": {"lines_hit": lines, "lines_missed": [], "branches_hit": branches, "branches_missed": []}}}
+        return Flight("a.db", evaluation, float(evaluation)), record
+
+    flights = [flight(1, [1, 2], ["1:0", "1:1"]), flight(2, [1, 2, 3], ["1:0"]), flight(3, [5], ["2:0"]), flight(4, [1], ["1:1"])]
+    suite = covering_suite(flights)
+    assert [(c.flight.evaluation, c.branches_added, c.lines_added) for c in suite] == [(1, 2, 2), (3, 1, 1), (2, 0, 1)]
+    assert covering_suite(flights, "y.cpp") == []
+
+
 def test_merged_coverage_names_the_first_flight_to_reach_each_line():
     from harness.campaigns.coverage import Flight
 
@@ -146,6 +159,14 @@ def test_each_flight_records_the_code_it_ran_and_the_rigs_code_only_with_a_rig(c
     reached_first = {int(line): where for line, where in report["first_reached"].items()}
     rangefinders = function_lines(coverage_build / "autopilot" / "collision.py", "ObstacleMap.update_distance_sensor") & set(reached_first)
     assert len(rangefinders) > 5 and {reached_first[line]["store"] for line in rangefinders} == {str(rigged)}
+    # A suite of the fewest flights that reach it all, as regression cases expecting what each flight did
+    from harness.campaigns.regression import load_regression
+
+    assert main(["coverage", str(plain), str(rigged), "--source", "collision.py", "--suite", str(tmp_path / "suite"), "--json"]) == 0
+    chosen = json.loads(capsys.readouterr().out)
+    cases = [load_regression(path) for path in sorted((tmp_path / "suite").glob("*.regression.json"))]
+    assert len(cases) == len(chosen["suite"]) >= 1 and chosen["suite"][0]["branches_added"] > 0
+    assert {case.expect for case in cases} <= {"safe", "violation"}
     # The HTML report shows the sources the coverage build ran
     assert main(["coverage", str(plain), str(rigged), "--source", "collision.py", "--html", str(tmp_path / "html"), "--json"]) == 0
     html = Path(json.loads(capsys.readouterr().out)["html"])

@@ -122,6 +122,40 @@ def write_html(files: Sequence[FileCoverage], sources: Path, out: Path) -> Path:
     return index
 
 
+@dataclass(frozen=True)
+class Chosen:
+    """A flight of a suite chosen by coverage, with the branches and lines it added."""
+
+    flight: Flight
+    branches_added: int
+    lines_added: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.flight.as_dict(), "branches_added": self.branches_added, "lines_added": self.lines_added}
+
+
+def covering_suite(flights: Sequence[tuple[Flight, Mapping[str, Any]]], source: str | None = None) -> list[Chosen]:
+    """A small set of the flights that reaches every branch and line any of them reached (of the
+    files `source` keeps): greedy set cover, each time the flight that adds the most branches
+    (then lines; then the earliest), until none adds any. Greedy is within a factor ln(n) of the
+    smallest such set, and the order says what each case adds."""
+    reached = []
+    for flight, record in flights:
+        files = merged([(flight, record)], source)
+        reached.append((flight, {f"{f.path}:{b}" for f in files for b in f.first_branch}, {f"{f.path}:{n}" for f in files for n in f.first_line}))
+    covered_branches: set[str] = set()
+    covered_lines: set[str] = set()
+    chosen: list[Chosen] = []
+    while True:
+        best = max(reached, key=lambda entry: (len(entry[1] - covered_branches), len(entry[2] - covered_lines), -entry[0].created), default=None)
+        if best is None or not (best[1] - covered_branches or best[2] - covered_lines):
+            return chosen
+        chosen.append(Chosen(best[0], len(best[1] - covered_branches), len(best[2] - covered_lines)))
+        covered_branches |= best[1]
+        covered_lines |= best[2]
+        reached.remove(best)
+
+
 def stored_flights(stores: Sequence[Path]) -> list[tuple[Flight, Mapping[str, Any]]]:
     """Every flight of the stores that recorded coverage."""
     from harness.campaigns.store import Store

@@ -4,6 +4,7 @@ and what is read from its store afterwards."""
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import subprocess
 import sys
@@ -271,6 +272,8 @@ def _coverage_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", metavar="FILE", help="only this source file (its path, or the end of it: CollisionPrevention.cpp)")
     p.add_argument("--html", metavar="DIR", help="also write gcovr's HTML report there: each line with how many flights ran it")
     p.add_argument("--sources", metavar="TREE", help="with --html: the source tree to show (default: the one the flights' coverage build kept)")
+    p.add_argument("--suite", metavar="DIR", help="write a suite of regression cases there: the fewest flights (greedy set cover) that reach "
+                                                   "every branch and line the flights reached")
 
 
 @command("coverage", "lines and branches of the firmware that a coverage build's flights reached, merged over campaigns", _coverage_options)
@@ -287,8 +290,46 @@ def cmd_coverage(args: argparse.Namespace) -> int:
     if args.html:
         summary["html"] = str(_coverage_html(args, flights, files))
         text += f"\nHTML report: {summary['html']}"
+    if args.suite:
+        summary["suite"], summary["suite_misses"] = _coverage_suite(flights, files, args.source, Path(args.suite))
+        text += "\n" + "\n".join(f"{case['case']}: +{case['branches_added']} branches, +{case['lines_added']} lines" for case in summary["suite"])
+        text += (f"\nwrote {len(summary['suite'])} regression case(s) to {args.suite}: pytest {args.suite}, or "
+                 f"`stella mutants run --suite {args.suite}`; it reaches all the flights reached but {summary['suite_misses']['branches']} branches "
+                 f"and {summary['suite_misses']['lines']} lines, which only flights that were neither ok nor a violation reached")
     emit(args, summary, text)
     return 0
+
+
+def _coverage_suite(flights, files, source: str | None, out: Path) -> tuple[list[dict], dict[str, int]]:
+    """The fewest flights, among those that ended ok or violated, that reach what they reached
+    (coverage.covering_suite), written as regression cases that expect what each flight did: to
+    keep the safety distance and finish, or to violate again. A flight that ended otherwise
+    (blocked, say) has no such expectation and is left out; what only such flights reached is
+    counted as missed."""
+    from harness.campaigns.coverage import covering_suite, merged
+    from harness.campaigns.regression import SUFFIX, case_document, case_name
+    from harness.campaigns.store import Store
+    from harness.flight.fitness import Status
+
+    cases, suts = {}, {}
+    for store_path in sorted({flight.store for flight, _record in flights}):
+        with Store.existing(Path(store_path)) as store:
+            suts[store_path] = store.campaign_sut()
+            cases.update({(store_path, e.id): e for e in store.all_evaluations() if e.coverage and e.status in (Status.OK, Status.VIOLATION)})
+    expected = [(flight, record) for flight, record in flights if (flight.store, flight.evaluation) in cases]
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for chosen in covering_suite(expected, source):
+        case = cases[(chosen.flight.store, chosen.flight.evaluation)]
+        name = f"{Path(chosen.flight.store).stem}-{case_name(case)}"  # the stores' cases may share names
+        expect = "violation" if case.status == Status.VIOLATION else "safe"
+        (out / f"{name}{SUFFIX}").write_text(json.dumps(case_document(name, case, suts[chosen.flight.store], Path(chosen.flight.store), expect),
+                                                        indent=2) + "\n")
+        written.append({"case": name, **chosen.as_dict()})
+    reached = merged(expected, source)
+    misses = {"branches": sum(len(f.first_branch) for f in files) - sum(len(f.first_branch) for f in reached),
+              "lines": sum(len(f.first_line) for f in files) - sum(len(f.first_line) for f in reached)}
+    return written, misses
 
 
 def _coverage_html(args: argparse.Namespace, flights, files) -> Path:
