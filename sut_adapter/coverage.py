@@ -133,7 +133,10 @@ def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[s
     text = workdir / "gcov-text"
     shutil.copytree(notes / "sources", text, dirs_exist_ok=True)
     for folder_of_counters in sorted({gcda.parent for gcda in found}):
-        ran = subprocess.run(["gcov", "--branch-probabilities", "--branch-counts", "--preserve-paths", "--object-directory", str(folder_of_counters),
+        # --long-file-names: a header's report named after the object that inlined it too, so
+        # that each object's report of it is kept (and gcovr merges them), not overwritten.
+        ran = subprocess.run(["gcov", "--branch-probabilities", "--branch-counts", "--preserve-paths", "--long-file-names",
+                              "--object-directory", str(folder_of_counters),
                               *[str(g) for g in found if g.parent == folder_of_counters]], cwd=text, capture_output=True, text=True)
         if ran.returncode != 0:
             raise RuntimeError(f"gcov failed on the flight's counters: {ran.stderr.strip()[-600:]}")
