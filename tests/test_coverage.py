@@ -240,9 +240,9 @@ def test_a_gcov_build_measures_its_paths_only_and_each_flight_keeps_its_own_coun
     subprocess.run([str(build_dir / "px4")], check=True, env={"PATH": "/usr/bin:/bin", **gcov_environment(build, flight)})
     assert not list(build_dir.glob("**/*.gcda"))  # the build folder is left alone
     # guard(5): the function's line and the test ran, the early return did not; the test's branch
-    # to it was not taken, the other was
-    assert gcov_record(build, folder, flight) == {"tool": "gcov", "files": {"src/lib/measured/guard.c": {
-        "lines_hit": [1, 3, 7], "lines_missed": [4], "branches_hit": ["3:1"], "branches_missed": ["3:0"]}}}
+    # to it was not taken, the other was; read against the sources the build kept
+    assert gcov_record(build, folder, flight) == {"tool": "gcov", "sources": str((folder / "coverage" / "sources").resolve()), "files": {
+        "src/lib/measured/guard.c": {"lines_hit": [1, 3, 7], "lines_missed": [4], "branches_hit": ["3:1"], "branches_missed": ["3:0"]}}}
     assert gcov_record(build, folder, tmp_path / "no-flight") is None
 
 
