@@ -127,6 +127,17 @@ def test_a_side_that_could_not_finish_reveals_nothing():
     assert verdict.reveals is None and not verdict.comparable and "reference could not finish" in verdict.why
 
 
+def test_a_subject_whose_sut_dies_in_every_flight_where_the_reference_flies_is_unsafe():
+    """A mutant's `now % 0` kills PX4 in the air (SIGFPE) where the original flies on: a kill,
+    not a pair that could not be compared."""
+    died = Outcome(Status.SUT_CRASHED, PENALTY, None, 11.0, "px4 died of SIGFPE (Floating point exception)")
+    verdict = compare([died, died, died], [flight(Status.MISSION_FAILED, 2.6), flight(Status.OK, 2.7), flight(Status.OK, 2.6)])
+    assert verdict.reveals == Reveal.UNSAFE and "SUT died in flight (px4 died of SIGFPE" in verdict.why and "mission_failed/ok" in verdict.why
+    # once of three is the infrastructure's or the spread's, not the build's
+    assert compare([died, flight(Status.OK, 2.6)], [flight(Status.OK, 2.7)]).reveals is None
+    assert compare([died], [Outcome(Status.TIMEOUT, PENALTY, None, 0.0, "timed out")]).reveals is None
+
+
 def test_the_difference_objective_is_lowest_where_the_subject_comes_closer():
     closer, same = objective_value("difference", flight(Status.OK, 1.1), flight(Status.OK, 2.0)), \
         objective_value("difference", flight(Status.OK, 2.0), flight(Status.OK, 2.0))
@@ -135,10 +146,12 @@ def test_the_difference_objective_is_lowest_where_the_subject_comes_closer():
     # on either side: a subject that flies into the wall where the reference holds it back scores lowest.
     assert objective_value("difference", flight(Status.VIOLATION, 0.3), flight(Status.MISSION_FAILED, 1.6)) == pytest.approx(-1.3)
     assert objective_value("difference", flight(Status.MISSION_FAILED, 5.0), flight(Status.OK, 2.0)) == pytest.approx(3.0)
-    # A side that could not finish its flight leaves nothing to compare: the penalty.
-    crashed = Outcome(Status.SUT_CRASHED, PENALTY, None, 0.0, "px4 exited")
+    # A reference that could not finish its flight leaves nothing to compare: the penalty; a
+    # subject whose SUT died where the reference flew scores as if it had touched the obstacle.
+    crashed = Outcome(Status.SUT_CRASHED, PENALTY, None, 0.0, "px4 died of SIGFPE (Floating point exception)")
     assert objective_value("difference", flight(Status.OK, 1.1), crashed) == PENALTY
-    assert objective_value("difference", crashed, flight(Status.OK, 1.1)) == PENALTY
+    assert objective_value("difference", crashed, flight(Status.OK, 1.1)) == pytest.approx(-1.1)
+    assert objective_value("difference", crashed, crashed) == PENALTY
     assert objective_value("subject", flight(Status.OK, 1.1), flight(Status.OK, 2.0)) == pytest.approx(0.1)
 
 

@@ -4,7 +4,9 @@ against), and what their outcomes say together.
 
 A pair *reveals* a difference at one of two levels:
 
-* `unsafe`: every subject flight violates the safety distance (f < 0) and no reference flight does;
+* `unsafe`: every subject flight violates the safety distance (f < 0) and no reference flight
+  does; or the subject's SUT died in every flight (a flight controller lost in the air), where
+  every reference flight flew to a recorded end;
 * `behaviour`: not unsafe, but the outcomes differ beyond the reference's spread: the two sides'
   statuses never meet (the subject blocked where the reference completes its mission), or their
   minimum clearances or their flight times lie apart by more than the reference's own spread
@@ -23,8 +25,10 @@ judged on all flights, so the spread used is the one measured.
 The pair's fitness (what a search minimises) is chosen by the objective: `subject`, the
 subject's own f; or `difference`, the subject's minimum clearance less the reference's (f_subject
 - f_reference without the mission penalty), lowest where the subject comes closer than the
-reference. Where either side could not finish its flight (crash, timeout: nothing recorded to
-compare) the pair gets the penalty.
+reference. A subject whose SUT died where the reference flew to its end is scored as if it had
+touched the obstacle (clearance 0): among the strongest differences, without dwarfing the others.
+Where either side could not finish its flight otherwise (the reference's crash, a timeout, the
+simulator's crash: nothing recorded to compare) the pair gets the penalty.
 """
 
 from __future__ import annotations
@@ -103,6 +107,13 @@ class Verdict:
     difference: Difference | None = None  # with reveals BEHAVIOUR: by what
 
 
+def _died_where_reference_flew(subject: Sequence[Outcome], reference: Sequence[Outcome]) -> bool:
+    """Every subject flight ended with its SUT dead (a mutant's division by zero, say) and every
+    reference flight flew to a recorded end."""
+    return (all(o.status == Status.SUT_CRASHED for o in subject)
+            and all(o.status not in COULD_NOT_FINISH and o.min_clearance_m is not None for o in reference))
+
+
 def _interval(values: Sequence[float]) -> tuple[float, float]:
     return min(values), max(values)
 
@@ -131,6 +142,9 @@ def compare(subject: Sequence[Outcome], reference: Sequence[Outcome], names: tup
     mine, theirs = names
     if not subject or not reference:
         raise ValueError("a pair needs at least one flight of each side")
+    if _died_where_reference_flew(subject, reference):
+        return Verdict(Reveal.UNSAFE, f"the {mine}'s SUT died in flight ({subject[0].why}) where the {theirs} flew to its end "
+                                      f"({'/'.join(sorted({o.status for o in reference}))})", True)
     for side, outcomes in ((mine, subject), (theirs, reference)):
         unfinished = [o for o in outcomes if o.status in COULD_NOT_FINISH or o.min_clearance_m is None]
         if unfinished:
@@ -173,6 +187,8 @@ def objective_value(objective: str, subject: Outcome, reference: Outcome) -> flo
         raise ValueError(f"objective {objective!r} is not one of {', '.join(OBJECTIVES)}")
     # Clearance against clearance: a mission the pilot could not finish because collision
     # prevention held it back (blocked) is a flight like any other here, and on either side.
+    if _died_where_reference_flew([subject], [reference]):
+        return -reference.min_clearance_m
     if any(side.status in COULD_NOT_FINISH or side.min_clearance_m is None for side in (subject, reference)):
         return PENALTY
     return subject.min_clearance_m - reference.min_clearance_m
