@@ -37,6 +37,13 @@ MAX_INSTANCE = 9
 # heartbeat once per second of PX4's own time (harness/flight/api_tap.py), so a lost data link
 # is one a scenario made, and PX4 answers it after the documented time.
 DEFAULT_PARAMS: dict[str, int | float] = {"CP_DIST": 1.0, "COM_DL_LOSS_T": 10}
+# Every instance is system 1, as a single vehicle is, whichever port block it flies in: PX4's
+# start-up makes instance k system k + 1, and code that addresses system 1 (collision
+# prevention's switch to Loiter on stale range data, `_publishVehicleCmdDoLoiter`) then works
+# on instance 0 only (2026-11-29: 428 of 526 flights of instance 0 switched, 0 of 536 of
+# instances 1-4), so a flight's outcome depended on its slot. Set at start only: over MAVLink it
+# would change the system id under the harness's connection.
+ONE_SYSTEM = {"MAV_SYS_ID": 1}
 # PX4 stretches its link-loss and preflight-disarm timeouts by this factor (ROMFS rcS), so its
 # paced hold can run this many times faster than real time: it reaches its first heartbeat (1 s
 # of its time after its MAVLink starts) and health in a twentieth of the wall time.
@@ -145,7 +152,7 @@ class Px4Sitl:
             raise SutError(self.name, f"PX4 instance {instance} uses simulator port {4560 + instance} and API port {14540 + instance}, not {sim_port} and {api_port}")
         px4_dir = workdir / "px4"
         px4_dir.mkdir()
-        at_start = {**DEFAULT_PARAMS, **(flight_params or {}), **params} if self.capabilities.params_at_start else {}
+        at_start = {**DEFAULT_PARAMS, **ONE_SYSTEM, **(flight_params or {}), **params} if self.capabilities.params_at_start else {}
         argv, env = self.command(instance=instance, workdir=px4_dir, params=at_start)
         folder = self.binary.parent.parent
         measured = coverage_build(folder)

@@ -147,7 +147,8 @@ def test_a_px4_whose_start_up_takes_parameters_from_its_environment_gets_the_fli
     while handle.alive() and time.monotonic() < deadline:
         time.sleep(0.01)
     assert handle.stop() == 0
-    expected = {**DEFAULT_PARAMS, **flight, "CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}  # the user's values win
+    # the user's values win; instance 2 is system 1 as every instance is
+    expected = {**DEFAULT_PARAMS, "MAV_SYS_ID": 1, **flight, "CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}
     assert (workdir / "px4" / "params.txt").read_text().splitlines() == sorted(f"PX4_PARAM_{name}={value}" for name, value in expected.items())
     # The user's go over MAVLink too, where PX4 refuses a name it does not have.
     assert handle.mavlink_params == {"CP_DIST": 2.5, "MIS_TAKEOFF_ALT": 4.0}
