@@ -368,13 +368,40 @@ def test_a_sensors_reach_rate_latency_and_view_are_search_dimensions_that_reach_
     assert world_spec(again, again.from_concrete(concrete, "concrete"), 0).rig == (depth,)
 
 
+def test_a_sources_mounting_yaw_and_sector_width_are_search_dimensions_that_reach_its_message(tmp_path):
+    from harness.scenario.logical import load_logical
+    from harness.scenario.world import world_spec
+
+    path = searched_depth_camera(tmp_path, yaw_deg={"min": -90, "max": 90}, increment_deg={"min": 2, "max": 5}, fov_deg={"min": 20, "max": 87})
+    profile = with_rig_named(load_profile(), "depth_camera")
+    space = SearchSpace(load_logical(path, profile, "pilot"), profile)
+    names = {d["name"] for d in space.describe()["dimensions"]}
+    assert {"sensor.depth.yaw_deg", "sensor.depth.increment_deg"} <= names
+    x = space.vector_from({"sensor.depth.yaw_deg": 30.0, "sensor.depth.increment_deg": 4.0, "sensor.depth.fov_deg": 40.0})
+    [depth] = world_spec(space, x, 0).rig
+    assert (depth.yaw_deg, depth.increment_deg, depth.fov_deg) == (30.0, 4.0, 40.0)
+    counter = iter(range(10**6))
+    frames = RigFrames((depth,), 250.0, hull, wall_north(3.3), lambda codec, *fields: codec.encode(next(counter) & 0xFF, 1, 51, *fields),
+                       lambda topic, time_us, message: None)
+    [message] = [m for step in range(40) for m in decoded(frames.step_frames(step, step * 4000, 0.0, lambda name, readings, reach_cm: readings)[0])]
+    # Ten sectors of 4 degrees from 10 to 50 degrees right of the nose, the first centred at 12
+    assert message.increment == 4 and message.increment_f == 4.0 and message.angle_offset == pytest.approx(12.0)
+    assert message.distances[9] != 65535 and message.distances[10] == 65535
+    # The wall across north: its sector at 12 degrees reads 3.0 m / cos(12 degrees) from the hull's face
+    assert message.distances[0] == pytest.approx(100 * (3.3 / math.cos(math.radians(12.0)) - 0.3 / math.cos(math.radians(12.0))), abs=2)
+
+
 @pytest.mark.parametrize("behaviour, rig, pointer, says", [
     ({"latency_s": {"min": 0, "max": 0.2}}, None, "/sensors/0/sensor", "has no rig"),
     ({"latency_s": {"min": 0, "max": 0.2}}, "lidar_360", "/sensors/0/sensor", "the rig's sensors are lidar"),
     ({"latency_s": {"min": 0.3, "max": 0.2}}, "depth_camera", "/sensors/0/latency_s", "swapped bounds"),
     ({"max_range_m": {"min": 0.2, "max": 5}}, "depth_camera", "/sensors/0/max_range_m/min", "min_range_m, 0.3 m"),
     ({"rate_hz": {"min": 0, "max": 5}}, "depth_camera", "/sensors/0/rate_hz/min", "more than 0"),
-    ({"fov_deg": {"min": 30, "max": 300}}, "depth_camera", "/sensors/0/fov_deg", "2.9 to 208.8 degrees"),
+    ({"fov_deg": {"min": 30, "max": 300}}, "depth_camera", "/sensors/0/fov_deg", "72 sectors of 2.9 cover at most 208.8 degrees"),
+    ({"increment_deg": {"min": 1, "max": 3}}, "depth_camera", "/sensors/0/increment_deg", "72 sectors of 1 cover at most 72 degrees"),
+    ({"increment_deg": {"min": 5, "max": 10}, "fov_deg": {"min": 8, "max": 87}}, "depth_camera", "/sensors/0/fov_deg", "fov_deg min >= increment_deg max"),
+    ({"increment_deg": {"min": 0.5, "max": 3}}, "depth_camera", "/sensors/0/increment_deg/min", "at least 1 deg"),
+    ({"yaw_deg": {"min": -400, "max": 0}}, "depth_camera", "/sensors/0/yaw_deg/min", "-360"),
     ({"latency_s": {"min": 0, "max": 3}}, "depth_camera", "/sensors/0/latency_s/max", "at most 2 s"),
 ])
 def test_bad_searched_sensor_behaviour_exits_2_naming_the_field(tmp_path, capsys, behaviour, rig, pointer, says):

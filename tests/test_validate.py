@@ -40,7 +40,7 @@ def test_table3_scenarios_and_examples_and_profile_are_valid(capsys):
     paths = [str(p) for p in TABLE3] + [str(ROOT / "scenarios" / "examples"), str(ROOT / "scenarios" / "profiles")]
     assert main(["validate", *paths]) == 0
     out = capsys.readouterr().out
-    assert out.count("ok: ") == 32 + 7 + 2 + 1 + 1  # Table III, fig4, wall, wall with the sensor off, the probed wall, the plan's, the richer and the data-link scenario, the two wall concretes, the plan, the profile
+    assert out.count("ok: ") == 32 + 9 + 2 + 1 + 1  # Table III, fig4, wall, wall with the sensor off, the probed wall (with a lidar of searched geometry, and one from north), the plan's, the richer and the data-link scenario, the two wall concretes, the plan, the profile
     assert out.count("(concrete scenario)") == 2  # the two walls
     assert out.count("(QGroundControl plan)") == 1
     assert "lighting = normal (profile default) is not simulated" in out

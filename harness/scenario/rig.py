@@ -23,7 +23,9 @@ SECTORS = 72  # OBSTACLE_DISTANCE's distances array
 NO_RIG = 'the vehicle has no rig: name one in the scenario\'s "rig" or with --rig (`stella rigs`)'
 # A sensor's behaviour a logical scenario may search ("sensors"), with its unit and the values a
 # sensor of the rig can take (the rig schema's bounds).
-SENSOR_BEHAVIOUR = {"max_range_m": ("m", 0.0, 655.0), "fov_deg": ("deg", 0.0, 360.0), "rate_hz": ("Hz", 0.0, 250.0), "latency_s": ("s", 0.0, 2.0)}
+SENSOR_BEHAVIOUR = {"max_range_m": ("m", 0.0, 655.0), "fov_deg": ("deg", 0.0, 360.0), "rate_hz": ("Hz", 0.0, 250.0), "latency_s": ("s", 0.0, 2.0),
+                    "yaw_deg": ("deg", -360.0, 360.0), "increment_deg": ("deg", 1.0, 90.0)}
+DEFAULT_INCREMENT_DEG = 5.0
 
 
 def rigs_dir() -> Path:
@@ -69,7 +71,7 @@ def rig_problems(document: Any, file: str, at: str = "") -> list[Problem]:
                 if key in sensor:
                     problems.append(Problem(file, f"{where}/{key}", "belongs to an OBSTACLE_DISTANCE source: a DISTANCE_SENSOR has one reading over its fov_deg"))
             continue
-        increment = sensor.get("increment_deg", 5.0)
+        increment = sensor.get("increment_deg", DEFAULT_INCREMENT_DEG)
         covered = 360.0 if sensor["fov_deg"] >= 360.0 else sensor["fov_deg"]
         if covered / increment > SECTORS + 1e-9:
             problems.append(Problem(file, f"{where}/increment_deg",
@@ -89,7 +91,8 @@ def rig_problems(document: Any, file: str, at: str = "") -> list[Problem]:
 
 def sensor_behaviour_problems(entries: list, rig: Mapping[str, Any] | None, file: str) -> list[Problem]:
     """A logical scenario's searched sensor behaviour ("sensors"): each entry names a sensor of
-    the rig once, and each range lies within what that sensor can be."""
+    the rig once, each range lies within what that sensor can be, and every corner of the box
+    is a sensor that exists (an OBSTACLE_DISTANCE source's field of view holds 1 to 72 sectors)."""
     problems = []
     sensors = {sensor["name"]: sensor for sensor in rig["sensors"]} if rig is not None else {}
     seen: dict[str, int] = {}
@@ -102,27 +105,48 @@ def sensor_behaviour_problems(entries: list, rig: Mapping[str, Any] | None, file
         if name in seen:
             problems.append(Problem(file, f"/sensors/{index}/sensor", f"{name!r} is searched in /sensors/{seen[name]} already: one entry per sensor"))
         seen.setdefault(name, index)
-        sensor = sensors[name]
-        for field, (unit, lowest, highest) in SENSOR_BEHAVIOUR.items():
-            if field not in entry:
-                continue
-            low, high = entry[field]["min"], entry[field]["max"]
-            where = f"/sensors/{index}/{field}"
-            if low > high:
-                problems.append(Problem(file, where, f"min {low:g} is above max {high:g}: swapped bounds?"))
-            elif field == "max_range_m" and low <= sensor["min_range_m"]:
-                problems.append(Problem(file, f"{where}/min", f"must be above the sensor's min_range_m, {sensor['min_range_m']:g} m"))
-            elif high > highest:
-                problems.append(Problem(file, f"{where}/max", f"a sensor's {field} is at most {highest:g} {unit}"))
-            elif field == "rate_hz" and low <= lowest:
-                problems.append(Problem(file, f"{where}/min", "a sensor reads more than 0 times a second"))
-            elif field == "fov_deg" and sensor["message"] == "OBSTACLE_DISTANCE" and (
-                    low < sensor.get("increment_deg", 5.0) or min(high, 360.0) / sensor.get("increment_deg", 5.0) > SECTORS + 1e-9):
-                problems.append(Problem(file, where, f"an OBSTACLE_DISTANCE source of {sensor.get('increment_deg', 5.0):g}-degree sectors covers "
-                                                     f"{sensor.get('increment_deg', 5.0):g} to {SECTORS * sensor.get('increment_deg', 5.0):g} degrees"))
-            elif field == "fov_deg" and sensor.get("frame") == "local" and low < 360.0:
-                problems.append(Problem(file, where, 'a "local" source covers all around: its field of view stays 360'))
+        field_problems = [_searched_field_problem(file, f"/sensors/{index}/{field}", field, entry[field], sensors[name])
+                          for field in SENSOR_BEHAVIOUR if field in entry]
+        field_problems = [problem for problem in field_problems if problem is not None]
+        problems += field_problems or _sector_problems(file, f"/sensors/{index}", entry, sensors[name])
     return problems
+
+
+def _searched_field_problem(file: str, where: str, field: str, bounds: Mapping[str, float], sensor: Mapping[str, Any]) -> Problem | None:
+    unit, lowest, highest = SENSOR_BEHAVIOUR[field]
+    low, high = bounds["min"], bounds["max"]
+    if low > high:
+        return Problem(file, where, f"min {low:g} is above max {high:g}: swapped bounds?")
+    if field == "max_range_m" and low <= sensor["min_range_m"]:
+        return Problem(file, f"{where}/min", f"must be above the sensor's min_range_m, {sensor['min_range_m']:g} m")
+    if high > highest:
+        return Problem(file, f"{where}/max", f"a sensor's {field} is at most {highest:g} {unit}")
+    if low < lowest or (field == "rate_hz" and low <= lowest):
+        return Problem(file, f"{where}/min", "a sensor reads more than 0 times a second" if field == "rate_hz" else f"a sensor's {field} is at least {lowest:g} {unit}")
+    if field == "increment_deg" and sensor["message"] != "OBSTACLE_DISTANCE":
+        return Problem(file, where, "belongs to an OBSTACLE_DISTANCE source: a DISTANCE_SENSOR has one reading over its fov_deg")
+    if field == "fov_deg" and sensor.get("frame") == "local" and low < 360.0:
+        return Problem(file, where, 'a "local" source covers all around: its field of view stays 360')
+    return None
+
+
+def _sector_problems(file: str, where: str, entry: Mapping[str, Any], sensor: Mapping[str, Any]) -> list[Problem]:
+    """An OBSTACLE_DISTANCE source's searched field of view and sector width, taken together: the
+    narrowest view must hold one of the widest sectors, the widest view at most 72 of the narrowest."""
+    if sensor["message"] != "OBSTACLE_DISTANCE" or ("fov_deg" not in entry and "increment_deg" not in entry):
+        return []
+    fixed_fov = {"min": sensor["fov_deg"], "max": sensor["fov_deg"]}
+    fixed_increment = {"min": sensor.get("increment_deg", DEFAULT_INCREMENT_DEG), "max": sensor.get("increment_deg", DEFAULT_INCREMENT_DEG)}
+    fov, increment = entry.get("fov_deg", fixed_fov), entry.get("increment_deg", fixed_increment)
+    searched = "fov_deg" if "fov_deg" in entry else "increment_deg"
+    widest_view = min(fov["max"], 360.0)
+    if fov["min"] < increment["max"] or widest_view / increment["min"] > SECTORS + 1e-9:
+        return [Problem(file, f"{where}/{searched}",
+                        f"every searched sensor must be one an OBSTACLE_DISTANCE message can carry: a field of view of "
+                        f"{fov['min']:g}-{widest_view:g} degrees in sectors of {increment['min']:g}-{increment['max']:g} needs "
+                        f"fov_deg min >= increment_deg max and fov_deg max <= {SECTORS} x increment_deg min "
+                        f"({SECTORS} sectors of {increment['min']:g} cover at most {SECTORS * increment['min']:g} degrees)")]
+    return []
 
 
 def load_rig(name_or_path: str, folder: Path | None = None, named_at: tuple[str, str] = ("--rig", "")) -> dict[str, Any]:
