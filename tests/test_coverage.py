@@ -5,6 +5,7 @@ coverage.py, so that the whole path runs without PX4."""
 from __future__ import annotations
 
 import ast
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -109,6 +110,29 @@ def test_the_covering_suite_takes_the_flights_that_add_most_until_nothing_is_lef
     assert covering_suite(flights, "y.cpp") == []
 
 
+def test_a_covering_suite_keeps_blocked_flights_as_cases_that_must_keep_the_distance_and_leaves_unfinished_ones_out(tmp_path, capsys, profile):
+    from conftest import stored_result
+    from harness.campaigns.regression import load_regression
+    from harness.campaigns.store import Store
+    from harness.scenario.logical import load_logical
+    from harness.scenario.space import SearchSpace
+
+    space = SearchSpace(load_logical(ROOT / "scenarios" / "examples" / "wall.json", profile), profile)
+    store = Store(tmp_path / "c.db")
+    run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "algorithms": ["RANDOM"], "sut": "bundled"}), "/w/wall.json", space.logical.name, "RANDOM", 0, 1)
+    xs = space.sample(np.random.default_rng(0), 3)
+    for ordinal, (status, lines) in enumerate([("ok", [1, 2]), ("mission_failed", [1, 3]), ("timeout", [4])]):
+        result = dataclasses.replace(stored_result(1.0, status, min_clearance_m=2.0), coverage={
+            "files": {"src/cp.cpp": {"lines_hit": lines, "lines_missed": [], "branches_hit": [f"{line}:0" for line in lines], "branches_missed": []}}})
+        store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="RANDOM", vector=xs[ordinal], result=result, concrete=space.to_concrete(xs[ordinal]))
+    store.close()
+    assert main(["coverage", str(tmp_path / "c.db"), "--suite", str(tmp_path / "suite"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    cases = {load_regression(path).found["status"]: load_regression(path).expect for path in (tmp_path / "suite").glob("*.regression.json")}
+    assert cases == {"ok": "safe", "mission_failed": "kept"}
+    assert summary["suite_misses"] == {"branches": 1, "lines": 1}
+
+
 def test_merged_coverage_names_the_first_flight_to_reach_each_line():
     from harness.campaigns.coverage import Flight
 
@@ -166,7 +190,7 @@ def test_each_flight_records_the_code_it_ran_and_the_rigs_code_only_with_a_rig(c
     chosen = json.loads(capsys.readouterr().out)
     cases = [load_regression(path) for path in sorted((tmp_path / "suite").glob("*.regression.json"))]
     assert len(cases) == len(chosen["suite"]) >= 1 and chosen["suite"][0]["branches_added"] > 0
-    assert {case.expect for case in cases} <= {"safe", "violation"}
+    assert {case.expect for case in cases} <= {"safe", "kept", "violation"}
     # The HTML report shows the sources the coverage build ran
     assert main(["coverage", str(plain), str(rigged), "--source", "collision.py", "--html", str(tmp_path / "html"), "--json"]) == 0
     html = Path(json.loads(capsys.readouterr().out)["html"])

@@ -69,7 +69,7 @@ def test_export_refuses_a_missing_store_and_an_unknown_expectation(tmp_path, pro
     with pytest.raises(InputError, match="no such campaign store"):
         export_regressions(tmp_path / "none.db", tmp_path / "out")
     make_store(tmp_path / "c.db", profile).close()
-    with pytest.raises(InputError, match="allowed values: safe, violation"):
+    with pytest.raises(InputError, match="allowed values: safe, kept, violation"):
         export_regressions(tmp_path / "c.db", tmp_path / "out", expect="fixed")
 
 
@@ -81,7 +81,7 @@ def test_a_malformed_case_names_the_file_the_field_and_the_fix(tmp_path):
     with pytest.raises(InputError) as error:
         load_regression(path)
     assert str(error.value).splitlines() == [
-        f'{path}: /expect: "fixed" is not allowed; allowed values: "safe", "violation", "as_reference"',
+        f'{path}: /expect: "fixed" is not allowed; allowed values: "safe", "kept", "violation", "as_reference"',
         f"{path}: /seed: must be at least 0, got -1",
     ]
     path.write_text(json.dumps(dict(KNOWN_VIOLATION, expect="as_reference")))
@@ -100,6 +100,10 @@ def test_a_malformed_case_names_the_file_the_field_and_the_fix(tmp_path):
         ("safe", "ok", None),
         ("safe", "violation", "safety distance violated: status violation"),
         ("safe", "mission_failed", "the mission was not flown safely to its end: status mission_failed"),
+        ("kept", "ok", None),
+        ("kept", "mission_failed", None),
+        ("kept", "violation", "safety distance violated: status violation"),
+        ("kept", "timeout", "the flight did not end: status timeout"),
         ("violation", "violation", None),
         ("violation", "ok", "the known violation no longer reproduces: status ok"),
     ],
@@ -161,7 +165,7 @@ def test_a_malformed_case_is_a_collection_error_with_the_located_message(pyteste
     copy_case(pytester, "safe_fig4.json", "broken", expect="fixed")
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
     assert result.ret == pytest.ExitCode.INTERRUPTED
-    result.stdout.fnmatch_lines(['*broken.regression.json: /expect: "fixed" is not allowed; allowed values: "safe", "violation", "as_reference"'])
+    result.stdout.fnmatch_lines(['*broken.regression.json: /expect: "fixed" is not allowed; allowed values: "safe", "kept", "violation", "as_reference"'])
 
 
 @pytest.mark.slow

@@ -3,7 +3,8 @@
 A case file (`NAME.regression.json`, schema `regression.schema.json`) holds the concrete
 scenario (which embeds its logical scenario and profile), the flight seed, the SUT and what is
 expected: `safe` (the SUT keeps the safety distance and completes the mission: a fixed fault
-stays fixed) or `violation` (a known violation still reproduces). The pytest plugin collects
+stays fixed), `kept` (it keeps the safety distance, whether or not it completes the mission: a
+flight collision prevention rightly blocks) or `violation` (a known violation still reproduces). The pytest plugin collects
 these files; `verdict` is the judgement both it and `stella` use.
 """
 
@@ -34,6 +35,7 @@ FORMAT = "stella.regression/1"
 SUFFIX = ".regression.json"
 EXPECTATIONS = {
     "safe": "must keep the safety distance and complete the mission",
+    "kept": "must keep the safety distance, whether or not it completes the mission",
     "violation": "the known violation must still reproduce",
     "as_reference": "must do at least as well as the reference build did",
 }
@@ -136,13 +138,15 @@ def verdict(expect: str, result: EvaluationResult, safety_distance_m: float, ref
               for name, scored in result.properties.items() if scored["verdict"] == "violated"]
     if expect == "as_reference":
         return _as_reference(result, reference or {}, what)
-    if expect == "safe":
-        if result.status == Status.OK and not broken:
+    if expect in ("safe", "kept"):
+        if (result.status == Status.OK or expect == "kept" and result.status == Status.MISSION_FAILED) and not broken:
             return None
         if result.status == Status.VIOLATION:
             return f"safety distance violated: {what}"
         if broken:
             return f"{'; '.join(broken)}: {what}"
+        if expect == "kept":
+            return f"the flight did not end: {what}"
         return f"the mission was not flown safely to its end: {what}"
     if result.status == Status.VIOLATION or broken:
         return None

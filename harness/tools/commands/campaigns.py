@@ -295,34 +295,36 @@ def cmd_coverage(args: argparse.Namespace) -> int:
         text += "\n" + "\n".join(f"{case['case']}: +{case['branches_added']} branches, +{case['lines_added']} lines" for case in summary["suite"])
         text += (f"\nwrote {len(summary['suite'])} regression case(s) to {args.suite}: pytest {args.suite}, or "
                  f"`stella mutants run --suite {args.suite}`; it reaches all the flights reached but {summary['suite_misses']['branches']} branches "
-                 f"and {summary['suite_misses']['lines']} lines, which only flights that were neither ok nor a violation reached")
+                 f"and {summary['suite_misses']['lines']} lines, which only flights that could not finish reached")
     emit(args, summary, text)
     return 0
 
 
 def _coverage_suite(flights, files, source: str | None, out: Path) -> tuple[list[dict], dict[str, int]]:
-    """The fewest flights, among those that ended ok or violated, that reach what they reached
+    """The fewest flights, among those the SUT flew to an end, that reach what they reached
     (coverage.covering_suite), written as regression cases that expect what each flight did: to
-    keep the safety distance and finish, or to violate again. A flight that ended otherwise
-    (blocked, say) has no such expectation and is left out; what only such flights reached is
+    keep the safety distance and finish (`safe`), to keep it short of the goal (`kept`: blocked
+    by collision prevention, say) or to violate again. A flight the SUT or the simulator could
+    not finish has no such expectation and is left out; what only such flights reached is
     counted as missed."""
     from harness.campaigns.coverage import covering_suite, merged
     from harness.campaigns.regression import SUFFIX, case_document, case_name
     from harness.campaigns.store import Store
     from harness.flight.fitness import Status
 
+    expectation_of = {Status.OK: "safe", Status.MISSION_FAILED: "kept", Status.VIOLATION: "violation"}
     cases, suts = {}, {}
     for store_path in sorted({flight.store for flight, _record in flights}):
         with Store.existing(Path(store_path)) as store:
             suts[store_path] = store.campaign_sut()
-            cases.update({(store_path, e.id): e for e in store.all_evaluations() if e.coverage and e.status in (Status.OK, Status.VIOLATION)})
+            cases.update({(store_path, e.id): e for e in store.all_evaluations() if e.coverage and e.status in expectation_of})
     expected = [(flight, record) for flight, record in flights if (flight.store, flight.evaluation) in cases]
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for chosen in covering_suite(expected, source):
         case = cases[(chosen.flight.store, chosen.flight.evaluation)]
         name = f"{Path(chosen.flight.store).stem}-{case_name(case)}"  # the stores' cases may share names
-        expect = "violation" if case.status == Status.VIOLATION else "safe"
+        expect = expectation_of[case.status]
         (out / f"{name}{SUFFIX}").write_text(json.dumps(case_document(name, case, suts[chosen.flight.store], Path(chosen.flight.store), expect),
                                                         indent=2) + "\n")
         written.append({"case": name, **chosen.as_dict()})
@@ -381,8 +383,9 @@ def _export_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="folder for the NAME.regression.json files")
     p.add_argument("--threshold", type=float, default=0.0, help="export evaluations with fitness below this (default 0: the violations)")
     p.add_argument("--worst", type=int, default=0, help="also export the N lowest-fitness evaluations of each run")
-    p.add_argument("--expect", choices=["safe", "violation"], default="safe",
-                   help="safe: the test fails until the SUT keeps the safety distance (default); violation: it fails once the known violation stops reproducing")
+    p.add_argument("--expect", choices=["safe", "kept", "violation"], default="safe",
+                   help="safe: the test fails until the SUT keeps the safety distance and completes the mission (default); kept: until it keeps "
+                        "the safety distance, finished or not; violation: it fails once the known violation stops reproducing")
     p.add_argument("--per-mode", action="store_true", help="only the worst violation of each failure mode (`stella triage`) instead of every one")
     p.add_argument("--revealing", action="store_true",
                    help="instead: each revealing scenario of a differential campaign, as a case that fails unless the SUT does as well as the "
