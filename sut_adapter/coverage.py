@@ -135,7 +135,9 @@ def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[s
     for folder_of_counters in sorted({gcda.parent for gcda in found}):
         # --long-file-names: a header's report named after the object that inlined it too, so
         # that each object's report of it is kept (and gcovr merges them), not overwritten.
-        ran = subprocess.run(["gcov", "--branch-probabilities", "--branch-counts", "--preserve-paths", "--long-file-names",
+        # --hash-filenames: those names hashed, as the paths they join (the flight's working
+        # directory, named after its job, among them) outgrow a file name's 255 bytes.
+        ran = subprocess.run(["gcov", "--branch-probabilities", "--branch-counts", "--preserve-paths", "--long-file-names", "--hash-filenames",
                               "--object-directory", str(folder_of_counters),
                               *[str(g) for g in found if g.parent == folder_of_counters]], cwd=text, capture_output=True, text=True)
         if ran.returncode != 0:
