@@ -302,6 +302,13 @@ def test_mutants_built_for_coverage_record_it_and_their_searches_are_guided_by_i
     assert flights and all(e.coverage["files"]["autopilot/collision.py"]["lines_hit"] for e in flights)
     # the search aims at the mutated line first
     assert identity["coverage_target"] == [f"autopilot/collision.py:L{quiet['line']}"]
+    # an unguided search of the same budget joins it in the folder, and the report compares them
+    assert main(["mutants", "run", str(folder), "--suite", str(WALL), "--scenario", str(ROOT / "scenarios" / "examples" / "wall.json"),
+                 "--algorithm", "RANDOM", "--evaluations", "3", "--population", "2", "--workers", "1"]) == 0
+    from harness.firmware import mutation
+
+    assert set(mutation.report(folder)["scores"]) == {"NSGAII+coverage", "RANDOM"}
+    assert sorted(path.name for path in (folder / "search").glob("*/*.db")) == ["wall-NSGAII_coverage.db", "wall-RANDOM.db"]
 
 
 def body_lines(source: Path, signature: str) -> set[int]:

@@ -7,6 +7,7 @@ PX4 source tree is given."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import shutil
@@ -192,6 +193,24 @@ def test_the_report_compares_algorithms_over_their_finished_searches_and_scores_
     assert random["killed"] == 1 and nsga["killed"] == 1
     assert "not in the search kills' comparison, their searches not yet through every scenario (a kill counts in the score): RANDOM 2 survivors" \
         in mutation.report_text(report)
+
+
+def test_searches_of_another_objective_share_a_folder_by_name_and_an_older_folders_one_objective_names_them(tmp_path):
+    plan = mutation.MutationPlan(suite=("wall.json",), algorithms=("NSGAII", "RANDOM"))
+    guided = dataclasses.replace(plan, objective="coverage")
+    assert [plan.searcher(a) for a in plan.algorithms] == ["NSGAII", "RANDOM"] and guided.searcher("NSGAII") == "NSGAII+coverage"
+    assert guided.searching() == plan.searching()  # guided searches count alike: one budget
+    # A folder searched before searches were named by objective kept its one objective in "searching"
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder, limit=2)
+    nothing = {"evaluation": None, "level": None, "first_unsafe": None, "budget": 40}
+    found = {**nothing, "evaluation": 7, "level": "behaviour"}
+    (folder / mutation.RUN).write_text(json.dumps({"screening": guided.screening(), "searching": {"evaluations": 40, "population": 10, "objective": "coverage"},
+                                                   "mutants": {index["mutants"][0]["id"]: {"state": "survived_suite", "suite_flights": 1,
+                                                                                           "search": {"NSGAII": {"wall": found}}}}}))
+    assert list(mutation.report(folder)["scores"]) == ["NSGAII+coverage"]
+    with pytest.raises(InputError, match="before a search's name carried its objective"):
+        mutation._load(folder / mutation.RUN, guided)
 
 
 @pytest.mark.slow

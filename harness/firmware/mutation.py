@@ -54,6 +54,9 @@ CACHE = "reference_flights.db"
 LEVELS = ("unsafe", "any")
 
 
+DEFAULT_OBJECTIVE = "difference"
+
+
 @dataclass(frozen=True)
 class MutationPlan:
     suite: tuple[str, ...]  # regression cases or concrete scenario files
@@ -64,7 +67,7 @@ class MutationPlan:
     confirm: int = 0
     seed: int = 0
     drive: str | None = None
-    objective: str = "difference"
+    objective: str = DEFAULT_OBJECTIVE
     sut_params: Mapping[str, float] = field(default_factory=dict)
     sut_logs: str = "all"  # RunOptions.sut_logs: which flights keep the SUT's own logs
     screen: ScreenSettings | None = None  # the searches' candidates flown on a cheap model first (harness/campaigns/screen.py)
@@ -79,8 +82,15 @@ class MutationPlan:
                 "sut_params": dict(self.sut_params), **rigged}
 
     def searching(self) -> dict[str, Any]:
+        """What every search of a folder shares, so that they count alike: the budget. Searches
+        with another objective are told apart by their name (searcher)."""
         screened = {"screen": self.screen.identity()} if self.screen is not None else {}
-        return {"evaluations": self.evaluations, "population": self.population, "objective": self.objective, **screened}
+        return {"evaluations": self.evaluations, "population": self.population, **screened}
+
+    def searcher(self, algorithm: str) -> str:
+        """A search's name in a folder: the algorithm, and its objective where it is not the
+        default (NSGAII+coverage), so that one folder compares guided and unguided searches."""
+        return algorithm if self.objective == DEFAULT_OBJECTIVE else f"{algorithm}+{self.objective}"
 
 
 def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
@@ -102,11 +112,32 @@ def _load(path: Path, plan: MutationPlan) -> dict[str, Any]:
         raise InputError([Problem(str(path), "/screening", "this folder's mutants were screened with another suite, confirm, seed, drive, rig or parameters; "
                                                            "run with the same ones, or generate into another folder")])
     searched = any(o.get("search") for o in document["mutants"].values())
-    if searched and document["searching"] != plan.searching():
-        raise InputError([Problem(str(path), "/searching", f"this folder's searches ran with {document['searching']}: keep --evaluations, "
-                                                           "--population and --objective, so that every search counts alike")])
+    unnamed = document["searching"].get("objective", DEFAULT_OBJECTIVE)
+    if searched and unnamed != DEFAULT_OBJECTIVE:
+        raise InputError([Problem(str(path), "/searching", f"this folder's searches ran with --objective {unnamed} before a search's name "
+                                                           "carried its objective (NSGAII+coverage): read it with `stella mutants report`, "
+                                                           "and search again in a folder of its own")])
+    if searched and _budget(document["searching"]) != plan.searching():
+        raise InputError([Problem(str(path), "/searching", f"this folder's searches ran with {document['searching']}: keep --evaluations "
+                                                           "and --population, so that every search counts alike")])
     document["searching"] = plan.searching()
     return document
+
+
+def _budget(searching: Mapping[str, Any]) -> dict[str, Any]:
+    """A folder's `searching` without the objective, which folders searched before 2026-11-29
+    kept there (one for all their searches) instead of in each search's name."""
+    return {key: value for key, value in searching.items() if key != "objective"}
+
+
+def _named_searches(document: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The mutants' outcomes with each search named as MutationPlan.searcher names it, also in a
+    folder whose one objective was kept in `searching`."""
+    objective = document["searching"].get("objective", DEFAULT_OBJECTIVE)
+    if objective == DEFAULT_OBJECTIVE:
+        return document["mutants"]
+    return {key: {**outcome, **({"search": {f"{a}+{objective}": s for a, s in outcome["search"].items()}} if outcome.get("search") else {})}
+            for key, outcome in document["mutants"].items()}
 
 
 def _started_badly(result) -> bool:
@@ -165,7 +196,7 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
                 continue
             for algorithm in plan.algorithms:
                 for scenario in plan.scenarios:
-                    done = outcome.setdefault("search", {}).setdefault(algorithm, {})
+                    done = outcome.setdefault("search", {}).setdefault(plan.searcher(algorithm), {})
                     if Path(scenario).stem in done:
                         continue
                     done[Path(scenario).stem] = _search(entry["id"], subject, reference, plan, algorithm, scenario, executor, cache, mutants_dir,
@@ -219,15 +250,15 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
                             confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig,
                             coverage_target=(target,) if plan.objective == "coverage" else ())
-    store_path = _search_store(folder, mutant, Path(scenario).stem, algorithm)
+    store_path = _search_store(folder, mutant, Path(scenario).stem, plan.searcher(algorithm))
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,
                      on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
 
 
-def _search_store(folder: Path, mutant: str, scenario: str, algorithm: str) -> Path:
-    return folder / "search" / mutant / f"{slug(scenario)}-{algorithm}.db"
+def _search_store(folder: Path, mutant: str, scenario: str, searcher: str) -> Path:
+    return folder / "search" / mutant / f"{slug(scenario)}-{slug(searcher)}.db"
 
 
 def _load_run(mutants_dir: Path) -> dict[str, Any]:
@@ -329,7 +360,7 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
     built = json.loads((mutants_dir / BUILT).read_text()) if (mutants_dir / BUILT).is_file() else {"mutants": {}}
     document = _load_run(mutants_dir)
     states = [e["state"] for e in built["mutants"].values()]
-    outcomes = document["mutants"]
+    outcomes = _named_searches(document)
     searched: dict[str, set[str]] = {}
     for outcome in outcomes.values():
         for algorithm, by_scenario in (outcome.get("search") or {}).items():
@@ -411,13 +442,13 @@ def report_text(result: Mapping[str, Any]) -> str:
              f"killed at start: {result['killed_at_start']}; killed by the suite: {result['killed_by_suite']['unsafe']} unsafe, "
              f"{result['killed_by_suite']['any']} unsafe or behaviour", ""]
     fmt = lambda v, spec: "-" if v is None else format(v, spec)  # noqa: E731
-    lines.append(f"{'algorithm':<9} {'level':<7} {'killed':>9} {'score':>6} {'95% CI':>13} {'search kills':>13} {'median evals':>13} "
+    lines.append(f"{'algorithm':<15} {'level':<7} {'killed':>9} {'score':>6} {'95% CI':>13} {'search kills':>13} {'median evals':>13} "
                  f"{'Fisher p':>9} {'MWU p':>7} {'A12':>5}   (baseline {result['baseline']})")
     for algorithm, entry in result["scores"].items():
         for level in LEVELS:
             e = entry[level]
             ci = f"{e['ci95'][0]:.2f}-{e['ci95'][1]:.2f}" if e["ci95"] else "-"
-            lines.append(f"{algorithm:<9} {level:<7} {e['killed']:>4}/{e['mutants']:<4} {fmt(e['score'], '.2f'):>6} {ci:>13} "
+            lines.append(f"{algorithm:<15} {level:<7} {e['killed']:>4}/{e['mutants']:<4} {fmt(e['score'], '.2f'):>6} {ci:>13} "
                          f"{e['search_kills']:>6}/{e['survivors_searched']:<6} {fmt(e['median_evaluations_to_kill'], '.1f'):>13} "
                          f"{fmt(e['fisher_p'], '.3f'):>9} {fmt(e['mann_whitney_p'], '.3f'):>7} {fmt(e['a12'], '.2f'):>5}")
     unfinished = {algorithm: entry["any"]["searches_unfinished"] for algorithm, entry in result["scores"].items() if entry["any"]["searches_unfinished"]}
