@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from sim_bridge.ardupilot_json import RANGEFINDER_ORIENTATION, rangefinders_in_view
 from sut_adapter.ardupilot_failures import SUT_FAILURE_UNITS, failure_params
 from sut_adapter.base import Capabilities, SutError, SutHandle, start_process
+from sut_adapter.coverage import coverage_build, fastcov_record, gcov_environment
 from sut_adapter.processes import ManagedProcess, non_empty
 
 if TYPE_CHECKING:
@@ -234,9 +235,15 @@ class ArduPilotSitl:
         # Its SIGTERM handler only sets a flag its scheduler reads, on the clock our steps advance:
         # once the flight or the harness is gone nothing reads it (2 s lost at each stop, an
         # arducopter left after kill -9 of a campaign). Its dataflash log is written as it goes.
-        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir, end_signal=signal.SIGKILL)
+        # A coverage build's counters are written only by exit(): the library it preloads exits
+        # on SIGUSR1 (sut_adapter/gcov_exit.c).
+        folder = self.binary.parent.parent
+        measured = coverage_build(folder)
+        env = None if measured is None else {**os.environ, **gcov_environment(measured, workdir), "LD_PRELOAD": measured["preload"]}
+        process = ManagedProcess("arducopter", argv, log_dir=workdir, cwd=ardupilot_dir, env=env,
+                                 end_signal=signal.SIGKILL if measured is None else signal.SIGUSR1)
         return start_process(self.name, process, artifacts=lambda: collect_artifacts(ardupilot_dir, [process.stdout_path, process.stderr_path]),
-                             mavlink_params=dict(params))
+                             mavlink_params=dict(params), **({} if measured is None else {"coverage": lambda: fastcov_record(measured, folder, workdir)}))
 
 
 def world_params(world: "WorldSpec") -> dict[str, float]:

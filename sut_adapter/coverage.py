@@ -18,6 +18,11 @@ exit under the flight's working directory (GCOV_PREFIX), not into the build fold
 parallel flights keep theirs apart; gcovr summarises them. A branch is gcovr's: "line:index"
 of the line's branches in gcov's order.
 
+ArduPilot is measured by gcov too, but its waf names each source relative to the build folder of
+the worktree it compiled in, where gcov looks for it (and finds the next variant's file, or
+nothing). So its counters are read by fastcov, from gcov's JSON, which needs no sources; the
+branches are the same "line:index".
+
 A record: {"tool": ..., "sources": the source tree, "files": {path: {"lines_hit": [...],
 "lines_missed": [...], "branches_hit": [...], "branches_missed": [...]}}}, each path relative
 to the source tree (for PX4 the copy of the measured sources its build kept), each list sorted. Hit and missed together are all of a file's lines (branches), so records of
@@ -116,16 +121,25 @@ def gcov_environment(build: Mapping[str, Any], workdir: Path) -> dict[str, str]:
     return {"GCOV_PREFIX": str(workdir / GCOV_DIR), "GCOV_PREFIX_STRIP": str(len(Path(build["build_dir"]).parts) - 1)}
 
 
+def _counters_beside_notes(folder: Path, workdir: Path) -> list[Path]:
+    """The counters (.gcda) a flight's SUT left of the measured objects, each with its notes (.gcno)
+    copied beside it from the build; none where it left none, as a SUT killed before its orderly
+    exit does. (A build instrumented whole, as ArduPilot's, leaves counters of every object.)"""
+    counters, notes = workdir / GCOV_DIR, folder / NOTES_DIR / "notes"
+    found = [gcda for gcda in sorted(counters.glob("**/*.gcda")) if (notes / gcda.relative_to(counters).with_suffix(".gcno")).is_file()] \
+        if counters.is_dir() else []
+    for gcda in found:
+        shutil.copy2(notes / gcda.relative_to(counters).with_suffix(".gcno"), gcda.with_suffix(".gcno"))
+    return found
+
+
 def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[str, Any] | None:
     """The flight's coverage of the measured paths from the counters its PX4 left (None: none,
     as a PX4 killed before its orderly exit leaves none)."""
-    counters = workdir / GCOV_DIR
-    found = sorted(counters.glob("**/*.gcda")) if counters.is_dir() else []
+    found = _counters_beside_notes(folder, workdir)
     if not found:
         return None
     notes = folder / NOTES_DIR
-    for gcda in found:
-        shutil.copy2(notes / "notes" / gcda.relative_to(counters).with_suffix(".gcno"), gcda.with_suffix(".gcno"))
     # gcov, run beside a copy of the kept sources (the build names them relative to the tree's
     # root: -fprofile-prefix-map), writes its reports there; gcovr reads those of the measured paths.
     # (gcovr running gcov itself would want every file the objects inline, other libraries'
@@ -157,3 +171,33 @@ def gcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[s
                                 "branches_hit": sorted(key for key, taken in branches if taken),
                                 "branches_missed": sorted(key for key, taken in branches if not taken)}
     return {"tool": GCOV_TOOL, "sources": str((notes / "sources").resolve()), "files": files}
+
+
+def fastcov_record(build: Mapping[str, Any], folder: Path, workdir: Path) -> dict[str, Any] | None:
+    """The flight's coverage of the measured paths from the counters its ArduPilot left (None:
+    none), read by fastcov; the paths are relative to the worktree the build compiled in."""
+    found = _counters_beside_notes(folder, workdir)
+    if not found:
+        return None
+    report = workdir / "fastcov.json"
+    # --exceptional-branch-coverage: every branch gcov counts, as gcovr reads PX4's.
+    done = subprocess.run([sys.executable, "-m", "fastcov", "--exceptional-branch-coverage", "--skip-exclusion-markers", "--jobs", "1", "--quiet",
+                           "--gcda-files", *map(str, found), "--output", str(report)], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"fastcov failed on the flight's counters: {(done.stderr or done.stdout).strip()[-600:]}")
+    tree = Path(build["tree"])
+    files = {}
+    for name, tests in json.loads(report.read_text())["sources"].items():
+        path = Path(name)
+        if not path.is_relative_to(tree):
+            continue
+        relative = path.relative_to(tree).as_posix()
+        if not any(relative == measured or relative.startswith(measured.rstrip("/") + "/") for measured in build["paths"]):
+            continue
+        counts = tests[""]
+        branches = [(f"{line}:{index}", count > 0) for line, taken in counts["branches"].items() for index, count in enumerate(taken)]
+        hit = {int(line) for line, count in counts["lines"].items() if count > 0}
+        files[relative] = {"lines_hit": sorted(hit), "lines_missed": sorted({int(line) for line in counts["lines"]} - hit),
+                           "branches_hit": sorted(key for key, taken in branches if taken),
+                           "branches_missed": sorted(key for key, taken in branches if not taken)}
+    return {"tool": GCOV_TOOL, "sources": str((folder / NOTES_DIR / "sources").resolve()), "files": files}

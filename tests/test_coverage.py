@@ -270,6 +270,84 @@ def test_a_gcov_build_measures_its_paths_only_and_each_flight_keeps_its_own_coun
     assert gcov_record(build, folder, tmp_path / "no-flight") is None
 
 
+def waf_shaped_build(tree: Path, build_dir: Path, *, blocks: bool = False) -> Path:
+    """A toy firmware compiled as ArduPilot's waf compiles, each object in the build folder from a
+    source named relative to it (../../libraries/...), all of it with --coverage; `blocks`: its
+    main then waits on a pipe nobody writes, as ArduPilot waits for its next physics frame."""
+    import subprocess
+
+    toy_firmware(tree)
+    (tree / "libraries").mkdir()
+    (tree / "src" / "lib" / "measured").rename(tree / "libraries" / "measured")
+    (tree / "src" / "other").rename(tree / "libraries" / "other")
+    main_c = (tree / "main.c").read_text()
+    if blocks:
+        main_c = main_c.replace("int main(void)\n{\n", "#include <unistd.h>\nint main(void)\n{\n\tint ends[2];\n\tchar byte;\n"
+                                                       "\tif (pipe(ends) == 0 && read(ends[0], &byte, 1) < 0)\n\t\treturn 2;\n")
+    (tree / "main.c").write_text(main_c)
+    objects = []
+    for source in ("libraries/measured/guard.c", "libraries/other/other.c", "main.c"):
+        (build_dir / source).parent.mkdir(parents=True, exist_ok=True)
+        objects.append(str(build_dir / f"{source}.0.o"))
+        subprocess.run(["cc", "--coverage", "-c", f"../../{source}", "-o", objects[-1]], cwd=build_dir, check=True)
+    (build_dir / "bin").mkdir()
+    subprocess.run(["cc", "--coverage", *objects, "-o", str(build_dir / "bin" / "arducopter")], check=True)
+    return build_dir / "bin" / "arducopter"
+
+
+def test_an_ardupilot_build_measures_its_paths_from_counters_of_the_whole_program_without_its_sources(tmp_path):
+    """ArduPilot's coverage build instruments every object, and its waf names each source relative
+    to the worktree's build folder: a flight's record keeps the measured paths only, relative to the
+    tree, read by fastcov from gcov's JSON, whatever the worktree holds by then."""
+    import subprocess
+
+    from harness.firmware.builds import _keep_notes
+    from sut_adapter.coverage import fastcov_record, gcov_environment, mark_coverage_build
+
+    tree, folder, flight = tmp_path / "tree", tmp_path / "variant", tmp_path / "flight"
+    build_dir = tree / "build_coverage" / "sitl"
+    binary = waf_shaped_build(tree, build_dir)
+    folder.mkdir()
+    _keep_notes(tree, build_dir, folder, ["libraries/measured"])
+    mark_coverage_build(folder, "gcov", ["libraries/measured"], build_dir=str(build_dir), tree=str(tree))
+    (tree / "libraries" / "measured" / "guard.c").unlink()  # the worktree moved on to the next variant
+    flight.mkdir()
+    build = json.loads((folder / "coverage.json").read_text())
+    subprocess.run([str(binary)], check=True, env={"PATH": "/usr/bin:/bin", **gcov_environment(build, flight)})
+    assert len(list(flight.glob("gcov/**/*.gcda"))) == 3  # every object's counters, the measured one's read
+    assert fastcov_record(build, folder, flight) == {"tool": "gcov", "sources": str((folder / "coverage" / "sources").resolve()), "files": {
+        "libraries/measured/guard.c": {"lines_hit": [1, 3, 7], "lines_missed": [4], "branches_hit": ["3:1"], "branches_missed": ["3:0"]}}}
+    assert fastcov_record(build, folder, tmp_path / "no-flight") is None
+
+
+def test_the_exit_library_makes_a_program_waiting_for_its_clock_write_its_counters_on_sigusr1(tmp_path):
+    """ArduPilot's SITL acts on SIGTERM only when its simulated clock moves on; the library a
+    coverage build's flights preload ends it on SIGUSR1 through exit(), which writes gcov's
+    counters. Without it, the same signal kills it and leaves none."""
+    import signal
+    import subprocess
+    import time
+
+    from harness.firmware.builds import _compile_exit_shim
+
+    tree, folder = tmp_path / "tree", tmp_path / "variant"
+    build_dir = tree / "build_coverage" / "sitl"
+    binary = waf_shaped_build(tree, build_dir, blocks=True)
+    folder.mkdir()
+    log_path = folder / "build.log"
+    with open(log_path, "w") as log_file:
+        shim = _compile_exit_shim(folder, log_file, log_path)
+    for preload, written in ((str(shim), True), ("", False)):
+        counters = tmp_path / f"counters-{bool(preload)}"
+        env = {"PATH": "/usr/bin:/bin", "GCOV_PREFIX": str(counters), "GCOV_PREFIX_STRIP": str(len(build_dir.parts) - 1), "LD_PRELOAD": preload}
+        waiting = subprocess.Popen([str(binary)], env=env)
+        time.sleep(0.3)
+        assert waiting.poll() is None  # blocked, as ArduPilot on a finished flight
+        waiting.send_signal(signal.SIGUSR1)
+        assert waiting.wait(timeout=10) == (0 if written else -signal.SIGUSR1)
+        assert bool(list(counters.glob("**/*.gcda"))) == written
+
+
 def test_a_coverage_guided_mutation_run_needs_mutants_built_for_coverage(tmp_path, capsys):
     from harness.firmware import mutants
 
@@ -345,3 +423,29 @@ def test_px4s_coverage_shows_which_range_data_its_collision_prevention_used(tmp_
         hit[name] = set(result.coverage["files"]["src/lib/collision_prevention/CollisionPrevention.cpp"]["lines_hit"])
     assert hit["profile"] & distance_sensor and not hit["profile"] & obstacle_distance
     assert hit[long_name] & obstacle_distance and not hit[long_name] & distance_sensor
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("STELLA_ARDUPILOT_COVERAGE_BIN"),
+                    reason="needs an ArduPilot coverage build (`stella sut build ardupilot --coverage`: STELLA_ARDUPILOT_COVERAGE_BIN)")
+def test_ardupilots_coverage_shows_which_proximity_backend_its_avoidance_used(tmp_path):
+    """ArduCopter's avoidance reads the profile's sensor as rangefinders (AP_Proximity_RangeFinder)
+    and a lidar rig's OBSTACLE_DISTANCE through its MAVLink backend (AP_Proximity_MAV): each
+    flight's record runs the one and not the other, and the avoidance's own code in both."""
+    from harness.flight.evaluation import evaluate
+    from harness.flight.results import RunOptions
+    from harness.scenario.world import load_concrete, space_with_rig
+    from sut_adapter import SutConfig
+
+    space, x = load_concrete(WALL, "pilot")
+    options = RunOptions(sut=SutConfig("ardupilot", {}, ardupilot_bin=os.environ["STELLA_ARDUPILOT_COVERAGE_BIN"]), sut_logs="failures")
+    reached = {}
+    for name, flown in (("profile", space), ("lidar", space_with_rig(space, "lidar_360"))):
+        result = evaluate(flown, x, seed=0, out_dir=tmp_path, options=options, name=name)
+        files = result.coverage["files"]
+        reached[name] = {path for path, lines in files.items() if lines["lines_hit"]}
+        assert all(path.startswith(("libraries/AC_Avoidance/", "libraries/AP_Proximity/")) for path in files)
+    backends = {"libraries/AP_Proximity/AP_Proximity_RangeFinder.cpp", "libraries/AP_Proximity/AP_Proximity_MAV.cpp"}
+    assert reached["profile"] & backends == {"libraries/AP_Proximity/AP_Proximity_RangeFinder.cpp"}
+    assert reached["lidar"] & backends == {"libraries/AP_Proximity/AP_Proximity_MAV.cpp"}
+    assert "libraries/AC_Avoidance/AC_Avoid.cpp" in reached["profile"] & reached["lidar"]

@@ -82,7 +82,7 @@ def test_the_configuration_file_is_read_relative_to_itself_and_every_bad_key_is_
 @pytest.mark.parametrize("argv, said", [
     (["--sut", "bundled", "--base-build", "."], "--head-build: give both sides' builds"),
     (["--sut", "bundled", "--source", "."], "--source: give the tree and the base commit"),
-    (["--sut", "ardupilot", "--source", ".", "--base", "HEAD"], "build ArduCopter's two commits with waf"),
+    (["--sut", "ardupilot", "--source", ".", "--base", "HEAD"], "--source: . is a bundled tree, not ardupilot"),
     (["--source", ".", "--base", "HEAD"], "--sut: say what the firmware is"),
     (["--sut", "bundled", "--source", ".", "--base", "no-such-commit"], "is not a commit of"),
 ])

@@ -96,6 +96,12 @@ def test_a_sample_is_seeded_and_a_function_limits_the_lines(tmp_path):
 def test_bad_sources_commits_and_patches_are_refused_with_exit_2(tmp_path, capsys):
     assert main(["sut", "build", "px4", "--source", str(tmp_path), "--out", str(tmp_path / "cache")]) == 2
     assert "neither a PX4-Autopilot source tree" in capsys.readouterr().err
+    ardupilot = tmp_path / "ardupilot"
+    for folder in ("ArduCopter", "libraries/AP_HAL_SITL"):
+        (ardupilot / folder).mkdir(parents=True)
+    (ardupilot / "waf").write_text("")
+    assert main(["sut", "build", "px4", "--source", str(ardupilot), "--out", str(tmp_path / "cache")]) == 2
+    assert "is a ardupilot tree, not px4" in capsys.readouterr().err
     assert main(["sut", "build", "bundled", "--source", str(ROOT), "--commit", "no-such-commit", "--out", str(tmp_path / "cache")]) == 2
     assert "is not a commit of" in capsys.readouterr().err
     (tmp_path / "bad.patch").write_text("--- a/autopilot/collision.py\n+++ b/autopilot/collision.py\n@@ -1,1 +1,1 @@\n-nothing like this line\n+x\n")

@@ -11,13 +11,17 @@ and a digest of each patched file's object code with the debug information strip
 variants whose objects are byte for byte the same are the same program (trivial compiler
 equivalence, used to drop equivalent and duplicate mutants).
 
+ArduPilot (ArduCopter SITL): the same worktree per commit and patches, built by its waf
+(`configure --board sitl`, then `copter`); the variant keeps `bin/arducopter`.
+
 The bundled autopilot: its package copied, the patches applied, and the patched modules that the
 project compiles (setup.py) compiled again the way `make setup` does; the digest is the Python
 bytecode's (line numbers left out), which is what a compiled module computes too.
 
 A coverage build (`coverage_paths`) is another build configuration: its flights record which of
 those paths' lines and branches ran (sut_adapter/coverage.py). The bundled autopilot then runs as
-its Python sources, under coverage.py.
+its Python sources, under coverage.py. PX4's measured paths only are compiled with gcov (a CMake
+file of ours); ArduPilot has no such switch, so its whole build is, with its own `--coverage`.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
+import sut_adapter
 from harness.errors import InputError, Problem, StellaError
 from harness.paths import write_atomically
 from sut_adapter.coverage import GCOV_TOOL, NOTES_DIR, PYTHON_TOOL, mark_coverage_build
@@ -43,12 +48,14 @@ from sut_adapter.coverage import GCOV_TOOL, NOTES_DIR, PYTHON_TOOL, mark_coverag
 log = logging.getLogger(__name__)
 
 PX4_CONFIG = "px4_sitl_default"
+ARDUPILOT_CONFIG = "sitl-copter"
 BUNDLED_CONFIG = "bundled"
 VARIANT_FILE = "variant.json"
 BUILD_LOG = "build.log"
 DIGEST_LOG = "digest.log"  # a compile again for the digests of files a cached variant did not watch
 # What a coverage build measures unless told: the collision prevention.
-DEFAULT_COVERAGE_PATHS = {"bundled": ("autopilot/collision.py",), "px4": ("src/lib/collision_prevention",)}
+DEFAULT_COVERAGE_PATHS = {"bundled": ("autopilot/collision.py",), "px4": ("src/lib/collision_prevention",),
+                          "ardupilot": ("libraries/AC_Avoidance", "libraries/AP_Proximity")}
 
 
 class BuildFailed(StellaError):
@@ -66,7 +73,7 @@ class Variant:
     """A built variant as the cache keeps it (VARIANT_FILE in its folder)."""
 
     key: str
-    kind: str  # "px4" or "bundled"
+    kind: str  # "px4", "ardupilot" or "bundled"
     source: str
     commit: str | None
     patches: tuple[str, ...]  # the patches' digests, in the order applied
@@ -77,7 +84,7 @@ class Variant:
 
     def sut_options(self) -> dict[str, str]:
         """The SUT configuration that flies this build."""
-        return {"px4_bin": self.folder} if self.kind == "px4" else {"autopilot_dir": self.folder}
+        return {{"px4": "px4_bin", "ardupilot": "ardupilot_bin"}.get(self.kind, "autopilot_dir"): self.folder}
 
     @property
     def program_digest(self) -> str:
@@ -86,13 +93,17 @@ class Variant:
 
 
 def tree_kind(source: Path) -> str:
-    """"px4" for a PX4-Autopilot tree, "bundled" for a checkout of this project (its autopilot)."""
+    """"px4" for a PX4-Autopilot tree, "ardupilot" for an ArduPilot one, "bundled" for a checkout of
+    this project (its autopilot)."""
     if (source / "boards" / "px4" / "sitl").is_dir() and (source / "platforms" / "posix").is_dir():
         return "px4"
+    if (source / "ArduCopter").is_dir() and (source / "libraries" / "AP_HAL_SITL").is_dir() and (source / "waf").is_file():
+        return "ardupilot"
     if (source / "autopilot" / "__main__.py").is_file() and (source / "autopilot" / "collision.py").is_file():
         return "bundled"
-    raise InputError([Problem(str(source), "", "neither a PX4-Autopilot source tree (boards/px4/sitl, platforms/posix) nor a checkout of this "
-                                               "project (autopilot/): give --source the root of one")])
+    raise InputError([Problem(str(source), "", "neither a PX4-Autopilot source tree (boards/px4/sitl, platforms/posix), an ArduPilot one "
+                                               "(ArduCopter, libraries/AP_HAL_SITL, waf) nor a checkout of this project (autopilot/): "
+                                               "give --source the root of one")])
 
 
 def git(source: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -163,8 +174,8 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
         raise InputError([Problem(str(source), "", "no such folder: give --source the root of a PX4-Autopilot tree or of this project")])
     kind = tree_kind(source)
     digests = tuple(patch_digest(Path(p)) for p in patches)
-    resolved = resolve_commit(source, commit) if kind == "px4" or commit else None
-    config = PX4_CONFIG if kind == "px4" else BUNDLED_CONFIG
+    resolved = resolve_commit(source, commit) if kind != "bundled" or commit else None
+    config = {"px4": PX4_CONFIG, "ardupilot": ARDUPILOT_CONFIG}.get(kind, BUNDLED_CONFIG)
     if coverage_paths is not None:
         coverage_paths = coverage_paths_of(source, kind, coverage_paths)
         config += "+coverage:" + ",".join(coverage_paths)
@@ -177,9 +188,9 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
             return found
         # Built before without these files watched (`stella sut build`): the digests a mutant's
         # build is compared with are missing, and equivalent mutants would pass for built ones.
-        if kind == "px4":
-            objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, unwatched,
-                                 worktree_command, coverage_paths, keep=False)
+        if kind != "bundled":
+            objects = FIRMWARE_BUILDERS[kind](source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, unwatched,
+                                              worktree_command, coverage_paths, keep=False)
         else:
             objects = {name: bytecode_digest((folder / name).read_text(), name) for name in unwatched}
         return _save(replace(found, objects={**found.objects, **objects}))
@@ -188,9 +199,9 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     folder.mkdir(parents=True)
     started = time.monotonic()
     # A failed build keeps its folder for the log, but has no VARIANT_FILE: never taken for a build.
-    if kind == "px4":
-        objects = _build_px4(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch, worktree_command,
-                             coverage_paths)
+    if kind != "bundled":
+        objects = FIRMWARE_BUILDERS[kind](source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch,
+                                          worktree_command, coverage_paths)
     else:
         objects = _build_bundled(source, resolved, [Path(p) for p in patches], folder, watch)
         if coverage_paths is not None:
@@ -241,9 +252,15 @@ def _worktree(source: Path, commit: str, cache: Path, log_file, command: str | N
     return tree
 
 
+def _outputs_of(build_dir: Path, source_file: str, suffix: str) -> list[Path]:
+    """The build's outputs of one source file with that suffix: CMake's NAME.o, waf's NAME.N.o."""
+    name = Path(source_file).name
+    return sorted({*build_dir.glob(f"**/{name}{suffix}"), *build_dir.glob(f"**/{name}.[0-9]{suffix}")})
+
+
 def _object_digest(build_dir: Path, source_file: str) -> str | None:
     """The stripped object code of one source file of the build (None: it compiles into none)."""
-    candidates = sorted(build_dir.glob(f"**/{Path(source_file).name}.o"))
+    candidates = _outputs_of(build_dir, source_file, ".o")
     candidates = [c for c in candidates if Path(source_file).parent.name in c.as_posix()] or candidates
     if not candidates:
         return None
@@ -329,7 +346,7 @@ def _keep_notes(tree: Path, build_dir: Path, folder: Path, paths: Sequence[str])
     notes = folder / NOTES_DIR
     for path in paths:
         objects = build_dir / path
-        for gcno in sorted(objects.glob("**/*.gcno") if objects.is_dir() else objects.parent.glob(f"**/{objects.name}.gcno")):
+        for gcno in sorted(objects.glob("**/*.gcno")) if objects.is_dir() else _outputs_of(objects.parent, objects.name, ".gcno"):
             target = notes / "notes" / gcno.relative_to(build_dir)
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(gcno, target)
@@ -342,7 +359,70 @@ def _keep_notes(tree: Path, build_dir: Path, folder: Path, paths: Sequence[str])
             shutil.copy2(measured, target)
     if not any(notes.glob("**/*.gcno")):
         raise BuildFailed(f"the coverage build of {', '.join(paths)}", folder / BUILD_LOG,
-                          f"no object of {', '.join(paths)} was compiled with gcov: do they hold sources that px4_sitl_default compiles?")
+                          f"no object of {', '.join(paths)} was compiled with gcov: do they hold sources that the build compiles?")
+
+
+# -- ArduPilot ------------------------------------------------------------------------------------
+
+# waf's lock file says which out folder its commands build in: one per configuration, so that the
+# plain and the coverage build of a worktree each stay configured (configuring again recompiles all).
+WAF_OUT = {False: "build", True: "build_coverage"}
+
+
+def _build_ardupilot(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
+                     worktree_command: str | None, coverage_paths: Sequence[str] | None = None, keep: bool = True) -> dict[str, str]:
+    """ArduCopter SITL of the commit with the patches, by waf in the commit's worktree (as
+    _build_px4). A coverage build compiles everything with ArduPilot's own --coverage, which also
+    makes its SITL end in order on SIGTERM, writing its counters."""
+    log_path = folder / (BUILD_LOG if keep else DIGEST_LOG)
+    measured = coverage_paths is not None
+    with open(log_path, "w") as log_file:
+        tree = _worktree(source, commit, cache, log_file, worktree_command)
+        touched = apply_patches(tree, patches)
+        try:
+            out = tree / WAF_OUT[measured]
+            env = {**os.environ, "WAFLOCK": f".lock-waf_stella_{WAF_OUT[measured]}"}
+            steps = [["./waf", "copter", f"-j{jobs or len(os.sched_getaffinity(0))}"]]
+            if not (tree / env["WAFLOCK"]).is_file():
+                # --no-submodule-update: the worktree's submodules are those made above; waf's own
+                # update would reach for the network.
+                steps.insert(0, ["./waf", "configure", "--board", "sitl", "--no-submodule-update", "--out", str(out),
+                                 *(["--coverage"] if measured else [])])
+            for argv in steps:
+                log_file.write(f"$ WAFLOCK={env['WAFLOCK']} {' '.join(argv)}  (in {tree})\n")
+                log_file.flush()
+                if subprocess.run(argv, cwd=tree, stdout=log_file, stderr=subprocess.STDOUT, env=env).returncode != 0:
+                    raise BuildFailed(f"ArduCopter {commit[:12]} with {len(patches)} patch(es)", log_path, _tail(log_path))
+            build_dir = out / "sitl"
+            objects = {name: digest for name in dict.fromkeys([*touched, *watch]) if (digest := _object_digest(build_dir, name))}
+            if not keep:
+                return objects
+            (folder / "bin").mkdir()
+            shutil.copy2(build_dir / "bin" / "arducopter", folder / "bin" / "arducopter")
+            if measured:
+                _keep_notes(tree, build_dir, folder, coverage_paths)
+                mark_coverage_build(folder, GCOV_TOOL, coverage_paths, build_dir=str(build_dir), tree=str(tree),
+                                    preload=str(_compile_exit_shim(folder, log_file, log_path)))
+        finally:
+            if touched:
+                git(tree, "checkout", "--", *touched, check=False)
+    return objects
+
+
+def _compile_exit_shim(folder: Path, log_file, log_path: Path) -> Path:
+    """sut_adapter/gcov_exit.c compiled into the variant: the library its flights preload, so that
+    the adapter's SIGUSR1 ends ArduPilot through exit(), which writes the counters."""
+    shim = folder / "lib" / "stella_gcov_exit.so"
+    shim.parent.mkdir()
+    argv = ["cc", "-shared", "-fPIC", "-O2", "-o", str(shim), str(Path(sut_adapter.__file__).parent / "gcov_exit.c")]
+    log_file.write(f"$ {' '.join(argv)}\n")
+    log_file.flush()
+    if subprocess.run(argv, stdout=log_file, stderr=subprocess.STDOUT).returncode != 0:
+        raise BuildFailed("the exit library of the coverage build", log_path, _tail(log_path))
+    return shim
+
+
+FIRMWARE_BUILDERS = {"px4": _build_px4, "ardupilot": _build_ardupilot}
 
 
 def _tail(path: Path, lines: int = 25) -> str:

@@ -110,9 +110,9 @@ def _sides(args: argparse.Namespace, settings: dict):
         if not args.source or not args.base:
             raise InputError([Problem("--source", "", "give the tree and the base commit (--source TREE --base COMMIT [--head COMMIT]), "
                                                       "or both builds (--base-build DIR --head-build DIR)")])
-        if kind == "ardupilot":
-            raise InputError([Problem("--source", "", "the gate builds PX4 and the bundled autopilot from a tree; build ArduCopter's two commits "
-                                                      "with waf and give --base-build and --head-build (docs/ci.md has the workflow)")])
+        found = builds.tree_kind(Path(args.source).expanduser().resolve())
+        if found != kind:
+            raise InputError([Problem("--source", "", f"{args.source} is a {found} tree, not {kind}: give the tree of the firmware --sut names")])
         cache = _cache_dir(settings.get("cache")) / "builds"
         sides = []
         for commit, patches in ((args.base, []), (args.head or "HEAD", [Path(p) for p in args.patch])):

@@ -40,16 +40,17 @@ def sut_check(args: argparse.Namespace) -> int:
 
 def worktree_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--worktree-command", metavar="TEMPLATE",
-                   help="PX4: make a commit's worktree with this shell command ({source}, {commit}, {dir} filled in) instead of `git worktree add` "
+                   help="PX4, ArduPilot: make a commit's worktree with this shell command ({source}, {commit}, {dir} filled in) instead of `git worktree add` "
                         "and `git submodule update` (for trees whose submodules come from local mirrors, sparse checkouts, board edits)")
 
 
 def _build_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("kind", choices=["px4", "bundled"], help="what the tree is: px4 (PX4-Autopilot) or bundled (a checkout of this project)")
-    p.add_argument("--source", required=True, help="the source tree (a git clone; PX4's submodules initialised)")
+    p.add_argument("kind", choices=["px4", "ardupilot", "bundled"],
+                   help="what the tree is: px4 (PX4-Autopilot), ardupilot (ArduPilot: ArduCopter SITL) or bundled (a checkout of this project)")
+    p.add_argument("--source", required=True, help="the source tree (a git clone; its submodules initialised)")
     p.add_argument("--commit", help="build this commit (default: the tree's HEAD)")
     p.add_argument("--patch", action="append", default=[], metavar="FILE", help="apply this unified diff first; repeatable, applied in order")
-    p.add_argument("--out", required=True, help="the build cache: one folder per variant, worktrees/ for PX4's commits")
+    p.add_argument("--out", required=True, help="the build cache: one folder per variant, worktrees/ for PX4's and ArduPilot's commits")
     p.add_argument("--jobs", type=positive_int, help="parallel compile jobs (default: cores)")
     coverage_options(p)
     worktree_option(p)
@@ -60,7 +61,7 @@ def coverage_options(p: argparse.ArgumentParser) -> None:
                    help="coverage builds: their flights record the lines and branches of --coverage-path that ran (`stella coverage`, --objective coverage)")
     p.add_argument("--coverage-path", action="append", default=[], metavar="PATH",
                    help="a file or folder of the tree to measure; repeatable (default: the collision prevention, "
-                        "src/lib/collision_prevention or autopilot/collision.py)")
+                        "src/lib/collision_prevention, libraries/AC_Avoidance and libraries/AP_Proximity, or autopilot/collision.py)")
 
 
 def coverage_paths(args: argparse.Namespace) -> list[str] | None:
@@ -71,7 +72,8 @@ def coverage_paths(args: argparse.Namespace) -> list[str] | None:
 
 
 @command("sut build", "build a firmware variant from a source tree (a commit, patches), cached; prints the SUT options that fly it", _build_options,
-         description="Build px4_sitl_default of a PX4-Autopilot tree (or this project's bundled autopilot) at a commit with patches "
+         description="Build px4_sitl_default of a PX4-Autopilot tree, ArduCopter SITL of an ArduPilot tree (or this project's bundled "
+                     "autopilot) at a commit with patches "
                      "applied, in a worktree per commit, incrementally, cached by (commit, patches, build config).")
 def sut_build(args: argparse.Namespace) -> int:
     from harness.firmware import builds
@@ -81,7 +83,7 @@ def sut_build(args: argparse.Namespace) -> int:
         raise InputError([Problem(str(source), "", f"is a {builds.tree_kind(source.resolve())} tree, not {args.kind}: give the kind it is")])
     variant = builds.build(source, out=Path(args.out), commit=args.commit, patches=[Path(p) for p in args.patch], jobs=args.jobs,
                            worktree_command=args.worktree_command, coverage_paths=coverage_paths(args))
-    option = "--px4-bin" if variant.kind == "px4" else "--autopilot-dir"
+    option = "--" + next(iter(variant.sut_options())).replace("_", "-")
     text = (f"{'cached' if variant.cached else 'built'}: {variant.folder} ({variant.build_s:.1f} s to build)\n"
             f"fly it with: {option} {variant.folder}\nbuild log: {Path(variant.folder) / builds.BUILD_LOG}")
     emit(args, {**variant.__dict__, "fly_with": {option: variant.folder}}, text)
