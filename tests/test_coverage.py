@@ -133,6 +133,17 @@ def test_a_covering_suite_keeps_blocked_flights_as_cases_that_must_keep_the_dist
     assert summary["suite_misses"] == {"branches": 1, "lines": 1}
 
 
+def test_a_flight_ran_a_changed_line_as_far_as_its_record_tells():
+    """A line without code in the record (a constant's definition, a deleted statement) or in a file
+    not measured tells nothing: a flight can depend on it without running it."""
+    from harness.campaigns.coverage import ran_any
+
+    record = {"files": {"a.cpp": {"lines_hit": [3, 5], "lines_missed": [7], "branches_hit": [], "branches_missed": []}}}
+    assert ran_any(record, ["a.cpp:L5"]) is True and ran_any(record, ["a.cpp:L7", "a.cpp:L3"]) is True
+    assert ran_any(record, ["a.cpp:L7"]) is False and ran_any(record, ["a.cpp:L7", "a.cpp:L4"]) is False
+    assert ran_any(record, ["a.cpp:L4"]) is None and ran_any(record, ["b.cpp:L5"]) is None and ran_any(None, ["a.cpp:L5"]) is None
+
+
 def test_merged_coverage_names_the_first_flight_to_reach_each_line():
     from harness.campaigns.coverage import Flight
 

@@ -212,6 +212,7 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     assert stored_search["evaluation"] == 2
     (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {
         "m0001": {"state": "survived_suite", "suite_flights": 1, "search": {"RANDOM": {"wall": stored_search}}}}}))
+    mutant_index(folder)
     cache = ReferenceCache(folder / mutation.CACHE)
     cache.put("wall", [Outcome.from_dict(pairs[0]["reference"][0])])
     cache.close()
@@ -244,6 +245,41 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     # judged again, nothing changes
     assert main(["mutants", "rejudge", str(folder)]) == 0
     assert "0 stored verdicts changed" in capsys.readouterr().out
+
+
+def mutant_index(folder, line: int = 120) -> None:
+    """The folder's mutants.json: m0001 changes that line of the bundled autopilot's collision prevention."""
+    from harness.firmware import mutants
+
+    (folder / mutants.INDEX).write_text(json.dumps({"format": mutants.FORMAT, "mutants": [{"id": "m0001", "file": "autopilot/collision.py", "line": line}]}))
+
+
+def test_a_stored_reveal_whose_subject_never_ran_the_mutated_line_is_withdrawn_when_judged_again(tmp_path, capsys):
+    # GIVEN a coverage build's search of mutant m0001 (line 120 mutated): two candidates revealed
+    # alike (0.90 m against 1.30 m, confirmed), one of them in a flight that never ran line 120
+    folder = tmp_path / "mutation"
+    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
+    closer = hop_store(tmp_path / "flown.db", tmp_path)[2]
+    store_path.parent.mkdir(parents=True)
+    with Store(store_path) as store:
+        run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "reference": {"sut": "bundled"}, "confirm": 2}), "wall.json", "wall", "RANDOM", 0, 0)
+        for ordinal, hit in enumerate(([119, 120], [119, 121])):
+            coverage = {"tool": "coverage.py", "sources": "", "files": {"autopilot/collision.py": {
+                "lines_hit": hit, "lines_missed": sorted({119, 120, 121} - set(hit)), "branches_hit": [], "branches_missed": []}}}
+            result = replace(stored_result(closer["fitness"], "ok", min_clearance_m=0.90), differential=closer, coverage=coverage)
+            store.add_evaluation(run_id, ordinal=ordinal, step=0, optimizer="RANDOM", vector=np.array([float(ordinal)]), result=result, concrete=None)
+    (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {"m0001": {"state": "survived_suite"}}}))
+    mutant_index(folder)
+
+    assert main(["mutants", "rejudge", str(folder)]) == 0
+
+    # THEN the reveal of the flight that ran line 120 stands, the other is withdrawn as the SUT's own spread
+    assert "1 stored verdict changed" in capsys.readouterr().out
+    with Store.existing(store_path) as store:
+        ran, never = (e.differential for e in store.pairs())
+    assert ran["reveals"] == "behaviour"
+    assert never["reveals"] is None and never["why"] == (f"the subject never ran autopilot/collision.py:L120, by its coverage: what differed "
+                                                         f"({closer['why']}) is the SUT's own spread")
 
 
 def test_a_differential_campaigns_store_is_judged_again_too(tmp_path, capsys):

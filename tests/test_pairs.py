@@ -59,3 +59,43 @@ def test_two_firmware_builds_are_two_references_and_one_build_in_two_folders_is_
         binary.chmod(0o755)
     identity = {folder: build_identity(SutConfig("ardupilot", ardupilot_bin=str(tmp_path / folder / "arducopter"))) for folder in "abc"}
     assert identity["a"] != identity["b"] and identity["a"] == identity["c"]
+
+
+CP_OFF_LINE = '    if fault == "cp_off_above_cruise" and speed > OFF_ABOVE_M_S:\n'
+
+
+@pytest.mark.slow
+def test_a_pair_reveals_only_where_the_subject_ran_the_changed_code(tmp_path):
+    """Coverage builds of the bundled autopilot, the subject's collision prevention off above 4 m/s
+    (one line changed): it flies into the wall, a reveal that stands when the changed line is the
+    one the flight ran, and is withdrawn, as the SUT's own spread, when the change is said to be on
+    a line the flight never ran."""
+    import difflib
+
+    from harness.campaigns.coverage import line_name
+    from harness.firmware import builds
+
+    source = (ROOT / "autopilot" / "collision.py").read_text()
+    assert CP_OFF_LINE in source, "autopilot/collision.py changed: choose the line again"
+    patch = tmp_path / "cp_off.patch"
+    patch.write_text("".join(difflib.unified_diff(source.splitlines(keepends=True),
+                                                  source.replace(CP_OFF_LINE, "    if speed > OFF_ABOVE_M_S:\n").splitlines(keepends=True),
+                                                  "a/autopilot/collision.py", "b/autopilot/collision.py")))
+    made = {name: builds.build(ROOT, out=tmp_path / "builds", patches=patches, coverage_paths=[]) for name, patches in (("original", []), ("subject", [patch]))}
+    sides = {name: SutConfig("bundled", autopilot_dir=variant.folder) for name, variant in made.items()}
+    document = json.loads(WALL.read_text())
+    space = space_from_concrete(document, str(WALL))
+    job = Job.of(0, space, space.from_concrete(document, str(WALL)), seed=1, out_dir=tmp_path, name="wall", options=RunOptions(sut=sides["subject"]))
+    changed = line_name("autopilot/collision.py", source.splitlines(keepends=True).index(CP_OFF_LINE) + 1)
+    executor = SequentialExecutor()
+    cache = ReferenceCache(tmp_path / "reference_flights.db")  # the reference flown once for both
+    try:
+        [(_job, ran)] = list(PairedFlights(executor, sides["original"], cache=cache, changed_lines=(changed,)).run([job]))
+        never_run = line_name("autopilot/collision.py", ran.coverage["files"]["autopilot/collision.py"]["lines_missed"][0])
+        [(_job, spread)] = list(PairedFlights(executor, sides["original"], cache=cache, changed_lines=(never_run,)).run([job]))
+    finally:
+        executor.close()
+        cache.close()
+    assert ran.differential["reveals"] is not None, ran.differential["why"]
+    assert spread.differential["reveals"] is None
+    assert spread.differential["why"] == f"the subject never ran {never_run}, by its coverage: what differed ({ran.differential['why']}) is the SUT's own spread"

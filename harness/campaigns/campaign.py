@@ -83,6 +83,10 @@ class CampaignConfig:
     rig: str | None = None  # a sensor rig (preset name or file) instead of the profile's range sensors
     # --objective coverage: code (coverage.line_name) every flight that runs it is rewarded for first.
     coverage_target: tuple[str, ...] = ()
+    # Differential: where the subject's program differs from the reference's (a mutant's line); a
+    # coverage build's flight that ran none of them reveals nothing (harness/campaigns/pairs.py).
+    # Not part of the identity: it judges the pairs, and `stella rejudge` judges stored ones again.
+    changed_lines: tuple[str, ...] = ()
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
@@ -301,7 +305,7 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
 
         # With properties the pair's fitness is the subject's; the problem makes the objectives of its properties.
         pairs = PairedFlights(executor, config.reference, objective=PAIR_OBJECTIVES.get(config.objective, config.objective), confirm=config.confirm,
-                              cache=reference_cache or ReferenceCache(store.path))
+                              cache=reference_cache or ReferenceCache(store.path), changed_lines=config.changed_lines)
     summary = CampaignSummary()
     for scenario_file, logical in zip(config.scenarios, documents.scenarios):
         space = SearchSpace(logical, documents.profile)

@@ -206,6 +206,35 @@ def line_name(path: str, line: int) -> str:
     return f"{path}:L{line}"
 
 
+def ran_any(coverage: Mapping[str, Any] | None, lines: Iterable[str]) -> bool | None:
+    """Whether a flight ran any of these lines (line_name), as far as its record tells: None
+    without a record, or where none of them holds code in it (a constant's definition, a deleted
+    statement), which a flight can depend on without running it."""
+    if not coverage:
+        return None
+    holds_code = False
+    for name in lines:
+        path, _, number = name.rpartition(":L")
+        entry = coverage["files"].get(path)
+        if entry is None:
+            continue
+        if int(number) in entry["lines_hit"]:
+            return True
+        holds_code = holds_code or int(number) in entry["lines_missed"]
+    return False if holds_code else None
+
+
+def never_ran(coverage: Mapping[str, Any] | None, changed_lines: Sequence[str]) -> bool:
+    """A flight whose program differs from another's only on changed_lines, and which ran none of
+    them: it computed what the other would have (in the same timing), so a difference between
+    them is the SUT's own spread, not the change."""
+    return bool(changed_lines) and ran_any(coverage, changed_lines) is False
+
+
+def withdrawn_reveal(why: str, changed_lines: Sequence[str]) -> str:
+    return f"the subject never ran {', '.join(changed_lines)}, by its coverage: what differed ({why}) is the SUT's own spread"
+
+
 def code_reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:
     """The lines and branches a flight ran, one name each."""
     if not coverage:

@@ -18,8 +18,9 @@ import json
 import subprocess
 from dataclasses import replace
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping
+from typing import Iterable, Iterator, Mapping, Sequence
 
+from harness.campaigns.coverage import never_ran, withdrawn_reveal
 from harness.campaigns.store import ReferenceFlightTable
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Outcome, compare, record
@@ -129,7 +130,12 @@ class PairedFlights:
     """Flies jobs as pairs; `run` yields each subject job with its result, whose `fitness` is the
     objective's and whose `differential` holds both sides' flights and the verdict."""
 
-    def __init__(self, executor: Executor, reference: SutConfig, *, objective: str = "subject", confirm: int = 0, cache: ReferenceCache | None = None):
+    def __init__(self, executor: Executor, reference: SutConfig, *, objective: str = "subject", confirm: int = 0, cache: ReferenceCache | None = None,
+                 changed_lines: Sequence[str] = ()):
+        """changed_lines: where the subject's program differs from the reference's (a mutant's
+        mutated line, harness/campaigns/coverage.line_name); a coverage build's flight that ran
+        none of them reveals nothing."""
+        self.changed_lines = tuple(changed_lines)
         self.executor = executor
         self.reference = reference
         self.objective = objective
@@ -155,7 +161,8 @@ class PairedFlights:
             if not references[job.name]:
                 references[job.name] = [Outcome.of(first[f"{job.name}-reference"])]
                 self._remember(keys[job.name], references[job.name])
-        revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None]
+        revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None
+                     and not never_ran(subjects[job.name][0].coverage, self.changed_lines)]
         if self.confirm and revealing:
             again = [replace(job, name=f"{job.name}-confirm{i}") for job in revealing for i in range(1, self.confirm + 1)]
             again += [self._reference_job(job, i) for job in revealing for i in range(1, self.confirm + 1)]
@@ -168,6 +175,8 @@ class PairedFlights:
         for job in jobs:
             flights = subjects[job.name]
             differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])
+            if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in flights):
+                differential = {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], self.changed_lines)}
             yield job, replace(flights[0], fitness=differential["fitness"], differential=differential)
 
     def _remember(self, key: str, outcomes: list[Outcome]) -> None:

@@ -7,6 +7,9 @@ What today's rule needs and an older record lacks is read from the flight's log 
 still there (the first touchdown: the log's first `touchdown` event), and stored with the flight,
 in the pairs and in the cached reference flights that later pairs are judged with.
 
+Of a mutant (changed_lines), a reveal whose first subject flight never ran the mutated line by its
+stored coverage record is withdrawn, as PairedFlights would withdraw it now.
+
 Re-judging can withdraw a reveal, restate it, or add one, but only on a pair flown as often as
 the campaign confirms (`--confirm N`: 1 + N flights a side): a pair that did not reveal when
 flown was flown once a side, fewer flights than a reveal needs.
@@ -16,7 +19,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
+from harness.campaigns.coverage import never_ran, withdrawn_reveal
 from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
@@ -82,9 +87,10 @@ def complete_references(cache: ReferenceCache, logs_gone: set[str]) -> None:
             cache.put(key, completed)
 
 
-def rejudge(store: Store, logs_gone: set[str]) -> list[Rejudged]:
+def rejudge(store: Store, logs_gone: set[str], changed_lines: Sequence[str] = ()) -> list[Rejudged]:
     """Judge the store's pairs again; store every pair a log completed and return those whose
-    verdict changed."""
+    verdict changed. changed_lines: as PairedFlights', read against the coverage the store kept
+    of each pair's first subject flight."""
     confirm = int(store.campaign_config().get("confirm", 0))
     changed = []
     for evaluation in store.pairs():
@@ -94,6 +100,8 @@ def rejudge(store: Store, logs_gone: set[str]) -> list[Rejudged]:
         subject = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["subject"]]
         reference = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["reference"]]
         verdict = compare(subject, reference)
+        if verdict.reveals and never_ran(evaluation.coverage, changed_lines):
+            verdict = replace(verdict, reveals=None, why=withdrawn_reveal(verdict.why, changed_lines))
         after = str(verdict.reveals) if verdict.reveals else None
         sides = {"subject": [o.as_dict() for o in subject], "reference": [o.as_dict() for o in reference]}
         if after == pair["reveals"] and verdict.why == pair["why"]:

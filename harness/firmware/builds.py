@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 PX4_CONFIG = "px4_sitl_default"
 ARDUPILOT_CONFIG = "sitl-copter"
 BUNDLED_CONFIG = "bundled"
+SUT_OPTION = {"px4": "px4_bin", "ardupilot": "ardupilot_bin", "bundled": "autopilot_dir"}  # the SutConfig field that flies a kind's build
 VARIANT_FILE = "variant.json"
 BUILD_LOG = "build.log"
 DIGEST_LOG = "digest.log"  # a compile again for the digests of files a cached variant did not watch
@@ -84,7 +85,7 @@ class Variant:
 
     def sut_options(self) -> dict[str, str]:
         """The SUT configuration that flies this build."""
-        return {{"px4": "px4_bin", "ardupilot": "ardupilot_bin"}.get(self.kind, "autopilot_dir"): self.folder}
+        return {SUT_OPTION[self.kind]: self.folder}
 
     @property
     def program_digest(self) -> str:

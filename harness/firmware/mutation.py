@@ -42,6 +42,7 @@ from harness.campaigns.statistics import a12, p_value
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
+from harness.firmware.builds import SUT_OPTION
 from harness.firmware.mutants import BUILT, load_index, write_json_atomically
 from harness.flight.results import RunOptions
 from harness.flight.fitness import Status
@@ -94,7 +95,7 @@ class MutationPlan:
 
 
 def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
-    return SutConfig("px4", dict(params), px4_bin=folder) if kind == "px4" else SutConfig("bundled", dict(params), autopilot_dir=folder)
+    return SutConfig(kind, dict(params), **{SUT_OPTION[kind]: folder})
 
 
 def _suite_cases(plan: MutationPlan) -> list[tuple[str, Any, Any, int]]:
@@ -188,7 +189,8 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
             subject = _sut(index["kind"], entry["folder"], plan.sut_params)
             outcome = document["mutants"].get(entry["id"])
             if outcome is None:
-                outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject))
+                outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject),
+                                  mutated_line(index, entry["id"]))
                 document["mutants"][entry["id"]] = outcome
                 write_json_atomically(run_path, document)
                 progress(f"{entry['id']}: {describe(outcome)}")
@@ -209,8 +211,8 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
 
 
 def _screen(mutant: str, subject: SutConfig, reference: SutConfig, cases, plan: MutationPlan, executor: Executor, cache: ReferenceCache,
-            folder: Path, options: RunOptions) -> dict[str, Any]:
-    pairs = PairedFlights(executor, reference, objective="subject", confirm=plan.confirm, cache=cache)
+            folder: Path, options: RunOptions, changed_line: str) -> dict[str, Any]:
+    pairs = PairedFlights(executor, reference, objective="subject", confirm=plan.confirm, cache=cache, changed_lines=(changed_line,))
     out_dir = folder / "logs" / mutant
     flown = 0
     for start in range(0, len(cases), max(1, executor.workers)):
@@ -249,7 +251,7 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     line (target) first."""
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
                             confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig,
-                            coverage_target=(target,) if plan.objective == "coverage" else ())
+                            coverage_target=(target,) if plan.objective == "coverage" else (), changed_lines=(target,))
     store_path = _search_store(folder, mutant, Path(scenario).stem, plan.searcher(algorithm))
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,
@@ -278,6 +280,7 @@ def rejudge(mutants_dir: Path) -> Rejudgement:
     verdicts stay: its pairs are not stored."""
     mutants_dir = Path(mutants_dir)
     _load_run(mutants_dir)  # a folder without a run says so before anything is locked
+    index = load_index(mutants_dir)
     with _alone_in(mutants_dir):
         document = _load_run(mutants_dir)
         finished = {_search_store(mutants_dir, mutant, scenario, algorithm): (by_scenario, scenario)
@@ -295,7 +298,7 @@ def rejudge(mutants_dir: Path) -> Rejudgement:
             cache.close()
         for store_path in sorted({*finished, *(mutants_dir / "search").glob("*/*.db")}):
             with Store.existing(store_path) as store:
-                changes = rejudge_store(store, result.logs_gone)
+                changes = rejudge_store(store, result.logs_gone, (mutated_line(index, store_path.parent.name),))
                 if store_path in finished:
                     by_scenario, scenario = finished[store_path]
                     by_scenario[scenario] = store.first_reveals()

@@ -95,7 +95,7 @@ def _sides(args: argparse.Namespace, settings: dict):
         from harness.interop.param_files import load_params_file
 
         params = {**load_params_file(Path(settings["sut_params_file"])), **params}
-    option = {"px4": "px4_bin", "ardupilot": "ardupilot_bin", "bundled": "autopilot_dir"}[kind]
+    option = builds.SUT_OPTION[kind]
     given_builds = args.base_build or args.head_build
     if given_builds and args.source:
         raise InputError([Problem("--source", "", "give either two builds (--base-build, --head-build) or a tree to build them from, not both")])
