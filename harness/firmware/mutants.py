@@ -224,7 +224,7 @@ def build_all(out: Path, *, cache: Path | None = None, jobs: int | None = None, 
     index = load_index(out)
     cache = Path(cache) if cache else out / "builds"
     source = Path(index["source"])
-    commit = index["commit"] if index["kind"] == "px4" else None
+    commit = index["commit"] if index["kind"] != "bundled" else None
     built_path = out / BUILT
     record = json.loads(built_path.read_text()) if built_path.is_file() else {"mutants": {}}
     coverage = None if coverage_paths is None else builds.coverage_paths_of(source, index["kind"], coverage_paths)
