@@ -373,8 +373,9 @@ WAF_OUT = {False: "build", True: "build_coverage"}
 def _build_ardupilot(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
                      worktree_command: str | None, coverage_paths: Sequence[str] | None = None, keep: bool = True) -> dict[str, str]:
     """ArduCopter SITL of the commit with the patches, by waf in the commit's worktree (as
-    _build_px4). A coverage build compiles everything with ArduPilot's own --coverage, which also
-    makes its SITL end in order on SIGTERM, writing its counters."""
+    _build_px4). A coverage build compiles everything with ArduPilot's own --coverage, and carries
+    the library through which its flights end in order (_compile_exit_shim): its SITL acts on
+    SIGTERM only when its simulated clock moves on, which nothing advances after a flight."""
     log_path = folder / (BUILD_LOG if keep else DIGEST_LOG)
     measured = coverage_paths is not None
     with open(log_path, "w") as log_file:
