@@ -397,6 +397,19 @@ def test_a_simulator_that_failed_while_its_sut_ran_crashed_the_flight(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_sut_frozen_before_it_connects_is_the_suts_failure_not_the_simulators(tmp_path, profile):
+    """The simulator gives up on a SUT that never connected after as long as the harness waits for
+    its heartbeat, and exits (EXIT_CUT_SHORT) just after the harness gave up: the flight is still
+    the SUT's failure, as the simulator says, not a simulator that crashed."""
+    stalling = f"sh -c '{AUTOPILOT} & sleep 0.02; kill -STOP $!; wait'"
+    space = SearchSpace(load_logical(FIG4, profile), profile)
+    x = space.sample_feasible(np.random.default_rng(1), 1)[0]
+    result = evaluate(space, x, seed=1, out_dir=tmp_path, options=RunOptions(sut=SutConfig("command", command=stalling, hold="frozen")))
+    assert result.status == "sut_crashed", result.why
+    assert result.why.startswith("command never connected to its simulator link"), result.why
+
+
+@pytest.mark.slow
 def test_a_sut_that_stops_answering_says_when_and_after_what_before_its_console(tmp_path, profile):
     # GIVEN the bundled autopilot, frozen (SIGSTOP) 0.8 s after it starts: alive, silent on both links
     stalling = f"sh -c '{AUTOPILOT} & sleep 0.8; kill -STOP $!; wait'"

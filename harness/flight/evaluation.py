@@ -394,7 +394,7 @@ def _fly(world: WorldSpec, options: RunOptions, stack: Stack, timings: dict[str,
         if finished is None:
             if control.closed:
                 bridge.wait(5.0)  # a simulator that died closed its control channel first: give it time to be seen exiting
-            crashed = _crash(bridge, sut, "in flight", finished=control.heard(Finished), last_request=session.last_request)
+            crashed = _crash(bridge, sut, "in flight", control, last_request=session.last_request)
             if crashed is not None:
                 return FlightOutcome(crashed, control_summary(control), info)
             control.send(Stop())
@@ -435,19 +435,28 @@ def _unanswered(error: Exception) -> bool:
     return result in ("TIMEOUT", "NO_SYSTEM", "CONNECTION_ERROR")
 
 
+SIMULATOR_VERDICT_WAIT_S = 5.0
+
+
 def _setup_failure(stack: Stack, control: BridgeControl, what: str) -> Failure:
-    return _crash(stack.bridge, stack.sut, what, finished=control.heard(Finished), last_request=stack.session.last_request) or Failure(Status.TIMEOUT, what)
+    return _crash(stack.bridge, stack.sut, what, control, last_request=stack.session.last_request) or Failure(Status.TIMEOUT, what)
 
 
-def _crash(bridge: ManagedProcess, sut: SutHandle, what: str, *, finished: Finished | None = None, last_request: str | None = None) -> Failure | None:
+def _crash(bridge: ManagedProcess, sut: SutHandle, what: str, control: BridgeControl | None = None, *, last_request: str | None = None) -> Failure | None:
     """Which of the two died or stopped, if one did. A SUT that dies closes its simulator link,
     and the simulator then ends its flight and exits (EXIT_CUT_SHORT): by the time the harness
     looks, both may be gone. So a SUT that died of a signal crashed the flight whatever the
     simulator did afterwards (but SIGPIPE, which a simulator that went first sends), as does one
     that exited where the simulator cut the flight short, or one the simulator saw stop
-    answering (`finished`, its summary); otherwise a simulator that exited crashed it."""
+    answering (`finished`, its summary); otherwise a simulator that exited crashed it. A
+    simulator still running is given a moment to say why it ends: it gives up on a SUT that never
+    connected after as long as the harness waits for the SUT's heartbeat, and exits just after.
+    (Without a control channel the simulator said nothing.)"""
     sut_status = sut.settled_exit_status()
+    if control is not None:
+        control.wait_for(Finished, SIMULATOR_VERDICT_WAIT_S, lambda: bridge.poll() is None)
     simulator_status = bridge.poll()
+    finished = control.heard(Finished) if control is not None else None
     died_of_its_own = sut_status is not None and sut_status < 0 and -sut_status != signal.SIGPIPE
     if sut_status is not None and (died_of_its_own or simulator_status in (None, EXIT_CUT_SHORT)):
         return Failure(Status.SUT_CRASHED, f"{what}: {sut.how_it_ended()}")
