@@ -339,7 +339,7 @@ def test_the_exit_library_makes_a_program_waiting_for_its_clock_write_its_counte
     import subprocess
     import time
 
-    from harness.firmware.builds import _compile_exit_shim
+    from harness.firmware.ardupilot_build import compile_exit_shim
 
     tree, folder = tmp_path / "tree", tmp_path / "variant"
     build_dir = tree / "build_coverage" / "sitl"
@@ -347,7 +347,7 @@ def test_the_exit_library_makes_a_program_waiting_for_its_clock_write_its_counte
     folder.mkdir()
     log_path = folder / "build.log"
     with open(log_path, "w") as log_file:
-        shim = _compile_exit_shim(folder, log_file, log_path)
+        shim = compile_exit_shim(folder, log_file, log_path)
     for preload, written in ((str(shim), True), ("", False)):
         counters = tmp_path / f"counters-{bool(preload)}"
         env = {"PATH": "/usr/bin:/bin", "GCOV_PREFIX": str(counters), "GCOV_PREFIX_STRIP": str(len(build_dir.parts) - 1), "LD_PRELOAD": preload}

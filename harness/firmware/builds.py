@@ -40,7 +40,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
-import sut_adapter
 from harness.errors import InputError, Problem, StellaError
 from harness.paths import write_atomically
 from sut_adapter.coverage import GCOV_TOOL, NOTES_DIR, PYTHON_TOOL, mark_coverage_build
@@ -172,7 +171,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     `coverage_paths` (files or folders of the tree) make it a coverage build measuring them."""
     source = Path(source).expanduser().resolve()
     if not source.is_dir():
-        raise InputError([Problem(str(source), "", "no such folder: give --source the root of a PX4-Autopilot tree or of this project")])
+        raise InputError([Problem(str(source), "", "no such folder: give --source the root of a PX4-Autopilot or ArduPilot tree, or of this project")])
     kind = tree_kind(source)
     digests = tuple(patch_digest(Path(p)) for p in patches)
     resolved = resolve_commit(source, commit) if kind != "bundled" or commit else None
@@ -190,7 +189,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
         # Built before without these files watched (`stella sut build`): the digests a mutant's
         # build is compared with are missing, and equivalent mutants would pass for built ones.
         if kind != "bundled":
-            objects = FIRMWARE_BUILDERS[kind](source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, unwatched,
+            objects = _firmware_builder(kind)(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, unwatched,
                                               worktree_command, coverage_paths, keep=False)
         else:
             objects = {name: bytecode_digest((folder / name).read_text(), name) for name in unwatched}
@@ -201,7 +200,7 @@ def build(source: Path, *, out: Path, commit: str | None = None, patches: Sequen
     started = time.monotonic()
     # A failed build keeps its folder for the log, but has no VARIANT_FILE: never taken for a build.
     if kind != "bundled":
-        objects = FIRMWARE_BUILDERS[kind](source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch,
+        objects = _firmware_builder(kind)(source, resolved, [Path(p) for p in patches], folder, Path(out).expanduser().resolve(), jobs, watch,
                                           worktree_command, coverage_paths)
     else:
         objects = _build_bundled(source, resolved, [Path(p) for p in patches], folder, watch)
@@ -363,68 +362,13 @@ def _keep_notes(tree: Path, build_dir: Path, folder: Path, paths: Sequence[str])
                           f"no object of {', '.join(paths)} was compiled with gcov: do they hold sources that the build compiles?")
 
 
-# -- ArduPilot ------------------------------------------------------------------------------------
+def _firmware_builder(kind: str):
+    """The function that builds a firmware kind's variant (ArduPilot's in harness/firmware/ardupilot_build.py)."""
+    if kind == "ardupilot":
+        from harness.firmware.ardupilot_build import build_ardupilot
 
-# waf's lock file says which out folder its commands build in: one per configuration, so that the
-# plain and the coverage build of a worktree each stay configured (configuring again recompiles all).
-WAF_OUT = {False: "build", True: "build_coverage"}
-
-
-def _build_ardupilot(source: Path, commit: str, patches: list[Path], folder: Path, cache: Path, jobs: int | None, watch: Sequence[str],
-                     worktree_command: str | None, coverage_paths: Sequence[str] | None = None, keep: bool = True) -> dict[str, str]:
-    """ArduCopter SITL of the commit with the patches, by waf in the commit's worktree (as
-    _build_px4). A coverage build compiles everything with ArduPilot's own --coverage, and carries
-    the library through which its flights end in order (_compile_exit_shim): its SITL acts on
-    SIGTERM only when its simulated clock moves on, which nothing advances after a flight."""
-    log_path = folder / (BUILD_LOG if keep else DIGEST_LOG)
-    measured = coverage_paths is not None
-    with open(log_path, "w") as log_file:
-        tree = _worktree(source, commit, cache, log_file, worktree_command)
-        touched = apply_patches(tree, patches)
-        try:
-            out = tree / WAF_OUT[measured]
-            env = {**os.environ, "WAFLOCK": f".lock-waf_stella_{WAF_OUT[measured]}"}
-            steps = [["./waf", "copter", f"-j{jobs or len(os.sched_getaffinity(0))}"]]
-            if not (tree / env["WAFLOCK"]).is_file():
-                # --no-submodule-update: the worktree's submodules are those made above; waf's own
-                # update would reach for the network.
-                steps.insert(0, ["./waf", "configure", "--board", "sitl", "--no-submodule-update", "--out", str(out),
-                                 *(["--coverage"] if measured else [])])
-            for argv in steps:
-                log_file.write(f"$ WAFLOCK={env['WAFLOCK']} {' '.join(argv)}  (in {tree})\n")
-                log_file.flush()
-                if subprocess.run(argv, cwd=tree, stdout=log_file, stderr=subprocess.STDOUT, env=env).returncode != 0:
-                    raise BuildFailed(f"ArduCopter {commit[:12]} with {len(patches)} patch(es)", log_path, _tail(log_path))
-            build_dir = out / "sitl"
-            objects = {name: digest for name in dict.fromkeys([*touched, *watch]) if (digest := _object_digest(build_dir, name))}
-            if not keep:
-                return objects
-            (folder / "bin").mkdir()
-            shutil.copy2(build_dir / "bin" / "arducopter", folder / "bin" / "arducopter")
-            if measured:
-                _keep_notes(tree, build_dir, folder, coverage_paths)
-                mark_coverage_build(folder, GCOV_TOOL, coverage_paths, build_dir=str(build_dir), tree=str(tree),
-                                    preload=str(_compile_exit_shim(folder, log_file, log_path)))
-        finally:
-            if touched:
-                git(tree, "checkout", "--", *touched, check=False)
-    return objects
-
-
-def _compile_exit_shim(folder: Path, log_file, log_path: Path) -> Path:
-    """sut_adapter/gcov_exit.c compiled into the variant: the library its flights preload, so that
-    the adapter's SIGUSR1 ends ArduPilot through exit(), which writes the counters."""
-    shim = folder / "lib" / "stella_gcov_exit.so"
-    shim.parent.mkdir()
-    argv = ["cc", "-shared", "-fPIC", "-O2", "-o", str(shim), str(Path(sut_adapter.__file__).parent / "gcov_exit.c")]
-    log_file.write(f"$ {' '.join(argv)}\n")
-    log_file.flush()
-    if subprocess.run(argv, stdout=log_file, stderr=subprocess.STDOUT).returncode != 0:
-        raise BuildFailed("the exit library of the coverage build", log_path, _tail(log_path))
-    return shim
-
-
-FIRMWARE_BUILDERS = {"px4": _build_px4, "ardupilot": _build_ardupilot}
+        return build_ardupilot
+    return _build_px4
 
 
 def _tail(path: Path, lines: int = 25) -> str:
