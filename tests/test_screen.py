@@ -14,8 +14,10 @@ import pytest
 from conftest import ROOT, stored_result
 from harness.campaigns.residual import Pair, ResidualModel
 from harness.campaigns.screen import Screen, ScreenSettings, screen_sut
+from harness.campaigns.screen_sources import learn_from_stores
 from harness.campaigns.store import Store
 from harness.campaigns.store.rows import vector_key
+from harness.errors import InputError
 from harness.execution.local import SequentialExecutor
 from harness.flight.fitness import PENALTY, Status
 from harness.flight.results import EvaluationResult, RunOptions
@@ -183,6 +185,71 @@ def test_a_correction_that_ranks_worse_than_the_cheap_flights_is_set_aside_and_t
     assert resumed.choose([(key, x) for key, (x, _c) in second.items()]) == chosen and resumed.told(out) == 31.0
 
 
+# A screened PX4 campaign's identity as stored (CampaignConfig._identity), what --screen-learn-from compares.
+PX4_SCREENED = {"profile": "sha256:profile", "drive": "pilot", "sut": "px4", "sut_params": {}, "sut_build": "sha256:build-1",
+                "screen": {"sut": {"name": "bundled", "params": {"CP_STICK_ACCEL": 1}}, "share": 0.3}}
+
+
+def earlier_campaign(path: Path, space: SearchSpace, xs: list[np.ndarray], identity: dict, scenario_key: str = "sha256:s") -> Path:
+    """A store of a finished screened campaign that flew these candidates both ways, all alike on
+    the cheap model (3 m), the subject parting from it by where the candidate lies."""
+    with Store(path) as store:
+        run_id, _finished = store.run(store.campaign(identity), "s.json", "s", "NSGAII", 0, 3, scenario_key=scenario_key)
+        for i, x in enumerate(xs):
+            store.add_screen_flight(run_id, vector_key(x), cheap_flight(3.0))
+            store.add_evaluation(run_id, ordinal=i, step=0, optimizer="NSGAII", vector=x, result=stored_result(parted(space, x, 3.0), "ok"), concrete=None)
+    return path
+
+
+def test_a_correction_learns_from_an_earlier_campaigns_store_of_the_same_subject_and_keeps_what_it_learned(tmp_path, space):
+    # GIVEN an earlier screened campaign of the same PX4 build, drive and profile (another algorithm and seed)
+    xs = spread_over(space, 32, seed=2)
+    earlier = earlier_campaign(tmp_path / "earlier.db", space, xs[:12], PX4_SCREENED)
+    # WHEN a new campaign begins learning from its store
+    ours = {**PX4_SCREENED, "algorithms": ["RANDOM"], "seed": 9}
+    store = Store(tmp_path / "new.db")
+    campaign = store.campaign(ours)
+    assert learn_from_stores(store, ours, {"sha256:s"}, [str(earlier)]) == {str(earlier.resolve()): 12}
+    run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", 0, 9, scenario_key="sha256:s")
+    batch = {f"k{i}": x for i, x in enumerate(xs[12:])}
+    for key in batch:
+        store.add_screen_flight(run_id, key, cheap_flight(3.0))
+    settings = ScreenSettings(SutConfig(), share=0.25, explore=0.0)
+    screen = Screen(settings, SequentialExecutor(), store, run_id, 9, tmp_path, RunOptions(), space)
+    # THEN its first batch is already ranked by what the subject did there, which the cheap flights cannot tell apart
+    chosen = screen.choose(list(batch.items()))
+    real = {key: parted(space, x, 3.0) for key, x in batch.items()}
+    assert chosen == set(sorted(real, key=real.get)[:5])
+    assert screen.summary()["training_pairs"] == screen.summary()["learned_pairs"] == 12
+    # AND with the other store gone, the campaign resumed learns from what it copied and decides alike
+    earlier.unlink()
+    assert learn_from_stores(store, ours, {"sha256:s"}, [str(earlier)]) == {str(earlier.resolve()): 12}
+    resumed = Screen(settings, SequentialExecutor(), Store(tmp_path / "new.db"), run_id, 9, tmp_path, RunOptions(), space)
+    assert resumed.choose(list(batch.items())) == chosen
+    # AND a campaign that has begun learns from no new store
+    later = earlier_campaign(tmp_path / "later.db", space, xs[:12], PX4_SCREENED)
+    with pytest.raises(InputError, match="began learning from .*earlier.db; learning from another now .* start a new --store"):
+        learn_from_stores(store, ours, {"sha256:s"}, [str(later)])
+
+
+@pytest.mark.parametrize("identity, scenario_key, why", [
+    ({**PX4_SCREENED, "sut_build": "sha256:build-2"}, "sha256:s", "its campaign flew other flights .sut_build 'sha256:build-2' where this campaign has 'sha256:build-1'."),
+    ({**PX4_SCREENED, "drive": "mission"}, "sha256:s", "drive 'mission' where this campaign has 'pilot'"),
+    ({**PX4_SCREENED, "screen": {"sut": {"name": "bundled", "params": {}}}}, "sha256:s", "another cheap model"),
+    ({k: v for k, v in PX4_SCREENED.items() if k != "screen"}, "sha256:s", "its campaign was not screened"),
+    (PX4_SCREENED, "sha256:another-scenario", "has no candidate flown both ways of this campaign's scenarios"),
+])
+def test_a_store_of_other_flights_is_refused_naming_it_and_why(tmp_path, space, identity, scenario_key, why):
+    other = earlier_campaign(tmp_path / "other.db", space, spread_over(space, 6), identity, scenario_key)
+    with Store(tmp_path / "new.db") as store:
+        store.campaign(PX4_SCREENED)
+        with pytest.raises(InputError, match=f"--screen-learn-from: {other}: .*{why}"):
+            learn_from_stores(store, PX4_SCREENED, {"sha256:s"}, [str(other)])
+        with pytest.raises(InputError, match="is this campaign's own store"):
+            learn_from_stores(store, PX4_SCREENED, {"sha256:s"}, [str(tmp_path / "new.db")])
+        assert store.screen_sources() == {}
+
+
 def test_the_cheap_model_takes_the_subjects_px4_parameters_calibrated_by_drive_and_never_its_seeded_fault():
     # PX4's collision prevention as it acts: on the pilot's sticks' acceleration, and not in missions
     assert screen_sut(SutConfig("px4", {"CP_DIST": 2.0, "MPC_XY_CRUISE": 4.0}, px4_bin="/x"), "pilot") == SutConfig(
@@ -291,3 +358,42 @@ def test_a_differential_campaign_is_screened_once_the_correction_has_learned_wha
     assert untrained and all(untrained)
     assert any(predicted and not chosen for chosen, predicted in decided)
     assert pairs == flown and screen["pairs"] == flown and screen["corrected_rank_correlation"] is not None
+
+
+@pytest.mark.slow
+def test_a_campaign_that_learns_from_an_earlier_campaigns_store_ranks_its_first_batch_by_the_correction_and_resumes_alike(tmp_path, capsys):
+    # GIVEN an earlier screened campaign of the faulted subject
+    screened_campaign(tmp_path, capsys, tmp_path / "a.db")
+    with Store.existing(tmp_path / "a.db") as earlier:
+        taught = len(earlier.flown_both_ways())
+
+    def learning(store: Path) -> dict:
+        capsys.readouterr()
+        assert main(["campaign", WALL, "--algorithm", "NSGAII", "--evaluations", "8", "--population", "8", "--batch", "8", "--seed", "6",
+                     "--workers", "2", "--sut-fault", "cp_ignores_delay", "--screen", "bundled", "--screen-share", "0.25",
+                     "--screen-learn-from", str(tmp_path / "a.db"), "--store", str(store), "--json"]) == 0
+        return json.loads(capsys.readouterr().out)["runs"][0]
+
+    # WHEN another campaign of the same subject (another algorithm and seed) learns from its store
+    run = learning(tmp_path / "c.db")
+    # THEN its correction was trained on the earlier flights before its own first batch was decided
+    assert run["screen"]["learned_pairs"] == taught >= 5 and run["screen"]["training_pairs"] >= taught
+    with sqlite3.connect(tmp_path / "c.db") as db:
+        first_batch = db.execute("SELECT predicted_mean IS NOT NULL FROM screen_flights WHERE chosen IS NOT NULL ORDER BY created LIMIT 8").fetchall()
+    assert first_batch and all(predicted for predicted, in first_batch)
+    real = real_flights(tmp_path / "c.db")
+    # AND killed half way and resumed with the earlier store gone, it flies the same flights
+    (tmp_path / "a.db").rename(tmp_path / "moved.db")
+    with sqlite3.connect(tmp_path / "c.db") as db:
+        db.execute("DELETE FROM evaluations WHERE ordinal >= 4")
+        db.execute("UPDATE runs SET finished = NULL")
+    capsys.readouterr()
+    assert main(["campaign", WALL, "--algorithm", "NSGAII", "--evaluations", "8", "--population", "8", "--batch", "8", "--seed", "6",
+                 "--workers", "2", "--sut-fault", "cp_ignores_delay", "--screen", "bundled", "--screen-share", "0.25",
+                 "--store", str(tmp_path / "c.db"), "--json"]) == 0
+    resumed = json.loads(capsys.readouterr().out)["runs"][0]
+    assert real_flights(tmp_path / "c.db") == real and resumed["screen"] == run["screen"]
+    # AND without a screen to teach, the option is refused
+    assert main(["campaign", WALL, "--algorithm", "RANDOM", "--evaluations", "2", "--screen-learn-from", str(tmp_path / "moved.db"),
+                 "--store", str(tmp_path / "d.db")]) == 2
+    assert "--screen-learn-from: teaches the screen's learned correction: give --screen bundled" in capsys.readouterr().err

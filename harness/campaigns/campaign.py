@@ -23,6 +23,7 @@ from harness.campaigns.coverage import CodeNovelty
 from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.screen import Screen, ScreenSettings
+from harness.campaigns.screen_sources import learn_from_stores
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
@@ -87,6 +88,10 @@ class CampaignConfig:
     # coverage build's flight that ran none of them reveals nothing (harness/campaigns/pairs.py).
     # Not part of the identity: it judges the pairs, and `stella rejudge` judges stored ones again.
     changed_lines: tuple[str, ...] = ()
+    # Screened: other stores whose candidates flown both ways the correction learns from too
+    # (harness/campaigns/screen_sources.py). Not part of the identity: they are copied into the
+    # store when the campaign begins, and a resumed campaign learns from that copy.
+    learn_from: tuple[str, ...] = ()
 
     def read(self) -> CampaignDocuments:
         """The profile and the logical scenarios as this campaign flies them (drive and plan applied)."""
@@ -266,7 +271,8 @@ def screen_line(screen: dict[str, Any]) -> str:
     return (f"screen: {screen['flights']} cheap flights, {screen['screened_out']} not flown for real, rank correlation "
             + known(screen["rank_correlation"]) + (f" (corrected {known(screen['corrected_rank_correlation'])})" if corrected else "")
             + f" over {screen['pairs']} flown both ways, {screen['false_negatives']} false negatives"
-            + (f" (corrected {screen['corrected_false_negatives']}; trained on {screen['training_pairs']})" if corrected else "")
+            + (f" (corrected {screen['corrected_false_negatives']}; trained on {screen['training_pairs']}"
+               + (f", {screen['learned_pairs']} of them from other stores" if screen.get("learned_pairs") else "") + ")" if corrected else "")
             + (", fell back to flying every candidate" if screen["fell_back"] else ""))
 
 
@@ -298,7 +304,11 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
         executor.check_sut(sut)
     combinations = [parse_algorithm(a) for a in config.algorithms]
     documents = config.read()
-    campaign_id = store.campaign(config.identity(documents), legacy=config.legacy_identities(documents), sources=config.sources())
+    identity = config.identity(documents)
+    campaign_id = store.campaign(identity, legacy=config.legacy_identities(documents), sources=config.sources())
+    if config.learn_from:
+        learned = learn_from_stores(store, identity, {content_key(s.document) for s in documents.scenarios}, config.learn_from)
+        log.info("the screen's correction learns from %s", ", ".join(f"{count} candidates flown both ways in {source}" for source, count in learned.items()))
     pairs = None
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache

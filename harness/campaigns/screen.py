@@ -133,7 +133,9 @@ class Screen:
     _predicted: dict[str, Prediction] = field(default_factory=dict)  # the correction's prediction where one was trained
     _pairs: dict[str, _FlownBothWays] = field(default_factory=dict)  # by key, in the order they were learned
     _ranked_by_cheap: set[str] = field(default_factory=set)  # candidates ranked by the cheap flights though a correction predicted them
-    _training: list[Pair] = field(default_factory=list)  # this run's pairs and the store's earlier runs' of the scenario
+    # The pairs learned from other stores, the store's earlier runs' of the scenario, and this run's.
+    _training: list[Pair] = field(default_factory=list)
+    _learned: int = 0  # of them from other stores (--screen-learn-from)
     fell_back: bool = False
 
     def __post_init__(self) -> None:
@@ -146,10 +148,12 @@ class Screen:
             if row["ranked_by_cheap"]:
                 self._ranked_by_cheap.add(key)
         if self.settings.correction != "none":
-            self._training = [Pair(f"{row['run_id']}:{row['key']}", np.asarray(row["vector"], dtype=float),
+            earlier = self.store.earlier_screen_pairs(self.run_id)
+            self._training = [Pair(f"{row['origin']}:{row['key']}", np.asarray(row["vector"], dtype=float),
                                    clearance(row["cheap_fitness"], row["cheap_status"], row["cheap_properties"], self.properties),
                                    clearance(row["fitness"], row["status"], row["properties"], self.properties))
-                              for row in self.store.earlier_screen_pairs(self.run_id)]
+                              for row in earlier]
+            self._learned = sum(row["learned"] for row in earlier)
 
     def _outcome(self, fitness: float, status: str, properties: Mapping[str, Any]) -> CheapOutcome:
         return CheapOutcome(fitness, status, properties, objective(fitness, properties, self.properties),
@@ -280,7 +284,8 @@ class Screen:
 
     def summary(self) -> dict[str, Any]:
         corrected = ({"corrected_rank_correlation": self.corrected_rank_correlation, "corrected_false_negatives": self.corrected_false_negatives,
-                      "training_pairs": len(self._training), "ranked_by_cheap": len(self._ranked_by_cheap)} if self.settings.correction != "none" else {})
+                      "training_pairs": len(self._training), "learned_pairs": self._learned, "ranked_by_cheap": len(self._ranked_by_cheap)}
+                     if self.settings.correction != "none" else {})
         return {"flights": self.flights, "screened_out": self.screened_out, "pairs": len(self._pairs), "rank_correlation": self.rank_correlation,
                 "false_negatives": self.false_negatives, **corrected, "fell_back": self.fell_back}
 

@@ -17,9 +17,10 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from harness.campaigns.store.rows import StoredEvaluation, StoredRun, vector_key
+from harness.campaigns.store.screen_tables import SCREEN_SCHEMA, ScreenTables
 from harness.errors import InputError, Problem
 from harness.flight.differential import Reveal
-from harness.flight.fitness import COULD_NOT_FINISH, Status
+from harness.flight.fitness import Status
 
 if TYPE_CHECKING:
     from harness.flight.results import EvaluationResult
@@ -81,20 +82,6 @@ CREATE TABLE IF NOT EXISTS checkpoints (
     created REAL NOT NULL,
     PRIMARY KEY (run_id, step)
 );
-CREATE TABLE IF NOT EXISTS screen_flights (
-    run_id INTEGER NOT NULL REFERENCES runs(id),
-    vector_key TEXT NOT NULL,
-    fitness REAL NOT NULL,
-    status TEXT NOT NULL,
-    properties TEXT,
-    log_path TEXT,
-    chosen INTEGER,
-    created REAL NOT NULL,
-    predicted_mean REAL,
-    predicted_sd REAL,
-    ranked_by_cheap INTEGER,
-    PRIMARY KEY (run_id, vector_key)
-);
 """
 
 
@@ -128,7 +115,7 @@ def _evaluation(id, run_id, ordinal, vector, key, fitness, status, log_path, see
                             _json(differential), scenario, scenario_file, algorithm, run_index, _json(properties) or {}, _json(coverage))
 
 
-class Store:
+class Store(ScreenTables):
     @classmethod
     def existing(cls, path: Path) -> "Store":
         """A campaign's store as it is (to compare, report, export, judge again): the file must
@@ -169,7 +156,7 @@ class Store:
         self.db = sqlite3.connect(self.path, timeout=30.0)
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
-        self.db.executescript(SCHEMA)
+        self.db.executescript(SCHEMA + SCREEN_SCHEMA)
         columns = {row[1] for row in self.db.execute("PRAGMA table_info(evaluations)")}
         if "attempts" not in columns:  # a store written before tries were recorded
             self.db.execute("ALTER TABLE evaluations ADD COLUMN attempts TEXT")
@@ -301,47 +288,6 @@ class Store:
                     json.dumps(result.coverage) if result.coverage else None,
                 ),
             )
-
-    # -- a screened campaign's cheap flights (harness/campaigns/screen.py) ----------------------
-
-    def add_screen_flight(self, run_id: int, key: str, result: EvaluationResult) -> None:
-        with self.db:
-            self.db.execute("INSERT OR REPLACE INTO screen_flights (run_id, vector_key, fitness, status, properties, log_path, created) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                            (run_id, key, result.fitness, str(result.status), json.dumps(result.properties) if result.properties else None,
-                             result.log_path, time.time()))
-
-    def screen_decisions(self, run_id: int, chosen: Mapping[str, bool], predicted: Mapping[str, tuple[float, float]], ranked_by_cheap: bool = False) -> None:
-        """Which cheaply flown candidates the screen chose for a real flight, what its correction
-        predicted of them (mean and standard deviation, where one was trained) and whether it
-        ranked them by the cheap flights all the same: kept, so that a resumed run decides as the
-        first did and measures the correction alike."""
-        with self.db:
-            self.db.executemany("UPDATE screen_flights SET chosen = ?, predicted_mean = ?, predicted_sd = ?, ranked_by_cheap = ? WHERE run_id = ? AND vector_key = ?",
-                                [(int(flag), *predicted.get(key, (None, None)), int(ranked_by_cheap), run_id, key) for key, flag in chosen.items()])
-
-    def screen_flights(self, run_id: int) -> dict[str, dict[str, Any]]:
-        """A run's cheap flights by their vector's key: fitness, status, properties, whether the
-        screen chose it for a real flight (None: not decided yet) and what its correction
-        predicted (mean and standard deviation; None: no correction trained)."""
-        return {key: {"fitness": fitness, "status": status, "properties": _json(properties) or {}, "chosen": None if chosen is None else bool(chosen),
-                      "predicted": None if mean is None else (mean, sd), "ranked_by_cheap": bool(by_cheap)}
-                for key, fitness, status, properties, chosen, mean, sd, by_cheap in self.db.execute(
-                    "SELECT vector_key, fitness, status, properties, chosen, predicted_mean, predicted_sd, ranked_by_cheap FROM screen_flights WHERE run_id = ?",
-                    (run_id,))}
-
-    def earlier_screen_pairs(self, run_id: int) -> list[dict[str, Any]]:
-        """The candidates flown both ways, cheaply and for real to the end, in the store's runs
-        of the same scenario before this one: what the screen's correction learns from first."""
-        query = (
-            "SELECT s.run_id, s.vector_key, e.vector, s.fitness, s.status, s.properties, e.fitness, e.status, e.properties FROM runs this"
-            " JOIN runs r ON r.scenario_key = this.scenario_key AND r.id < this.id"
-            " JOIN screen_flights s ON s.run_id = r.id JOIN evaluations e ON e.run_id = s.run_id AND e.vector_key = s.vector_key"
-            f" WHERE this.id = ? AND e.status NOT IN ({', '.join('?' * len(COULD_NOT_FINISH | {Status.INFEASIBLE}))}) ORDER BY s.run_id, s.vector_key"
-        )
-        return [{"run_id": earlier, "key": key, "vector": json.loads(vector), "cheap_fitness": cheap, "cheap_status": cheap_status,
-                 "cheap_properties": _json(cheap_properties) or {}, "fitness": fitness, "status": status, "properties": _json(properties) or {}}
-                for earlier, key, vector, cheap, cheap_status, cheap_properties, fitness, status, properties in self.db.execute(
-                    query, (run_id, *sorted(str(status) for status in COULD_NOT_FINISH | {Status.INFEASIBLE})))]
 
     def rejudge(self, evaluation_id: int, differential: Mapping[str, Any]) -> None:
         """Replace a pair's verdict and flights (harness/campaigns/rejudge.py)."""

@@ -73,6 +73,10 @@ def _campaign_options(p: argparse.ArgumentParser) -> None:
                         "(`stella properties` names them; or a JSON property file); repeatable")
     add_reference_options(p, campaign=True)
     add_screen_options(p)
+    p.add_argument("--screen-learn-from", action="append", metavar="STORE",
+                   help="with --screen and its correction: learn also from the candidates flown both ways in this earlier screened campaign's store "
+                        "(the same SUT build, parameters, drive and profile; pairs of the same scenarios), copied into --store when the campaign "
+                        "begins; repeatable")
     p.add_argument("--wall-time-s", type=positive_float, help="end each run after this much wall time")
 
 
@@ -133,7 +137,9 @@ def campaign_config(args: argparse.Namespace) -> CampaignConfig:
         raise InputError([Problem("--objective", "", "properties makes each --property an objective of its own: name two or more properties")])
     if config.objective == "coverage":
         check_coverage_build(sut)
-    config = replace(config, screen=screen_settings(args, sut, drives, config.objective), rig=args.rig)
+    config = replace(config, screen=screen_settings(args, sut, drives, config.objective), rig=args.rig, learn_from=tuple(args.screen_learn_from or ()))
+    if config.learn_from and (config.screen is None or config.screen.correction == "none"):
+        raise InputError([Problem("--screen-learn-from", "", "teaches the screen's learned correction: give --screen bundled (with --screen-correction gp)")])
     documents = config.read()
     for logical in documents.scenarios:
         check_rig(logical.rig or documents.profile.rig, sut, config.reference)
