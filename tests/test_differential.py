@@ -221,7 +221,7 @@ def test_stored_reveals_by_a_landings_hops_are_withdrawn_when_judged_again_by_fi
     with open(folder / mutation.LOCK, "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         assert main(["mutants", "rejudge", str(folder)]) == 2
-        assert "another `stella mutants run` or `rejudge` is working on this folder" in capsys.readouterr().err
+        assert "another `stella mutants run`, `rejudge` or `recheck` is working on this folder" in capsys.readouterr().err
 
     # WHEN the folder is judged again
     assert main(["mutants", "rejudge", str(folder)]) == 0

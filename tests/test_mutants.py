@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT
+from harness.campaigns.store import Store
 from harness.errors import InputError
 from harness.firmware import builds, mutants, mutation
 from harness.tools.cli import main
@@ -289,6 +290,61 @@ def test_mutation_analysis_of_the_bundled_collision_prevention_end_to_end(tmp_pa
         with contextlib.closing(sqlite3.connect(search)) as store:
             assert store.execute("SELECT COUNT(*) FROM screen_flights").fetchone()[0] >= 1
     assert main([*argv, "--screen", "bundled"]) == 2
+
+
+@pytest.mark.slow
+def test_a_kill_flown_again_stands_where_the_mutant_differs_and_is_withdrawn_where_its_flights_were_apart_by_chance(tmp_path, capsys):
+    # GIVEN a built mutant of the bundled collision prevention that survived its suite: range data
+    # counts as fresh for 1 s instead of 0.5 s, which shows where a probed wall's sensor goes off
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder)
+    stale = _mutant_with(index, "STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0")
+    index["mutants"] = [stale]
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+    assert main(["mutants", "build", str(folder)]) == 0
+    suite = str(ROOT / "scenarios" / "examples" / "wall_concrete.json")
+    plan = mutation.MutationPlan((suite,), evaluations=3, population=2, confirm=1)
+    (folder / mutation.RUN).write_text(json.dumps({"screening": plan.screening(), "searching": plan.searching(),
+                                                   "mutants": {stale["id"]: {"state": "survived_suite", "suite_flights": 1}}}))
+    # AND searched on the probed wall, where it revealed (confirmed with a second flight a side),
+    # and on the plain wall, where it flew as the original
+    examples = ROOT / "scenarios" / "examples"
+    assert main(["mutants", "run", str(folder), "--suite", suite, "--scenario", str(examples / "wall_probe.json"), "--scenario", str(examples / "wall.json"),
+                 "--algorithm", "RANDOM", "--evaluations", "3", "--population", "2", "--confirm", "1", "--workers", "2"]) == 0
+    searches = json.loads((folder / mutation.RUN).read_text())["mutants"][stale["id"]]["search"]["RANDOM"]
+    assert searches["wall_probe"]["evaluation"] is not None and searches["wall"]["evaluation"] is None
+    # AND the plain wall's first candidate stored as a reveal, as two flights a side landing apart by chance would have
+    plain = folder / "search" / stale["id"] / "wall-RANDOM.db"
+    with Store.existing(plain) as store:
+        first = store.pairs()[0]
+        apart = [{**o, "min_clearance_m": o["min_clearance_m"] + 1.0} for o in first.differential["subject"] * 2]
+        store.rejudge(first.id, {**first.differential, "reveals": "behaviour", "why": "min clearance 1 m beyond the reference's spread",
+                                 "subject": apart, "reference": first.differential["reference"] * 2})
+        searches["wall"] = store.first_reveals()
+    document = json.loads((folder / mutation.RUN).read_text())
+    document["mutants"][stale["id"]]["search"]["RANDOM"]["wall"] = searches["wall"]
+    (folder / mutation.RUN).write_text(json.dumps(document))
+
+    # WHEN each search's kill is flown until it has three flights a side
+    capsys.readouterr()
+    assert main(["mutants", "recheck", str(folder), "--flights", "3", "--workers", "2"]) == 0
+
+    # THEN the probed wall's kill stands and the plain wall's is withdrawn, its new flights flying as the reference's do
+    said = capsys.readouterr()
+    probed = searches["wall_probe"]
+    assert f"{stale['id']} wall_probe-RANDOM candidate {probed['evaluation']}: {probed['level']} -> {probed['level']} stands with 3 flights a side" in said.err
+    assert f"{stale['id']} wall-RANDOM candidate 1: behaviour -> withdrawn with 3 flights a side: no difference beyond the reference's spread" in said.err
+    assert "2 revealing candidates flown again: 1 withdrawn, 1 stand" in said.out
+    assert json.loads((folder / mutation.RUN).read_text())["mutants"][stale["id"]]["search"]["RANDOM"] == {**searches, "wall": {**searches["wall"], "evaluation": None, "level": None}}
+    with Store.existing(plain) as store:
+        pair = store.pairs()[0].differential
+    assert len(pair["subject"]) == len(pair["reference"]) == 3 and pair["subject"][2]["min_clearance_m"] == pair["reference"][2]["min_clearance_m"]
+    assert Path(pair["subject"][2]["log_path"]).is_file()
+    # AND asked again, it flies nothing: every kill has its flights
+    assert main(["mutants", "recheck", str(folder), "--flights", "3"]) == 0
+    assert "0 revealing candidates flown again" in capsys.readouterr().out
+    assert main(["mutants", "recheck", str(folder), "--only", "m9999"]) == 2
+    assert "--only: m9999: no such mutant" in capsys.readouterr().err
 
 
 @pytest.mark.slow

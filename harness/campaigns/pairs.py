@@ -18,7 +18,7 @@ import json
 import subprocess
 from dataclasses import replace
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 from harness.campaigns.coverage import never_ran, withdrawn_reveal
 from harness.campaigns.store import ReferenceFlightTable
@@ -178,6 +178,18 @@ class PairedFlights:
             if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in flights):
                 differential = {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], self.changed_lines)}
             yield job, replace(flights[0], fitness=differential["fitness"], differential=differential)
+
+    def again(self, job: Job, subject: Sequence[Outcome], reference: Sequence[Outcome], more: int) -> dict[str, Any]:
+        """A pair flown before, with its flights so far, flown `more` times again on both sides in
+        one sitting (as confirmations are), and its record judged on all of its flights."""
+        subject_jobs = [replace(job, name=f"{job.name}-confirm{i}") for i in range(len(subject), len(subject) + more)]
+        reference_jobs = [self._reference_job(job, i) for i in range(len(reference), len(reference) + more)]
+        flown = self._fly(subject_jobs + reference_jobs)
+        new_subject = [flown[j.name] for j in subject_jobs]
+        differential = record(self.objective, [*subject, *map(Outcome.of, new_subject)], [*reference, *(Outcome.of(flown[j.name]) for j in reference_jobs)])
+        if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in new_subject):
+            differential = {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], self.changed_lines)}
+        return differential
 
     def _remember(self, key: str, outcomes: list[Outcome]) -> None:
         if self.cache is not None:

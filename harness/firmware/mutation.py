@@ -94,7 +94,7 @@ class MutationPlan:
         return algorithm if self.objective == DEFAULT_OBJECTIVE else f"{algorithm}+{self.objective}"
 
 
-def _sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
+def mutant_sut(kind: str, folder: str, params: Mapping[str, float]) -> SutConfig:
     return SutConfig(kind, dict(params), **{SUT_OPTION[kind]: folder})
 
 
@@ -147,14 +147,14 @@ def _started_badly(result) -> bool:
 
 
 @contextmanager
-def _alone_in(mutants_dir: Path) -> Iterator[None]:
-    """The folder for this process alone: `run` and `rejudge` each hold run.json's whole document
+def alone_in(mutants_dir: Path) -> Iterator[None]:
+    """The folder for this process alone: `run`, `rejudge` and `recheck` each hold run.json's whole document
     while they work and write it back, so a second one at the same time would undo the first's."""
     with open(mutants_dir / LOCK, "w") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise InputError([Problem(str(mutants_dir), "", "another `stella mutants run` or `rejudge` is working on this folder: "
+            raise InputError([Problem(str(mutants_dir), "", "another `stella mutants run`, `rejudge` or `recheck` is working on this folder: "
                                                             "wait for it to end, or stop it (a stopped run resumes)")]) from None
         yield
 
@@ -162,7 +162,7 @@ def _alone_in(mutants_dir: Path) -> Iterator[None]:
 def run(mutants_dir: Path, plan: MutationPlan, executor: Executor, *, only: Sequence[str] = (), progress: Callable[[str], None] = lambda _l: None) -> dict:
     mutants_dir = Path(mutants_dir)
     index = load_index(mutants_dir)
-    with _alone_in(mutants_dir):
+    with alone_in(mutants_dir):
         return _run(mutants_dir, index, plan, executor, only, progress)
 
 
@@ -176,7 +176,7 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
         raise InputError([Problem("--objective", "", "coverage is guided by the code each flight ran: build the mutants with "
                                                      "`stella mutants build --coverage` (into a folder of their own)")])
     cases = _suite_cases(plan)
-    reference = _sut(index["kind"], built["original"]["folder"], plan.sut_params)
+    reference = mutant_sut(index["kind"], built["original"]["folder"], plan.sut_params)
     run_path = mutants_dir / RUN
     document = _load(run_path, plan)
     cache = ReferenceCache(mutants_dir / CACHE)
@@ -186,7 +186,7 @@ def _run(mutants_dir: Path, index: Mapping[str, Any], plan: MutationPlan, execut
         for entry in sorted(built["mutants"].values(), key=lambda e: e["id"]):
             if entry["state"] != "built" or (only and entry["id"] not in only):
                 continue
-            subject = _sut(index["kind"], entry["folder"], plan.sut_params)
+            subject = mutant_sut(index["kind"], entry["folder"], plan.sut_params)
             outcome = document["mutants"].get(entry["id"])
             if outcome is None:
                 outcome = _screen(entry["id"], subject, reference, cases, plan, executor, cache, mutants_dir, replace(options, sut=subject),
@@ -252,18 +252,18 @@ def _search(mutant: str, subject: SutConfig, reference: SutConfig, plan: Mutatio
     config = CampaignConfig((scenario,), (algorithm,), plan.evaluations, 1, plan.seed, plan.population, sut=subject, drive=plan.drive,
                             confirm=plan.confirm, reference=reference, objective=plan.objective, screen=plan.screen, rig=plan.rig,
                             coverage_target=(target,) if plan.objective == "coverage" else (), changed_lines=(target,))
-    store_path = _search_store(folder, mutant, Path(scenario).stem, plan.searcher(algorithm))
+    store_path = search_store(folder, mutant, Path(scenario).stem, plan.searcher(algorithm))
     with Store.for_campaign(store_path) as store:
         run_campaign(config, store, executor, store_path.with_suffix(""), options=RunOptions(sut_logs=plan.sut_logs, warm=True), reference_cache=cache,
                      on_run=lambda run: progress(run_line(run)))
         return store.first_reveals()
 
 
-def _search_store(folder: Path, mutant: str, scenario: str, searcher: str) -> Path:
+def search_store(folder: Path, mutant: str, scenario: str, searcher: str) -> Path:
     return folder / "search" / mutant / f"{slug(scenario)}-{slug(searcher)}.db"
 
 
-def _load_run(mutants_dir: Path) -> dict[str, Any]:
+def load_run(mutants_dir: Path) -> dict[str, Any]:
     run_path = mutants_dir / RUN
     if not run_path.is_file():
         raise InputError([Problem(str(run_path), "", "no mutation run here: run `stella mutants run` first")])
@@ -279,11 +279,11 @@ def rejudge(mutants_dir: Path) -> Rejudgement:
     run.json with them; searches under way too, so that they resume judged alike. The suite's
     verdicts stay: its pairs are not stored."""
     mutants_dir = Path(mutants_dir)
-    _load_run(mutants_dir)  # a folder without a run says so before anything is locked
+    load_run(mutants_dir)  # a folder without a run says so before anything is locked
     index = load_index(mutants_dir)
-    with _alone_in(mutants_dir):
-        document = _load_run(mutants_dir)
-        finished = {_search_store(mutants_dir, mutant, scenario, algorithm): (by_scenario, scenario)
+    with alone_in(mutants_dir):
+        document = load_run(mutants_dir)
+        finished = {search_store(mutants_dir, mutant, scenario, algorithm): (by_scenario, scenario)
                     for mutant, outcome in sorted(document["mutants"].items())
                     for algorithm, by_scenario in (outcome.get("search") or {}).items() for scenario in by_scenario}
         gone = [path for path in finished if not path.is_file()]
@@ -361,7 +361,7 @@ def report(mutants_dir: Path, baseline: str = "RANDOM", other_tests: Path | None
     mutants_dir = Path(mutants_dir)
     index = load_index(mutants_dir)
     built = json.loads((mutants_dir / BUILT).read_text()) if (mutants_dir / BUILT).is_file() else {"mutants": {}}
-    document = _load_run(mutants_dir)
+    document = load_run(mutants_dir)
     states = [e["state"] for e in built["mutants"].values()]
     outcomes = _named_searches(document)
     searched: dict[str, set[str]] = {}

@@ -17,7 +17,7 @@ from harness.tools.commands.sut import coverage_options, coverage_paths, worktre
 from harness.tools.commands.sut_options import add_sut_logs_option, sut_param_values
 from sut_adapter import SutConfig
 
-command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, rejudge, report",
+command_with_actions("mutants", "mutation analysis of one source file: generate, build, run, rejudge, recheck, report",
                      description="Mutants of one C/C++ or Python file, built as cached variants, each attacked by differential "
                                  "flights against the unmutated build (docs/real_faults.md).")
 
@@ -160,6 +160,33 @@ def mutants_rejudge(args: argparse.Namespace) -> int:
 
     result = mutation.rejudge(Path(args.folder))
     emit(args, result.as_dict(), result.text() + f"\n`stella mutants report {args.folder}` for the scores")
+    return 0
+
+
+def _recheck_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folder", help="the folder of a mutation run")
+    p.add_argument("--flights", type=positive_int, default=8,
+                   help="fly each search's first revealing candidate until it has this many flights a side, then judge it again (default 8)")
+    p.add_argument("--only", action="append", default=[], metavar="ID", help="only this mutant (repeatable)")
+    p.add_argument("--workers", type=positive_int, help="flights at once (default: cores)")
+    add_sut_logs_option(p)
+
+
+@command("mutants recheck", "fly each search's kill again, more often, and withdraw those that were the SUT's own spread", _recheck_options)
+def mutants_recheck(args: argparse.Namespace) -> int:
+    from harness.execution.local import LocalExecutor
+    from harness.firmware import recheck
+
+    executor = LocalExecutor(args.workers or len(os.sched_getaffinity(0)))
+    try:
+        rechecked = recheck.recheck(Path(args.folder), args.flights, executor, only=args.only, sut_logs=args.sut_logs,
+                                    progress=lambda line: print(line, file=sys.stderr))
+    finally:
+        executor.close()
+    withdrawn = sum(change.after is None for change in rechecked)
+    emit(args, {"rechecked": [vars(change) for change in rechecked]},
+         f"{len(rechecked)} revealing candidates flown again: {withdrawn} withdrawn, {len(rechecked) - withdrawn} stand"
+         + f"\n`stella mutants report {args.folder}` for the scores")
     return 0
 
 
