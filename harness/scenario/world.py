@@ -14,7 +14,8 @@ from harness.scenario.logical import logical_from_document, logical_problems, wi
 from harness.scenario.motion import PATH_SAMPLES, arc_points, intruder_speed, intruder_track, smooth_points
 from harness.scenario.profile import profile_from_document, profile_problems
 from harness.scenario.rig import rig_sensors
-from harness.scenario.space import CONCRETE_FORMAT, Mission, SearchSpace
+from harness.scenario.mission import Mission
+from harness.scenario.space import CONCRETE_FORMAT, SearchSpace
 from sim_bridge.spec import (Atmosphere, Body, FailureSpec, Gust, Landing, MissionSpec, Origin, PilotSegment, PilotSpec, Point, RangeSensor, Surface,
                              Turbulence, Uav, Waypoint, WorldSpec)
 from sim_bridge.terrain import terrain_height_m
