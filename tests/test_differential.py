@@ -12,6 +12,7 @@ import pytest
 from mcap.writer import Writer
 
 from conftest import stored_result
+from harness.campaigns.coverage import withdrawn
 from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.regression import verdict
 from harness.campaigns.store import Store
@@ -271,13 +272,21 @@ def test_a_stored_reveal_whose_subject_never_ran_the_mutated_line_is_withdrawn_w
     (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {"m0001": {"state": "survived_suite"}}}))
     mutant_index(folder)
 
+    # (and a third, withdrawn when flown as a confirmation flight never ran the line, although the first, whose record is stored, did)
+    with Store(store_path) as store:
+        coverage = {"tool": "coverage.py", "sources": "", "files": {"autopilot/collision.py": {
+            "lines_hit": [120], "lines_missed": [], "branches_hit": [], "branches_missed": []}}}
+        result = replace(stored_result(closer["fitness"], "ok", min_clearance_m=0.90), differential=withdrawn(closer, ["autopilot/collision.py:L120"]),
+                         coverage=coverage)
+        store.add_evaluation(run_id, ordinal=2, step=0, optimizer="RANDOM", vector=np.array([2.0]), result=result, concrete=None)
+
     assert main(["mutants", "rejudge", str(folder)]) == 0
 
-    # THEN the reveal of the flight that ran line 120 stands, the other is withdrawn as the SUT's own spread
+    # THEN the reveal of the flight that ran line 120 stands, the other is withdrawn as the SUT's own spread, and the third stays withdrawn
     assert "1 stored verdict changed" in capsys.readouterr().out
     with Store.existing(store_path) as store:
-        ran, never = (e.differential for e in store.pairs())
-    assert ran["reveals"] == "behaviour"
+        ran, never, confirmation_never = (e.differential for e in store.pairs())
+    assert ran["reveals"] == "behaviour" and confirmation_never["reveals"] is None
     assert never["reveals"] is None and never["why"] == (f"the subject never ran autopilot/collision.py:L120, by its coverage: what differed "
                                                          f"({closer['why']}) is the SUT's own spread")
 

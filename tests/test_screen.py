@@ -14,7 +14,7 @@ import pytest
 from conftest import ROOT, stored_result
 from harness.campaigns.residual import Pair, ResidualModel
 from harness.campaigns.screen import Screen, ScreenSettings, screen_sut
-from harness.campaigns.screen_sources import learn_from_stores
+from harness.campaigns.screen_sources import pairs_to_learn
 from harness.campaigns.store import Store
 from harness.campaigns.store.rows import vector_key
 from harness.errors import InputError
@@ -201,35 +201,42 @@ def earlier_campaign(path: Path, space: SearchSpace, xs: list[np.ndarray], ident
     return path
 
 
+def learn_from(store: Store, ours: dict, paths: list[Path]) -> dict[str, int]:
+    """As a campaign begins: the other stores' pairs checked, then kept in the store."""
+    for source, pairs in pairs_to_learn(store, ours, {"sha256:s"}, [str(path) for path in paths]).items():
+        store.learn_screen_pairs(source, pairs)
+    return store.screen_sources()
+
+
 def test_a_correction_learns_from_an_earlier_campaigns_store_of_the_same_subject_and_keeps_what_it_learned(tmp_path, space):
     # GIVEN an earlier screened campaign of the same PX4 build, drive and profile (another algorithm and seed)
-    xs = spread_over(space, 32, seed=2)
+    xs = spread_over(space, 52, seed=2)
     earlier = earlier_campaign(tmp_path / "earlier.db", space, xs[:12], PX4_SCREENED)
     # WHEN a new campaign begins learning from its store
     ours = {**PX4_SCREENED, "algorithms": ["RANDOM"], "seed": 9}
     store = Store(tmp_path / "new.db")
-    campaign = store.campaign(ours)
-    assert learn_from_stores(store, ours, {"sha256:s"}, [str(earlier)]) == {str(earlier.resolve()): 12}
-    run_id, _finished = store.run(campaign, "s.json", "s", "RANDOM", 0, 9, scenario_key="sha256:s")
-    batch = {f"k{i}": x for i, x in enumerate(xs[12:])}
-    for key in batch:
+    assert learn_from(store, ours, [earlier]) == {str(earlier.resolve()): 12}
+    run_id, _finished = store.run(store.campaign(ours), "s.json", "s", "RANDOM", 0, 9, scenario_key="sha256:s")
+    first, second = ({f"k{i}": x for i, x in enumerate(xs[start:start + 20], start)} for start in (12, 32))
+    for key in {**first, **second}:
         store.add_screen_flight(run_id, key, cheap_flight(3.0))
     settings = ScreenSettings(SutConfig(), share=0.25, explore=0.0)
     screen = Screen(settings, SequentialExecutor(), store, run_id, 9, tmp_path, RunOptions(), space)
     # THEN its first batch is already ranked by what the subject did there, which the cheap flights cannot tell apart
-    chosen = screen.choose(list(batch.items()))
-    real = {key: parted(space, x, 3.0) for key, x in batch.items()}
-    assert chosen == set(sorted(real, key=real.get)[:5])
+    real = {key: parted(space, x, 3.0) for key, x in {**first, **second}.items()}
+    assert screen.choose(list(first.items())) == set(sorted(first, key=real.get)[:5])
     assert screen.summary()["training_pairs"] == screen.summary()["learned_pairs"] == 12
-    # AND with the other store gone, the campaign resumed learns from what it copied and decides alike
+    # AND with the other store gone, the campaign resumed learns from what it copied: its next batch is ranked alike
     earlier.unlink()
-    assert learn_from_stores(store, ours, {"sha256:s"}, [str(earlier)]) == {str(earlier.resolve()): 12}
+    assert learn_from(store, ours, [earlier]) == {str(earlier.resolve()): 12}
     resumed = Screen(settings, SequentialExecutor(), Store(tmp_path / "new.db"), run_id, 9, tmp_path, RunOptions(), space)
-    assert resumed.choose(list(batch.items())) == chosen
+    assert resumed.summary()["learned_pairs"] == 12
+    assert resumed.choose(list(second.items())) == set(sorted(second, key=real.get)[:5])
     # AND a campaign that has begun learns from no new store
     later = earlier_campaign(tmp_path / "later.db", space, xs[:12], PX4_SCREENED)
-    with pytest.raises(InputError, match="began learning from .*earlier.db; learning from another now .* start a new --store"):
-        learn_from_stores(store, ours, {"sha256:s"}, [str(later)])
+    with pytest.raises(InputError, match="began learning from .*earlier.db, and learns from no store it did not begin with .* leave out "
+                                         "--screen-learn-from to resume it, or start a new --store"):
+        learn_from(store, ours, [later])
 
 
 @pytest.mark.parametrize("identity, scenario_key, why", [
@@ -239,15 +246,18 @@ def test_a_correction_learns_from_an_earlier_campaigns_store_of_the_same_subject
     ({k: v for k, v in PX4_SCREENED.items() if k != "screen"}, "sha256:s", "its campaign was not screened"),
     (PX4_SCREENED, "sha256:another-scenario", "has no candidate flown both ways of this campaign's scenarios"),
 ])
-def test_a_store_of_other_flights_is_refused_naming_it_and_why(tmp_path, space, identity, scenario_key, why):
+def test_a_store_of_other_flights_is_refused_naming_it_and_why_and_read_only(tmp_path, space, identity, scenario_key, why):
     other = earlier_campaign(tmp_path / "other.db", space, spread_over(space, 6), identity, scenario_key)
+    before = other.read_bytes()
     with Store(tmp_path / "new.db") as store:
-        store.campaign(PX4_SCREENED)
         with pytest.raises(InputError, match=f"--screen-learn-from: {other}: .*{why}"):
-            learn_from_stores(store, PX4_SCREENED, {"sha256:s"}, [str(other)])
+            learn_from(store, PX4_SCREENED, [other])
         with pytest.raises(InputError, match="is this campaign's own store"):
-            learn_from_stores(store, PX4_SCREENED, {"sha256:s"}, [str(tmp_path / "new.db")])
-        assert store.screen_sources() == {}
+            learn_from(store, PX4_SCREENED, [tmp_path / "new.db"])
+        with pytest.raises(InputError, match=f"--screen-learn-from: {tmp_path / 'gone.db'}: no such campaign store"):
+            learn_from(store, PX4_SCREENED, [tmp_path / "gone.db"])
+        assert store.screen_sources() == {} and not store.runs()
+    assert other.read_bytes() == before
 
 
 def test_the_cheap_model_takes_the_subjects_px4_parameters_calibrated_by_drive_and_never_its_seeded_fault():

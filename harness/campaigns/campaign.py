@@ -23,7 +23,7 @@ from harness.campaigns.coverage import CodeNovelty
 from harness.campaigns.diversity import FailureModes
 from harness.campaigns.problem import CampaignProblem, StopSearch
 from harness.campaigns.screen import Screen, ScreenSettings
-from harness.campaigns.screen_sources import learn_from_stores
+from harness.campaigns.screen_sources import pairs_to_learn
 from harness.campaigns.store import Store
 from harness.execution.executor import Executor
 from harness.flight.results import EvaluationResult, RunOptions
@@ -305,10 +305,13 @@ def run_campaign(config: CampaignConfig, store: Store, executor: Executor, out_d
     combinations = [parse_algorithm(a) for a in config.algorithms]
     documents = config.read()
     identity = config.identity(documents)
+    learning = pairs_to_learn(store, identity, {content_key(s.document) for s in documents.scenarios}, config.learn_from)
     campaign_id = store.campaign(identity, legacy=config.legacy_identities(documents), sources=config.sources())
+    for source, pairs in learning.items():
+        store.learn_screen_pairs(source, pairs)
     if config.learn_from:
-        learned = learn_from_stores(store, identity, {content_key(s.document) for s in documents.scenarios}, config.learn_from)
-        log.info("the screen's correction learns from %s", ", ".join(f"{count} candidates flown both ways in {source}" for source, count in learned.items()))
+        log.info("the screen's correction learns from %s", ", ".join(f"{count} candidates flown both ways in {source}"
+                                                                    for source, count in store.screen_sources().items()))
     pairs = None
     if config.reference is not None:
         from harness.campaigns.pairs import PairedFlights, ReferenceCache

@@ -235,6 +235,13 @@ def withdrawn_reveal(why: str, changed_lines: Sequence[str]) -> str:
     return f"the subject never ran {', '.join(changed_lines)}, by its coverage: what differed ({why}) is the SUT's own spread"
 
 
+def withdrawn(differential: Mapping[str, Any], changed_lines: Sequence[str]) -> dict[str, Any]:
+    """A pair's record with its reveal withdrawn, as a subject flight never ran the changed lines;
+    marked so, since only the first flight's coverage is stored and judging the pair again from
+    it alone would restore the reveal."""
+    return {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], changed_lines), "missed_changed_lines": True}
+
+
 def code_reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:
     """The lines and branches a flight ran, one name each."""
     if not coverage:

@@ -20,7 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
-from harness.campaigns.coverage import never_ran, withdrawn_reveal
+from harness.campaigns.coverage import never_ran, withdrawn
 from harness.campaigns.store import ReferenceFlightTable
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Outcome, compare, record
@@ -176,7 +176,7 @@ class PairedFlights:
             flights = subjects[job.name]
             differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])
             if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in flights):
-                differential = {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], self.changed_lines)}
+                differential = withdrawn(differential, self.changed_lines)
             yield job, replace(flights[0], fitness=differential["fitness"], differential=differential)
 
     def again(self, job: Job, subject: Sequence[Outcome], reference: Sequence[Outcome], more: int) -> dict[str, Any]:
@@ -188,7 +188,7 @@ class PairedFlights:
         new_subject = [flown[j.name] for j in subject_jobs]
         differential = record(self.objective, [*subject, *map(Outcome.of, new_subject)], [*reference, *(Outcome.of(flown[j.name]) for j in reference_jobs)])
         if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in new_subject):
-            differential = {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], self.changed_lines)}
+            differential = withdrawn(differential, self.changed_lines)
         return differential
 
     def _remember(self, key: str, outcomes: list[Outcome]) -> None:

@@ -8,7 +8,8 @@ still there (the first touchdown: the log's first `touchdown` event), and stored
 in the pairs and in the cached reference flights that later pairs are judged with.
 
 Of a mutant (changed_lines), a reveal whose first subject flight never ran the mutated line by its
-stored coverage record is withdrawn, as PairedFlights would withdraw it now.
+stored coverage record is withdrawn, as PairedFlights would withdraw it now, and one withdrawn
+when flown (any of its subject flights never ran it: marked so) stays withdrawn.
 
 Re-judging can withdraw a reveal, restate it, or add one, but only on a pair flown as often as
 the campaign confirms (`--confirm N`: 1 + N flights a side): a pair that did not reveal when
@@ -100,7 +101,7 @@ def rejudge(store: Store, logs_gone: set[str], changed_lines: Sequence[str] = ()
         subject = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["subject"]]
         reference = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["reference"]]
         verdict = compare(subject, reference)
-        if verdict.reveals and never_ran(evaluation.coverage, changed_lines):
+        if verdict.reveals and (pair.get("missed_changed_lines") or never_ran(evaluation.coverage, changed_lines)):
             verdict = replace(verdict, reveals=None, why=withdrawn_reveal(verdict.why, changed_lines))
         after = str(verdict.reveals) if verdict.reveals else None
         sides = {"subject": [o.as_dict() for o in subject], "reference": [o.as_dict() for o in reference]}

@@ -8,7 +8,7 @@ share of each batch) changes which candidates were flown, not what a flight of o
 does not matter.
 
 The pairs are copied into this campaign's store when it begins, as the other store holds them
-then: a resumed campaign learns from the same pairs, whatever became of the other store since,
+then (it is only read): a resumed campaign learns from the same pairs, whatever became of the other store since,
 and so decides each new batch as it would have without the interruption. For the same reason a
 campaign that has begun learns from no new store.
 """
@@ -37,7 +37,9 @@ def _learnable(path: Path, ours: Mapping[str, Any], scenario_keys: set[str]) -> 
     def refused(why: str) -> InputError:
         return InputError([Problem("--screen-learn-from", "", f"{path}: {why}")])
 
-    with Store.existing(path) as other:
+    if not path.is_file():
+        raise refused("no such campaign store: give the --store file of an earlier screened campaign")
+    with Store.read_only(path) as other:
         theirs = other.campaign_config()
         if "screen" not in theirs:
             raise refused("its campaign was not screened (--screen none): it has no cheap flights to learn from")
@@ -52,22 +54,19 @@ def _learnable(path: Path, ours: Mapping[str, Any], scenario_keys: set[str]) -> 
     return pairs
 
 
-def learn_from_stores(store: Store, ours: Mapping[str, Any], scenario_keys: set[str], paths: Sequence[str]) -> dict[str, int]:
-    """Copy into `store` the candidates flown both ways of these scenarios in the stores at
-    `paths` (each checked before any is copied), unless copied when the campaign began; return
-    every store learned from with its pairs."""
+def pairs_to_learn(store: Store, ours: Mapping[str, Any], scenario_keys: set[str], paths: Sequence[str]) -> dict[str, list[dict[str, Any]]]:
+    """The candidates flown both ways of these scenarios in the stores at `paths` that `store`
+    has not copied yet, by store, each store checked (read only) before any is returned; nothing
+    is written, so a refused store leaves `store` as it was. Store.learn_screen_pairs keeps them."""
     learned = store.screen_sources()
     sources = {str(Path(path).resolve()): Path(path) for path in paths}
+    own = str(store.path.resolve())
+    if own in sources:
+        raise InputError([Problem("--screen-learn-from", "", f"{sources[own]} is this campaign's own store: its runs learn from its earlier ones already")])
     new = {source: path for source, path in sources.items() if source not in learned}
-    if not new:
-        return learned
-    if store.runs():
+    if new and store.runs():
         began = ", ".join(learned) if learned else "no other store"
-        raise InputError([Problem("--screen-learn-from", "", f"{next(iter(new.values()))}: this campaign began learning from {began}; learning from "
-                                                             "another now would make its decisions depend on when it was resumed: start a new --store")])
-    if str(store.path.resolve()) in new:
-        raise InputError([Problem("--screen-learn-from", "", f"{store.path} is this campaign's own store: its runs learn from its earlier ones already")])
-    pairs = {source: _learnable(path, ours, scenario_keys) for source, path in new.items()}
-    for source, learnable in pairs.items():
-        store.learn_screen_pairs(source, learnable)
-    return store.screen_sources()
+        raise InputError([Problem("--screen-learn-from", "", f"{next(iter(new.values()))}: this campaign began learning from {began}, and learns "
+                                                             "from no store it did not begin with (its decisions would depend on when it was "
+                                                             "resumed): leave out --screen-learn-from to resume it, or start a new --store")])
+    return {source: _learnable(path, ours, scenario_keys) for source, path in new.items()}

@@ -4,15 +4,17 @@ A pair reveals where the subject's flights lie outside the spread of the referen
 flights of one candidate spread, and sometimes in two modes (a pilot held 29.2 m or 29.9 m from
 a wall, from run to run): with `--confirm 2`, three flights a side, both sides land in one mode
 each by chance now and then, and over a folder's thousands of candidates such false kills come
-(docs/real_faults.md: m0089, twice in one folder). A coverage build withdraws those whose subject
-never ran the mutated line, but not those of a line every flight runs.
+(docs/real_faults.md: m0089, three times in one folder). A coverage build withdraws those whose
+subject never ran the mutated line, but not those of a line every flight runs.
 
-So each finished search's first revealing candidate is flown `more` times again on both sides,
-in one sitting, and judged on all of its flights (of a coverage build, each new subject flight
-must run the mutated line too). A reveal that no longer stands is withdrawn, and the search's
-next revealing candidate is rechecked, until one stands or none is left. The flights are kept
-with the pair in the search's store, so a recheck asked again flies only what a pair lacks, and
-run.json's first kill of each search follows.
+So each finished search's first revealing candidate, and its first unsafe one (the two levels
+`report` counts), is flown again on both sides, in one sitting, until it has `flights` flights a
+side, and judged on all of them (of a coverage build, each new subject flight must run the
+mutated line too). A reveal that no longer stands is withdrawn, and the search's next revealing
+candidate is rechecked, until one stands or none is left. Each verdict is kept with the pair in
+the search's store, and run.json's kills follow it at once, so a recheck asked again flies only
+what a pair lacks. Where a new flight could not finish (a simulator that would not start), the
+pair is left as it was, to be asked again.
 """
 
 from __future__ import annotations
@@ -20,22 +22,26 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
-from harness.campaigns.pairs import PairedFlights
+from harness.campaigns.campaign import PAIR_OBJECTIVES
+from harness.campaigns.pairs import PairedFlights, build_identity
 from harness.campaigns.store import Store, StoredEvaluation, evaluation_name
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
 from harness.firmware.mutants import BUILT, load_index, write_json_atomically
 from harness.firmware.mutation import RUN, alone_in, load_run, mutant_sut, mutated_line, search_store
-from harness.flight.differential import Outcome
+from harness.flight.differential import Outcome, Reveal
+from harness.flight.fitness import COULD_NOT_FINISH
 from harness.flight.results import RunOptions
 from harness.scenario.world import space_from_concrete, world_spec
+from sut_adapter import SutConfig
 
 
 @dataclass(frozen=True)
 class Rechecked:
-    """One revealing candidate of a search flown again: its verdict before and after."""
+    """One revealing candidate of a search flown again: its verdict before and after (None:
+    withdrawn), or that its new flights could not finish (left as it was)."""
 
     mutant: str
     search: str  # SCENARIO-SEARCHER, as its store is named
@@ -44,49 +50,82 @@ class Rechecked:
     before: str
     after: str | None
     why: str
+    finished: bool = True
 
     def text(self) -> str:
-        verdict = f"{self.after} stands" if self.after else "withdrawn"
+        verdict = "could not be flown again, left as it was" if not self.finished else f"{self.after} stands" if self.after else "withdrawn"
         return f"{self.mutant} {self.search} candidate {self.evaluation}: {self.before} -> {verdict} with {self.flights} flights a side: {self.why}"
 
 
 def _job(evaluation: StoredEvaluation, store_path: Path, options: RunOptions) -> Job:
-    """The pair's subject flight as it was flown: its concrete scenario, seed and log folder."""
+    """The pair's subject flight as it was flown: its concrete scenario and seed, its logs beside
+    the search's other flights."""
     name = evaluation_name(evaluation.id)
     space = space_from_concrete(evaluation.concrete, f"{store_path} evaluation {evaluation.id}")
     x = space.from_concrete(evaluation.concrete, name)
-    out_dir = Path(evaluation.log_path).parent if evaluation.log_path else store_path.with_suffix("") / f"run{evaluation.run_id}"
+    out_dir = store_path.with_suffix("") / f"run{evaluation.run_id}"
     return Job(0, world_spec(space, x, evaluation.seed), evaluation.concrete, evaluation.seed, str(out_dir), name, options)
 
 
-def _recheck_search(store: Store, store_path: Path, pairs: PairedFlights, options: RunOptions, flights: int, mutant: str,
-                    progress: Callable[[str], None]) -> list[Rechecked]:
-    """The search's revealing candidates in the order they were flown, each flown up to `flights`
-    a side, until one stands."""
-    done = []
-    for evaluation in store.pairs():
-        pair = evaluation.differential
-        if not pair["reveals"]:
-            continue
-        subject = [Outcome.from_dict(o) for o in pair["subject"]]
-        reference = [Outcome.from_dict(o) for o in pair["reference"]]
-        more = flights - min(len(subject), len(reference))
-        if more > 0:
-            after = pairs.again(_job(evaluation, store_path, options), subject, reference, more)
-            store.rejudge(evaluation.id, {**pair, **after})
-            change = Rechecked(mutant, store_path.stem, evaluation.ordinal + 1, flights, pair["reveals"], after["reveals"], after["why"])
-            progress(change.text())
-            done.append(change)
-            pair = after
-        if pair["reveals"]:
-            break
-    return done
+def _unfinished(before: Mapping[str, Any], after: Mapping[str, Any]) -> str | None:
+    """Why one of the flights `after` added could not finish, unless the subject's SUT died where
+    the reference flew, which is the verdict."""
+    if after["reveals"] == Reveal.UNSAFE:
+        return None
+    for side in ("subject", "reference"):
+        for outcome in after[side][len(before[side]):]:
+            if outcome["status"] in COULD_NOT_FINISH:
+                return f"the {side} could not finish a flight ({outcome['status']}: {outcome['why']})"
+    return None
+
+
+class _Search:
+    """One finished search's store, its kills rechecked in the order they were flown."""
+
+    def __init__(self, store: Store, store_path: Path, pairs: PairedFlights, options: RunOptions, mutant: str):
+        self.store, self.store_path, self.pairs, self.options, self.mutant = store, store_path, pairs, options, mutant
+
+    def recheck(self, flights: int, on_verdict: Callable[[Rechecked], None]) -> None:
+        """Until the first reveal and the first unsafe one stand (or none is left): each flown up
+        to `flights` a side and judged again. on_verdict hears each, after it is stored."""
+        any_stands = unsafe_stands = False
+        for evaluation in self.store.pairs():
+            pair = evaluation.differential
+            if not pair["reveals"] or (any_stands and (pair["reveals"] != Reveal.UNSAFE or unsafe_stands)):
+                continue
+            more = flights - min(len(pair["subject"]), len(pair["reference"]))
+            if more > 0:
+                after = self.pairs.again(_job(evaluation, self.store_path, self.options), [Outcome.from_dict(o) for o in pair["subject"]],
+                                         [Outcome.from_dict(o) for o in pair["reference"]], more)
+                unfinished = _unfinished(pair, after)
+                verdict = Rechecked(self.mutant, self.store_path.stem, evaluation.ordinal + 1, flights, pair["reveals"], after["reveals"],
+                                    unfinished or after["why"], finished=unfinished is None)
+                if unfinished:
+                    on_verdict(verdict)
+                    return
+                pair = {**pair, **after}
+                self.store.rejudge(evaluation.id, pair)
+                on_verdict(verdict)
+            any_stands = any_stands or bool(pair["reveals"])
+            unsafe_stands = unsafe_stands or pair["reveals"] == Reveal.UNSAFE
+            if any_stands and unsafe_stands:
+                return
+
+
+def _check_builds(store: Store, store_path: Path, builds: Mapping[str, tuple[SutConfig, str]]) -> None:
+    """The builds to fly ({"subject": (SUT, its folder), "reference": ...}) are those the search
+    flew: built.json names folders, and a folder can be built again."""
+    flown = store.campaign_config()
+    for side, (sut, folder) in builds.items():
+        if side in flown and build_identity(sut) != flown[side]:
+            raise InputError([Problem(str(store_path), "", f"this search flew another {side} build than {folder} holds now: a recheck flies "
+                                                           "the builds the search flew; put them back, or search again")])
 
 
 def recheck(mutants_dir: Path, flights: int, executor: Executor, *, only: Sequence[str] = (), sut_logs: str = "all",
             progress: Callable[[str], None] = lambda _line: None) -> list[Rechecked]:
-    """Every finished search's kill (of the mutants `only`, else all) rechecked with `flights`
-    flights a side; run.json's first kills updated as each search is done."""
+    """Every finished search's kills (of the mutants `only`, else all) rechecked with `flights`
+    flights a side; run.json's kills updated with each verdict."""
     mutants_dir = Path(mutants_dir)
     load_run(mutants_dir)  # a folder without a run says so before anything is locked
     index = load_index(mutants_dir)
@@ -97,25 +136,36 @@ def recheck(mutants_dir: Path, flights: int, executor: Executor, *, only: Sequen
     unknown = sorted(set(only) - {m["id"] for m in index["mutants"]})
     if unknown:
         raise InputError([Problem("--only", "", f"{', '.join(unknown)}: no such mutant in {mutants_dir / 'mutants.json'}")])
-    rechecked: list[Rechecked] = []
+    verdicts: list[Rechecked] = []
     with alone_in(mutants_dir):
         document = load_run(mutants_dir)
+        searches = [(mutant, by_scenario, scenario, search_store(mutants_dir, mutant, scenario, searcher))
+                    for mutant, outcome in sorted(document["mutants"].items()) if not only or mutant in only
+                    for searcher, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items()
+                    if first["evaluation"] is not None]
+        problems = [Problem(str(path), "", f"this search is in {RUN} but its store is gone: put it back, or delete its entry from {RUN} to search again")
+                    for _m, _b, _s, path in searches if not path.is_file()]
+        problems += [Problem(str(built_path), f"/mutants/{mutant}", "not built: the folder lists no build of this mutant to fly")
+                     for mutant in sorted({m for m, _b, _s, _p in searches}) if built["mutants"].get(mutant, {}).get("state") != "built"]
+        if problems:
+            raise InputError(problems)
         sut_params = document["screening"].get("sut_params", {})
         reference = mutant_sut(index["kind"], built["original"]["folder"], sut_params)
-        for mutant, outcome in sorted(document["mutants"].items()):
-            if only and mutant not in only:
-                continue
+        executor.check_sut(reference)
+        for mutant, by_scenario, scenario, store_path in searches:
             subject = mutant_sut(index["kind"], built["mutants"][mutant]["folder"], sut_params)
-            options = RunOptions(sut=subject, sut_logs=sut_logs, warm=executor.keeps_stacks)
-            for searcher, by_scenario in (outcome.get("search") or {}).items():
-                for scenario, first in by_scenario.items():
-                    if first["evaluation"] is None:
-                        continue
-                    store_path = search_store(mutants_dir, mutant, scenario, searcher)
-                    with Store.existing(store_path) as store:
-                        pairs = PairedFlights(executor, reference, objective=store.campaign_config().get("objective", "subject"),
-                                              changed_lines=(mutated_line(index, mutant),))
-                        rechecked += _recheck_search(store, store_path, pairs, options, flights, mutant, progress)
-                        by_scenario[scenario] = store.first_reveals()
+            executor.check_sut(subject)
+            with Store.existing(store_path) as store:
+                _check_builds(store, store_path, {"subject": (subject, built["mutants"][mutant]["folder"]),
+                                                  "reference": (reference, built["original"]["folder"])})
+                objective = store.campaign_config().get("objective", "subject")
+                pairs = PairedFlights(executor, reference, objective=PAIR_OBJECTIVES.get(objective, objective), changed_lines=(mutated_line(index, mutant),))
+
+                def kept(verdict: Rechecked) -> None:
+                    verdicts.append(verdict)
+                    progress(verdict.text())
+                    by_scenario[scenario] = store.first_reveals()
                     write_json_atomically(mutants_dir / RUN, document)
-    return rechecked
+
+                _Search(store, store_path, pairs, RunOptions(sut=subject, sut_logs=sut_logs, warm=executor.keeps_stacks), mutant).recheck(flights, kept)
+    return verdicts

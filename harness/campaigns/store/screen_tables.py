@@ -46,7 +46,7 @@ CREATE TABLE IF NOT EXISTS screen_imports (
 
 # A candidate flown both ways, cheaply and for real to the end: what a correction learns from.
 _FLOWN_BOTH_WAYS = (
-    "SELECT {origin}, s.vector_key, e.vector, s.fitness, s.status, s.properties, e.fitness, e.status, e.properties, r.scenario_key FROM runs r"
+    "SELECT r.id, s.vector_key, e.vector, s.fitness, s.status, s.properties, e.fitness, e.status, e.properties, r.scenario_key FROM runs r"
     " JOIN screen_flights s ON s.run_id = r.id JOIN evaluations e ON e.run_id = s.run_id AND e.vector_key = s.vector_key"
     f" WHERE e.status NOT IN ({', '.join(repr(str(status)) for status in sorted(COULD_NOT_FINISH | {Status.INFEASIBLE}))})"
 )
@@ -101,14 +101,14 @@ class ScreenTables:
         (the run's id, or for one learned, the other store and its run) and whether it was learned."""
         scenario = "(SELECT scenario_key FROM runs WHERE id = ?)"
         imported = self.db.execute(f"{_IMPORTED} WHERE scenario_key = {scenario} ORDER BY origin, vector_key", (run_id,))
-        own = self.db.execute(f"{_FLOWN_BOTH_WAYS.format(origin='r.id')} AND r.scenario_key = {scenario} AND r.id < ? ORDER BY r.id, s.vector_key",
+        own = self.db.execute(f"{_FLOWN_BOTH_WAYS} AND r.scenario_key = {scenario} AND r.id < ? ORDER BY r.id, s.vector_key",
                               (run_id, run_id))
         return [{**_pair(*row), "learned": True} for row in imported] + [{**_pair(*row), "learned": False} for row in own]
 
     def flown_both_ways(self) -> list[dict[str, Any]]:
         """Every candidate the store's runs flew both ways, with its origin (the run's id) and its
         scenario's key: what another campaign's correction can learn from."""
-        return [_pair(*row) for row in self.db.execute(f"{_FLOWN_BOTH_WAYS.format(origin='r.id')} ORDER BY r.id, s.vector_key")]
+        return [_pair(*row) for row in self.db.execute(f"{_FLOWN_BOTH_WAYS} ORDER BY r.id, s.vector_key")]
 
     def learn_screen_pairs(self, source: str, pairs: Sequence[Mapping[str, Any]]) -> None:
         """Keep another store's candidates flown both ways (flown_both_ways), as they are now, so

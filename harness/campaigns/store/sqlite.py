@@ -120,11 +120,24 @@ class Store(ScreenTables):
     def existing(cls, path: Path) -> "Store":
         """A campaign's store as it is (to compare, report, export, judge again): the file must
         be a campaign store, and is never turned into one."""
+        return cls(cls._a_store(path))
+
+    @classmethod
+    def read_only(cls, path: Path) -> "Store":
+        """A campaign's store to read and never write (another campaign's, perhaps on a read-only
+        mount or another user's): as it is, without the tables and columns of later versions."""
+        store = cls.__new__(cls)
+        store.path = cls._a_store(path)
+        store.db = sqlite3.connect(f"file:{store.path}?mode=ro", uri=True, timeout=30.0)
+        return store
+
+    @classmethod
+    def _a_store(cls, path: Path) -> Path:
         path = Path(path)
         if not path.is_file():
             raise InputError([Problem(str(path), "", "no such campaign store: give the --store file of a `stella campaign`")])
         cls._check_is_a_store(path)
-        return cls(path)
+        return path
 
     @classmethod
     def for_campaign(cls, path: Path) -> "Store":

@@ -183,11 +183,13 @@ def mutants_recheck(args: argparse.Namespace) -> int:
                                     progress=lambda line: print(line, file=sys.stderr))
     finally:
         executor.close()
-    withdrawn = sum(change.after is None for change in rechecked)
+    unfinished = sum(not change.finished for change in rechecked)
+    withdrawn = sum(change.finished and change.after is None for change in rechecked)
     emit(args, {"rechecked": [vars(change) for change in rechecked]},
-         f"{len(rechecked)} revealing candidates flown again: {withdrawn} withdrawn, {len(rechecked) - withdrawn} stand"
+         f"{len(rechecked)} revealing candidates flown again: {withdrawn} withdrawn, {len(rechecked) - withdrawn - unfinished} stand"
+         + (f", {unfinished} could not be flown (left as they were: ask again)" if unfinished else "")
          + f"\n`stella mutants report {args.folder}` for the scores")
-    return 0
+    return 3 if unfinished else 0
 
 
 def _report_options(p: argparse.ArgumentParser) -> None:
