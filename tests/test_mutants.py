@@ -351,6 +351,44 @@ def test_a_kill_flown_again_stands_where_the_mutant_differs_and_is_withdrawn_whe
 
 
 @pytest.mark.slow
+def test_a_suite_kill_flown_again_stands_where_the_mutant_differs_and_makes_a_survivor_where_it_does_not(tmp_path, capsys):
+    # GIVEN two built mutants of the bundled collision prevention, both killed by the wall of the
+    # suite as stored: one that stops braking north (it flies into the wall), one whose flights
+    # there are the original's (its kill a by-chance spread of three flights a side, made up here)
+    folder = tmp_path / "mutation"
+    index = mutants.generate(ROOT, COLLISION, folder)
+    braking = _mutant_with(index, "vn -= (along - allowed) * bin_n", "pass")
+    stale = _mutant_with(index, "STALE_AFTER_S = 0.5", "STALE_AFTER_S = 1.0")
+    index["mutants"] = [braking, stale]
+    (folder / mutants.INDEX).write_text(json.dumps(index))
+    assert main(["mutants", "build", str(folder)]) == 0
+    plan = mutation.MutationPlan((str(ROOT / "scenarios" / "examples" / "wall_concrete.json"),), confirm=2)
+    killed = {m["id"]: {"state": "killed_by_suite", "level": level, "case": f"{m['id']}-wall_concrete", "why": "as stored", "suite_flights": 1}
+              for m, level in ((braking, "unsafe"), (stale, "behaviour"))}
+    (folder / mutation.RUN).write_text(json.dumps({"screening": plan.screening(), "searching": plan.searching(), "mutants": killed}))
+    assert mutation.report(folder)["scores"]["suite"]["any"]["killed"] == 2
+
+    # WHEN each kill is flown again, two flights a side
+    capsys.readouterr()
+    assert main(["mutants", "recheck", str(folder), "--flights", "2", "--workers", "2"]) == 0
+
+    # THEN the braking mutant's kill stands, and the other survives the suite, what was withdrawn kept
+    said = capsys.readouterr()
+    assert f"{braking['id']} suite case {braking['id']}-wall_concrete: unsafe -> unsafe stands with 2 flights a side" in said.err
+    assert f"{stale['id']} suite case {stale['id']}-wall_concrete: behaviour -> withdrawn with 2 flights a side" in said.err
+    outcomes = json.loads((folder / mutation.RUN).read_text())["mutants"]
+    assert outcomes[braking["id"]]["state"] == "killed_by_suite" and outcomes[braking["id"]]["rechecked_flights"] == 2
+    assert outcomes[stale["id"]] == {"state": "survived_suite", "suite_flights": 1, "withdrawn_by_recheck": {
+        "level": "behaviour", "case": f"{stale['id']}-wall_concrete", "why": "as stored", "flights": 2,
+        "why_after": "no difference beyond the reference's spread"}}
+    assert mutation.report(folder)["scores"]["suite"]["any"]["killed"] == 1
+    assert len(list((folder / "logs" / stale["id"]).glob(f"{stale['id']}-wall_concrete-recheck*.mcap"))) == 4
+    # AND asked again, it flies nothing
+    assert main(["mutants", "recheck", str(folder), "--flights", "2"]) == 0
+    assert "0 revealing candidates flown again" in capsys.readouterr().out
+
+
+@pytest.mark.slow
 def test_a_revealing_case_fails_on_the_subjects_build_and_passes_on_the_references(tmp_path, pytester):
     # GIVEN a mutant that stops limiting northward velocity, and the original, both built
     index = mutants.generate(ROOT, COLLISION, tmp_path / "m")

@@ -15,6 +15,11 @@ candidate is rechecked, until one stands or none is left. Each verdict is kept w
 the search's store, and run.json's kills follow it at once, so a recheck asked again flies only
 what a pair lacks. Where a new flight could not finish (a simulator that would not start), the
 pair is left as it was, to be asked again.
+
+A kill by the suite is rechecked the same way, but its pair was not stored: its case is flown
+afresh, `flights` times a side in one sitting, and judged on those alone. A suite kill that does
+not stand makes the mutant a survivor of the suite (run.json keeps what was withdrawn), which
+the folder's searches then take on (`stella mutants run`).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from harness.campaigns.campaign import PAIR_OBJECTIVES
 from harness.campaigns.pairs import PairedFlights, build_identity
+from harness.campaigns.regression import suite_cases
 from harness.campaigns.store import Store, StoredEvaluation, evaluation_name
 from harness.errors import InputError, Problem
 from harness.execution.executor import Executor, Job
@@ -45,7 +51,7 @@ class Rechecked:
 
     mutant: str
     search: str  # SCENARIO-SEARCHER, as its store is named
-    evaluation: int  # 1-based, as run.json counts
+    evaluation: int | None  # 1-based, as run.json counts; None: a suite case
     flights: int  # a side, now
     before: str
     after: str | None
@@ -54,7 +60,8 @@ class Rechecked:
 
     def text(self) -> str:
         verdict = "could not be flown again, left as it was" if not self.finished else f"{self.after} stands" if self.after else "withdrawn"
-        return f"{self.mutant} {self.search} candidate {self.evaluation}: {self.before} -> {verdict} with {self.flights} flights a side: {self.why}"
+        candidate = f" candidate {self.evaluation}" if self.evaluation is not None else ""
+        return f"{self.mutant} {self.search}{candidate}: {self.before} -> {verdict} with {self.flights} flights a side: {self.why}"
 
 
 def _job(evaluation: StoredEvaluation, store_path: Path, options: RunOptions) -> Job:
@@ -112,6 +119,35 @@ class _Search:
                 return
 
 
+def _recheck_suite_kill(mutant: str, outcome: dict[str, Any], screening: Mapping[str, Any], mutants_dir: Path, pairs: PairedFlights,
+                        options: RunOptions, flights: int) -> Rechecked | None:
+    """The suite case that killed the mutant, flown `flights` times a side; the outcome changed in
+    place (a survivor of the suite where the kill does not stand). None where it was rechecked
+    with as many flights before."""
+    if outcome.get("rechecked_flights", 0) >= flights:
+        return None
+    cases = {f"{mutant}-{name}": (space, x, seed) for name, space, x, seed in suite_cases(screening["suite"], screening.get("drive"), screening.get("rig"))}
+    if outcome["case"] not in cases:
+        raise InputError([Problem(str(mutants_dir / RUN), f"/mutants/{mutant}/case", f"{outcome['case']}: no such case in the folder's suite "
+                                                                                     f"({', '.join(screening['suite'])}): put its file back")])
+    space, x, seed = cases[outcome["case"]]
+    job = Job.of(0, space, x, seed=seed, out_dir=mutants_dir / "logs" / mutant, name=f"{outcome['case']}-recheck", options=options)
+    after = pairs.again(job, [], [], flights)
+    unfinished = _unfinished({"subject": [], "reference": []}, after)
+    verdict = Rechecked(mutant, f"suite case {outcome['case']}", None, flights, outcome["level"], after["reveals"], unfinished or after["why"],
+                        finished=unfinished is None)
+    if unfinished:
+        return verdict
+    if after["reveals"]:
+        outcome.update(level=after["reveals"], why=after["why"], rechecked_flights=flights)
+    else:
+        withdrawn = {key: outcome[key] for key in ("level", "case", "why")}
+        suite_flights = outcome["suite_flights"]
+        outcome.clear()
+        outcome.update(state="survived_suite", suite_flights=suite_flights, withdrawn_by_recheck={**withdrawn, "flights": flights, "why_after": after["why"]})
+    return verdict
+
+
 def _check_builds(store: Store, store_path: Path, builds: Mapping[str, tuple[SutConfig, str]]) -> None:
     """The builds to fly ({"subject": (SUT, its folder), "reference": ...}) are those the search
     flew: built.json names folders, and a folder can be built again."""
@@ -124,8 +160,8 @@ def _check_builds(store: Store, store_path: Path, builds: Mapping[str, tuple[Sut
 
 def recheck(mutants_dir: Path, flights: int, executor: Executor, *, only: Sequence[str] = (), sut_logs: str = "all",
             progress: Callable[[str], None] = lambda _line: None) -> list[Rechecked]:
-    """Every finished search's kills (of the mutants `only`, else all) rechecked with `flights`
-    flights a side; run.json's kills updated with each verdict."""
+    """Every kill by the suite and every finished search's kills (of the mutants `only`, else all)
+    rechecked with `flights` flights a side; run.json's kills updated with each verdict."""
     mutants_dir = Path(mutants_dir)
     load_run(mutants_dir)  # a folder without a run says so before anything is locked
     index = load_index(mutants_dir)
@@ -139,19 +175,32 @@ def recheck(mutants_dir: Path, flights: int, executor: Executor, *, only: Sequen
     verdicts: list[Rechecked] = []
     with alone_in(mutants_dir):
         document = load_run(mutants_dir)
+        outcomes = {mutant: outcome for mutant, outcome in sorted(document["mutants"].items()) if not only or mutant in only}
+        killed_by_suite = [mutant for mutant, outcome in outcomes.items() if outcome["state"] == "killed_by_suite"]
         searches = [(mutant, by_scenario, scenario, search_store(mutants_dir, mutant, scenario, searcher))
-                    for mutant, outcome in sorted(document["mutants"].items()) if not only or mutant in only
+                    for mutant, outcome in outcomes.items()
                     for searcher, by_scenario in (outcome.get("search") or {}).items() for scenario, first in by_scenario.items()
                     if first["evaluation"] is not None]
         problems = [Problem(str(path), "", f"this search is in {RUN} but its store is gone: put it back, or delete its entry from {RUN} to search again")
                     for _m, _b, _s, path in searches if not path.is_file()]
         problems += [Problem(str(built_path), f"/mutants/{mutant}", "not built: the folder lists no build of this mutant to fly")
-                     for mutant in sorted({m for m, _b, _s, _p in searches}) if built["mutants"].get(mutant, {}).get("state") != "built"]
+                     for mutant in sorted({*killed_by_suite, *(m for m, _b, _s, _p in searches)}) if built["mutants"].get(mutant, {}).get("state") != "built"]
         if problems:
             raise InputError(problems)
-        sut_params = document["screening"].get("sut_params", {})
+        screening = document["screening"]
+        sut_params = screening.get("sut_params", {})
         reference = mutant_sut(index["kind"], built["original"]["folder"], sut_params)
         executor.check_sut(reference)
+        for mutant in killed_by_suite:
+            subject = mutant_sut(index["kind"], built["mutants"][mutant]["folder"], sut_params)
+            executor.check_sut(subject)
+            pairs = PairedFlights(executor, reference, objective="subject", changed_lines=(mutated_line(index, mutant),))
+            verdict = _recheck_suite_kill(mutant, outcomes[mutant], screening, mutants_dir, pairs,
+                                          RunOptions(sut=subject, sut_logs=sut_logs, warm=executor.keeps_stacks), flights)
+            if verdict is not None:
+                verdicts.append(verdict)
+                progress(verdict.text())
+                write_json_atomically(mutants_dir / RUN, document)
         for mutant, by_scenario, scenario, store_path in searches:
             subject = mutant_sut(index["kind"], built["mutants"][mutant]["folder"], sut_params)
             executor.check_sut(subject)
