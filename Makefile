@@ -36,7 +36,7 @@ demo: setup
 
 # The tests not marked slow: seconds, nothing started.
 test-fast: setup
-	$(BIN)/pytest -m "not slow"
+	$(BIN)/pytest -n auto --dist loadfile -m "not slow and not alone"
 
 # Debian's chromium opens the campaign report in a test; installed if missing.
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
