@@ -233,3 +233,15 @@ def test_a_generated_scenario_flies_its_rig_and_its_programme(tmp_path, profile)
     assert {topic for topic, _ns, _m in logs.messages(log, ["/sensor/rig/lidar", "/sensor/rig/front", "/sensor/rig/back"])} == {
         "/sensor/rig/lidar", "/sensor/rig/front", "/sensor/rig/back"}
     assert {record.get("segment") for _t, _ns, record in logs.messages(log, ["/pilot"]) if record["phase"] == "programme"} == {1, 2, 3}
+
+
+def test_the_tiny_programme_reaches_both_sides_of_the_sticks_dead_zone():
+    # The bundled autopilot maps sticks as PX4 does (dead zone MPC_HOLD_DZ, as PX4's MAN_DEADZONE, then expo):
+    # a deflection inside it commands nothing, one past it collision prevention's smallest set-points.
+    from autopilot.manual import expo_deadzone
+    from autopilot.params import Params
+
+    dead_zone = Params()["MPC_HOLD_DZ"]
+    deflection = PROGRAMME_SHAPES["tiny"][1][0]["deflection"]
+    low, high = expo_deadzone(deflection["min"], 0.6, dead_zone), expo_deadzone(deflection["max"], 0.6, dead_zone)
+    assert low == 0.0 and 0.0 < high < 0.05

@@ -46,8 +46,10 @@ _PROBE = {"towards": "obstacle", "deflection": {"min": 0.5, "max": 1}, "duration
 PROGRAMME_SHAPES: dict[str, tuple[str, list[dict[str, Any]]]] = {
     "push": ("no programme: the pilot pushes along the route", []),
     "probe": ("push towards the nearest obstacle first", [_PROBE]),
-    "tiny": ("a deflection near the sticks' dead zones and thresholds, any direction",
-             [{"towards": "obstacle", "angle_deg": {"min": -180, "max": 180}, "deflection": {"min": 0, "max": 0.01}, "duration_s": {"min": 1, "max": 10}}]),
+    # PX4's stick dead zone (MAN_DEADZONE) and the bundled autopilot's (MPC_HOLD_DZ) are 0.1: just
+    # inside it the vehicle holds, just past it collision prevention gets its smallest set-points.
+    "tiny": ("a deflection at the edge of the sticks' dead zone (0.1), any direction",
+             [{"towards": "obstacle", "angle_deg": {"min": -180, "max": 180}, "deflection": {"min": 0.09, "max": 0.13}, "duration_s": {"min": 1, "max": 10}}]),
     "slide": ("push at an angle to the nearest obstacle: along it once stopped",
               [{"towards": "obstacle", "angle_deg": {"min": 20, "max": 80}, "deflection": {"min": 0.5, "max": 1}, "duration_s": {"min": 2, "max": 10}}]),
     "release": ("push at the obstacle, release the stick, push again",
