@@ -12,7 +12,7 @@ import pytest
 from mcap.writer import Writer
 
 from conftest import stored_result
-from harness.campaigns.coverage import withdrawn
+from harness.campaigns.coverage import missed, withdrawn
 from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.regression import verdict
 from harness.campaigns.store import Store
@@ -276,7 +276,7 @@ def test_a_stored_reveal_whose_subject_never_ran_the_mutated_line_is_withdrawn_w
     with Store(store_path) as store:
         coverage = {"tool": "coverage.py", "sources": "", "files": {"autopilot/collision.py": {
             "lines_hit": [120], "lines_missed": [], "branches_hit": [], "branches_missed": []}}}
-        result = replace(stored_result(closer["fitness"], "ok", min_clearance_m=0.90), differential=withdrawn(closer, ["autopilot/collision.py:L120"]),
+        result = replace(stored_result(closer["fitness"], "ok", min_clearance_m=0.90), differential=withdrawn(closer, ["autopilot/collision.py:L120"], [1]),
                          coverage=coverage)
         store.add_evaluation(run_id, ordinal=2, step=0, optimizer="RANDOM", vector=np.array([2.0]), result=result, concrete=None)
 
@@ -289,6 +289,38 @@ def test_a_stored_reveal_whose_subject_never_ran_the_mutated_line_is_withdrawn_w
     assert ran["reveals"] == "behaviour" and confirmation_never["reveals"] is None
     assert never["reveals"] is None and never["why"] == (f"the subject never ran autopilot/collision.py:L120, by its coverage: what differed "
                                                          f"({closer['why']}) is the SUT's own spread")
+
+
+def test_a_mutant_whose_sut_dies_in_the_changed_line_keeps_its_kill_though_its_coverage_says_it_never_ran_it(tmp_path, capsys):
+    # GIVEN a coverage build's search of mutant m0001 (line 120 a division by zero): its PX4 died
+    # in every flight where the original flew; gcov counts a block's lines as the block is left, so
+    # the record PX4 wrote on its way out says line 120 never ran, and the last version withdrew the
+    # unsafe reveal for it (marked without the flights' indices)
+    folder = tmp_path / "mutation"
+    store_path = folder / "search" / "m0001" / "wall-RANDOM.db"
+    store_path.parent.mkdir(parents=True)
+    died = Outcome(Status.SUT_CRASHED, PENALTY, None, 12.0, "px4 died of SIGFPE (Floating point exception)")
+    pair = record("difference", [died] * 3, [flight(Status.OK, 1.3)] * 3)
+    assert pair["reveals"] == "unsafe"
+    lines = ["autopilot/collision.py:L120"]
+    coverage = {"tool": "gcov", "sources": "", "files": {"autopilot/collision.py": {
+        "lines_hit": [119], "lines_missed": [120], "branches_hit": [], "branches_missed": []}}}
+    with Store(store_path) as store:
+        run_id, _ = store.run(store.campaign({"scenarios": ["wall.json"], "reference": {"sut": "px4"}, "confirm": 2}), "wall.json", "wall", "RANDOM", 0, 0)
+        result = replace(stored_result(PENALTY, "sut_crashed"), differential={**withdrawn(pair, lines, [0]), "missed_changed_lines": True}, coverage=coverage)
+        store.add_evaluation(run_id, ordinal=0, step=0, optimizer="RANDOM", vector=np.array([0.0]), result=result, concrete=None)
+    (folder / mutation.RUN).write_text(json.dumps({"screening": {}, "searching": {}, "mutants": {"m0001": {"state": "survived_suite"}}}))
+    mutant_index(folder)
+    # (a flight whose SUT died is not judged by its coverage; one that flew on is)
+    assert not missed(Status.SUT_CRASHED, coverage, lines) and missed(Status.OK, coverage, lines)
+
+    # WHEN the search is judged again
+    assert main(["mutants", "rejudge", str(folder)]) == 0
+
+    # THEN the kill is back
+    assert "1 stored verdict changed" in capsys.readouterr().out
+    with Store.existing(store_path) as store:
+        assert store.pairs()[0].differential["reveals"] == "unsafe"
 
 
 def test_a_differential_campaigns_store_is_judged_again_too(tmp_path, capsys):

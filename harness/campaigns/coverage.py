@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
+from harness.flight.fitness import Status
+
 
 @dataclass(frozen=True)
 class Flight:
@@ -235,11 +237,30 @@ def withdrawn_reveal(why: str, changed_lines: Sequence[str]) -> str:
     return f"the subject never ran {', '.join(changed_lines)}, by its coverage: what differed ({why}) is the SUT's own spread"
 
 
-def withdrawn(differential: Mapping[str, Any], changed_lines: Sequence[str]) -> dict[str, Any]:
-    """A pair's record with its reveal withdrawn, as a subject flight never ran the changed lines;
-    marked so, since only the first flight's coverage is stored and judging the pair again from
-    it alone would restore the reveal."""
-    return {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], changed_lines), "missed_changed_lines": True}
+def missed(status: str, coverage: Mapping[str, Any] | None, changed_lines: Sequence[str]) -> bool:
+    """Whether a flight ran none of the changed lines, by its coverage; never said of a flight
+    whose SUT died. gcov counts a block's lines as the block is left, so the line a process dies
+    in (a division by zero) counts as never run, and PX4 writes its counters on its way out of
+    its fault handler: the record of a crash would say the crash's own line never ran."""
+    return status != Status.SUT_CRASHED and never_ran(coverage, changed_lines)
+
+
+def withdrawn(differential: Mapping[str, Any], changed_lines: Sequence[str], flights: Sequence[int]) -> dict[str, Any]:
+    """A pair's record with its reveal withdrawn, as these subject flights (indices) never ran the
+    changed lines; marked with them, since only the first flight's coverage is stored and judging
+    the pair again from it alone would restore the reveal."""
+    return {**differential, "reveals": None, "why": withdrawn_reveal(differential["why"], changed_lines), "missed_changed_lines": list(flights)}
+
+
+def marked_missed(differential: Mapping[str, Any]) -> bool:
+    """Whether a stored pair was withdrawn as a subject flight of its that did not die never ran
+    the changed lines. (Marked before the indices were kept: unless every subject flight died,
+    which no longer counts.)"""
+    mark = differential.get("missed_changed_lines")
+    statuses = [flight["status"] for flight in differential["subject"]]
+    if mark is True:
+        return any(status != Status.SUT_CRASHED for status in statuses)
+    return any(statuses[index] != Status.SUT_CRASHED for index in mark or ())
 
 
 def code_reached(coverage: Mapping[str, Any] | None) -> frozenset[str]:

@@ -20,7 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
-from harness.campaigns.coverage import never_ran, withdrawn
+from harness.campaigns.coverage import missed, withdrawn
 from harness.campaigns.store import ReferenceFlightTable
 from harness.execution.executor import Executor, Job
 from harness.flight.differential import Outcome, compare, record
@@ -162,7 +162,7 @@ class PairedFlights:
                 references[job.name] = [Outcome.of(first[f"{job.name}-reference"])]
                 self._remember(keys[job.name], references[job.name])
         revealing = [job for job in jobs if compare([Outcome.of(subjects[job.name][0])], references[job.name]).reveals is not None
-                     and not never_ran(subjects[job.name][0].coverage, self.changed_lines)]
+                     and not missed(subjects[job.name][0].status, subjects[job.name][0].coverage, self.changed_lines)]
         if self.confirm and revealing:
             again = [replace(job, name=f"{job.name}-confirm{i}") for job in revealing for i in range(1, self.confirm + 1)]
             again += [self._reference_job(job, i) for job in revealing for i in range(1, self.confirm + 1)]
@@ -175,8 +175,9 @@ class PairedFlights:
         for job in jobs:
             flights = subjects[job.name]
             differential = record(self.objective, [Outcome.of(r) for r in flights], references[job.name])
-            if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in flights):
-                differential = withdrawn(differential, self.changed_lines)
+            missing = [index for index, flight in enumerate(flights) if missed(flight.status, flight.coverage, self.changed_lines)]
+            if differential["reveals"] and missing:
+                differential = withdrawn(differential, self.changed_lines, missing)
             yield job, replace(flights[0], fitness=differential["fitness"], differential=differential)
 
     def again(self, job: Job, subject: Sequence[Outcome], reference: Sequence[Outcome], more: int) -> dict[str, Any]:
@@ -187,8 +188,9 @@ class PairedFlights:
         flown = self._fly(subject_jobs + reference_jobs)
         new_subject = [flown[j.name] for j in subject_jobs]
         differential = record(self.objective, [*subject, *map(Outcome.of, new_subject)], [*reference, *(Outcome.of(flown[j.name]) for j in reference_jobs)])
-        if differential["reveals"] and any(never_ran(flight.coverage, self.changed_lines) for flight in new_subject):
-            differential = withdrawn(differential, self.changed_lines)
+        missing = [len(subject) + index for index, flight in enumerate(new_subject) if missed(flight.status, flight.coverage, self.changed_lines)]
+        if differential["reveals"] and missing:
+            differential = withdrawn(differential, self.changed_lines, missing)
         return differential
 
     def _remember(self, key: str, outcomes: list[Outcome]) -> None:

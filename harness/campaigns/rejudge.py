@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
-from harness.campaigns.coverage import never_ran, withdrawn_reveal
+from harness.campaigns.coverage import marked_missed, missed, withdrawn_reveal
 from harness.campaigns.pairs import ReferenceCache
 from harness.campaigns.store import Store
 from harness.errors import InputError, Problem
@@ -101,7 +101,7 @@ def rejudge(store: Store, logs_gone: set[str], changed_lines: Sequence[str] = ()
         subject = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["subject"]]
         reference = [_completed(Outcome.from_dict(o), logs_gone) for o in pair["reference"]]
         verdict = compare(subject, reference)
-        if verdict.reveals and (pair.get("missed_changed_lines") or never_ran(evaluation.coverage, changed_lines)):
+        if verdict.reveals and (marked_missed(pair) or missed(evaluation.status, evaluation.coverage, changed_lines)):
             verdict = replace(verdict, reveals=None, why=withdrawn_reveal(verdict.why, changed_lines))
         after = str(verdict.reveals) if verdict.reveals else None
         sides = {"subject": [o.as_dict() for o in subject], "reference": [o.as_dict() for o in reference]}
